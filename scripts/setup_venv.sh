@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Create or reuse the virtual environment .venv in the repository root and install humimic.
+# torch is pinned in the same pip command as rsl-rl-lib: pip then takes the CPU wheel
+# (torch==2.13.0) instead of pulling a multi-GB CUDA build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-}
+if [ -z "$PY" ]; then
+  for cand in python3.11 python3.12 python3.13 python3; do
+    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+      PY=$cand; break
+    fi
+  done
+fi
+[ -n "$PY" ] || { echo "setup: Python >= 3.11 is required" >&2; exit 2; }
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv with $PY"
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.humimic-install-stamp
+want=$(cat pyproject.toml scripts/setup_venv.sh | sha256sum | cut -d' ' -f1)
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && .venv/bin/python -c 'import humimic' 2>/dev/null; then
+  exit 0
+fi
+echo "setup: installing dependencies into .venv (first run takes a few minutes)"
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q "torch==2.13.0" "rsl-rl-lib==5.5.1" -e ".[dev]"
+echo "$want" > "$stamp"

@@ -1,0 +1,1 @@
+"""The ``humimic`` command line."""

@@ -1,0 +1,67 @@
+"""Kinematic retargeting configuration."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, kw_only=True)
+class RetargetConfig:
+    """Settings of the kinematic (mink IK) retargeter.
+
+    Attributes:
+        fps: Output frame rate; the human clip is resampled to it before IK.
+        solver: QP solver passed to qpsolvers (``daqp`` is the fastest here).
+        damping: Levenberg-Marquardt damping of the IK QP.
+        stage1_iters: Most iterations of the orientation-led first stage, per frame.
+        stage2_iters: Most iterations of the position stage, per frame.
+        first_frame_iters: Iteration budget multiplier for the first frame (cold start).
+        tol: Stop a stage when the weighted task error improves by less than this fraction.
+        stage1_position_scale: Position costs in stage 1, relative to stage 2.
+        stage2_orientation_scale: Orientation costs in stage 2, relative to stage 1.
+        contact_height: A human foot point lower than this above the measured ground [m] may
+            be in contact.
+        contact_speed: ...and slower than this horizontally [m/s].
+        contact_min_frames: Shorter contact runs are dropped.
+        contact_weight_scale: Foot position costs are multiplied by this in contact.
+        foot_orientation_weight: Foot orientation cost (per radian) in swing.
+        foot_contact_orientation_weight: Foot orientation cost while flat on the ground.
+        floor_limit: Keep the feet's contact points above the floor (a hard limit).
+        velocity_limit_scale: Joint speed limits = this times the motors' limits (0 disables).
+        self_collision: Keep the robot's self-collision pairs apart (a hard limit).
+        collision_margin: Minimum distance kept between self-collision pairs [m].
+        collision_detection: Pairs closer than this are constrained [m].
+        collision_gain: Fraction of the remaining gap a pair may close per iteration.
+    """
+
+    fps: float = 50.0
+    solver: str = "daqp"
+    damping: float = 1e-3
+    stage1_iters: int = 1
+    stage2_iters: int = 4
+    first_frame_iters: int = 10
+    tol: float = 5e-2
+    stage1_position_scale: float = 0.1
+    stage2_orientation_scale: float = 0.5
+    contact_height: float = 0.05
+    contact_speed: float = 0.5
+    contact_min_frames: int = 2
+    contact_weight_scale: float = 3.0
+    foot_orientation_weight: float = 1.0
+    foot_contact_orientation_weight: float = 10.0
+    floor_limit: bool = True
+    velocity_limit_scale: float = 1.0
+    self_collision: bool = True
+    collision_margin: float = 0.01
+    collision_detection: float = 0.04
+    collision_gain: float = 0.85
+
+
+def retarget_default() -> RetargetConfig:
+    """Default: 50 fps output, two IK stages, floor, self-collision and speed limits on."""
+    return RetargetConfig()
+
+
+def retarget_fast() -> RetargetConfig:
+    """Fewer iterations per frame, for previews."""
+    return RetargetConfig(stage1_iters=1, stage2_iters=2, first_frame_iters=5)

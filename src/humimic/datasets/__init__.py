@@ -1,0 +1,65 @@
+"""Human motion in: BVH files, arrays of joint positions, and run-time fetched public clips.
+
+Every loader returns a :class:`HumanClip` (z up, metres, quaternions wxyz).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from humimic.datasets.bvh import load_bvh
+from humimic.datasets.clip import HumanClip, estimate_height
+from humimic.datasets.fetch import (
+    climb_clip_paths,
+    extract_climb_from_wheel,
+    fetch_holosoma_climb,
+    find_climb_data,
+)
+from humimic.datasets.positions import HOLOSOMA_JOINTS, HOLOSOMA_PARENTS, load_positions
+from humimic.errors import InputError
+
+__all__ = [
+    "HOLOSOMA_JOINTS",
+    "HOLOSOMA_PARENTS",
+    "SUPPORTED_SUFFIXES",
+    "HumanClip",
+    "climb_clip_paths",
+    "estimate_height",
+    "extract_climb_from_wheel",
+    "fetch_holosoma_climb",
+    "find_climb_data",
+    "load_bvh",
+    "load_clip",
+    "load_positions",
+]
+
+SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".npy", ".npz")
+"""File suffixes :func:`load_clip` reads."""
+
+
+def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
+    """Load a human motion clip, choosing the loader from the file suffix.
+
+    Args:
+        path: A ``.bvh`` (:func:`load_bvh`), ``.npy`` or ``.npz`` (:func:`load_positions`) file.
+        **kw: Keyword arguments for that loader.
+
+    Returns:
+        The clip.
+
+    Raises:
+        InputError: Unsupported suffix (the message names the path and the supported ones), or
+            any error of the loader.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".bvh":
+        return load_bvh(p, **kw)
+    if suffix in (".npy", ".npz"):
+        return load_positions(p, **kw)
+    raise InputError(
+        f"{p}: unsupported motion file type {p.suffix or '(no suffix)'!r}; supported: "
+        f"{', '.join(SUPPORTED_SUFFIXES)}"
+    )

@@ -1,0 +1,50 @@
+"""Atomic file writes: an interrupted run never leaves a half file that looks whole."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from humimic.errors import OutputPathError
+
+
+def check_writable(path: str | os.PathLike[str]) -> Path:
+    """Fail early, before any work, when ``path`` cannot be written.
+
+    Creates missing parent folders. Raises :class:`OutputPathError` naming the path.
+    """
+    p = Path(path)
+    if p.exists() and p.is_dir():
+        raise OutputPathError(f"{p}: is a folder, expected a file path")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputPathError(f"{p}: cannot create folder {p.parent}: {e.strerror}") from e
+    if not os.access(p.parent, os.W_OK):
+        raise OutputPathError(f"{p}: folder {p.parent} is not writable")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]:
+    """Open a temporary file beside ``path``; rename it over ``path`` only on success."""
+    p = check_writable(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, mode) as f:
+            yield f
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
+    with atomic_write(path, "w") as f:
+        f.write(text)

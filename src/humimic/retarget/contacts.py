@@ -1,0 +1,51 @@
+"""Foot contact detection on human key-point trajectories. Pure numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def detect_contacts(
+    heights: np.ndarray,
+    xy: np.ndarray,
+    fps: float,
+    *,
+    max_height: float,
+    max_speed: float,
+    min_frames: int = 2,
+) -> np.ndarray:
+    """Frames in which a point rests on the ground: low and (horizontally) slow.
+
+    Args:
+        heights: Height of the point above the ground [m]. Shape: (T,).
+        xy: Horizontal position [m]. Shape: (T, 2).
+        fps: Frames per second.
+        max_height: Contact needs a height below this.
+        max_speed: ...and a horizontal speed below this [m/s].
+        min_frames: Runs shorter than this are dropped; gaps of one frame inside a contact are
+            filled.
+
+    Returns:
+        Contact flags. Shape: (T,), dtype bool.
+    """
+    n = heights.shape[0]
+    if n < 2:
+        return heights < max_height
+    speed = np.linalg.norm(np.gradient(xy, axis=0), axis=-1) * fps
+    c = (heights < max_height) & (speed < max_speed)
+    # Fill one-frame holes, then drop short runs.
+    hole = ~c[1:-1] & c[:-2] & c[2:]
+    c[1:-1] |= hole
+    for start, stop in runs(c):
+        if stop - start < min_frames:
+            c[start:stop] = False
+    return c
+
+
+def runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, stop)`` index pairs of the runs of True in a boolean array."""
+    f = np.concatenate([[False], np.asarray(flags, dtype=bool), [False]])
+    d = np.diff(f.astype(np.int8))
+    starts = np.flatnonzero(d == 1)
+    stops = np.flatnonzero(d == -1)
+    return list(zip(starts.tolist(), stops.tolist(), strict=True))

@@ -1,0 +1,132 @@
+"""IK limits in mink's contract (``compute_qp_inequalities``)."""
+
+from __future__ import annotations
+
+import mink
+import mujoco
+import numpy as np
+from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
+from mink.limits.limit import Constraint
+
+
+def foot_contact_points(
+    model: mujoco.MjModel, bodies: list[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Contact points of the collision geoms of the given bodies.
+
+    Spheres give their centre and radius; boxes their eight corners; capsules and cylinders
+    the centres of their end caps with their radius.
+
+    Returns:
+        body ids (N,), points in the body frame (N, 3), radii (N,).
+    """
+    ids, pts, rad = [], [], []
+    for name in bodies:
+        b = model.body(name).id
+        for g in range(model.ngeom):
+            if model.geom_bodyid[g] != b or (
+                model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
+            ):
+                continue
+            t = model.geom_type[g]
+            size = model.geom_size[g]
+            pos = model.geom_pos[g]
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+            rot = rot.reshape(3, 3)
+            if t == mujoco.mjtGeom.mjGEOM_SPHERE:
+                local, r = [np.zeros(3)], size[0]
+            elif t == mujoco.mjtGeom.mjGEOM_BOX:
+                signs = np.array(
+                    [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+                )
+                local, r = list(signs * size[:3]), 0.0
+            elif t in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER):
+                local, r = [np.array([0, 0, -size[1]]), np.array([0, 0, size[1]])], size[0]
+            else:
+                continue
+            for p in local:
+                ids.append(b)
+                pts.append(pos + rot @ p)
+                rad.append(r)
+    if not ids:
+        raise ValueError(f"bodies {bodies} have no sphere, box or capsule collision geoms")
+    return np.array(ids), np.array(pts), np.array(rad)
+
+
+def contact_point_heights(
+    data: mujoco.MjData, ids: np.ndarray, pts: np.ndarray, rad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World positions of contact points and the heights of their lowest points.
+
+    Returns:
+        positions (N, 3), bottom heights (N,).
+    """
+    world = data.xpos[ids] + np.einsum("nij,nj->ni", data.xmat[ids].reshape(-1, 3, 3), pts)
+    return world, world[:, 2] - rad
+
+
+class FloorLimit(mink.Limit):
+    """Keep contact points on or above the floor plane ``z = height``: a hard limit.
+
+    Linearized as ``z_i + J_z,i dq >= height`` for every point ``i``, i.e.
+    ``-J_z,i dq <= z_i - height``, exact to first order.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        bodies: list[str],
+        height: float = 0.0,
+    ) -> None:
+        self.model = model
+        self.height = height
+        self.ids, self.pts, self.rad = foot_contact_points(model, bodies)
+        self._jac = np.zeros((3, model.nv))
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
+        del dt  # A position limit.
+        data = configuration.data
+        world, bottom = contact_point_heights(data, self.ids, self.pts, self.rad)
+        G = np.zeros((len(self.ids), self.model.nv))
+        for i, (b, p) in enumerate(zip(self.ids, world, strict=True)):
+            mujoco.mj_jac(self.model, data, self._jac, None, p, int(b))
+            G[i] = -self._jac[2]
+        return Constraint(G=G, h=bottom - self.height)
+
+
+class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
+    """mink's collision avoidance, changed to also push penetrating pairs apart.
+
+    mink lets a pair closer than the minimum distance keep its distance (bound 0), so the
+    linearization error of successive iterations can accumulate into penetration. Here the
+    bound stays ``gain * (d - d_min)`` when negative: the QP must restore the margin.
+    Called with ``dt = 1`` (displacements), the bound is in metres.
+    """
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
+        model = self.model
+        data = configuration.data
+        h = np.full((self.max_num_contacts,), np.inf)
+        G = np.zeros((self.max_num_contacts, model.nv))
+        indices = (
+            self._broadphase_survivors(data)
+            if self.broadphase and self.max_num_contacts >= 16
+            else range(self.max_num_contacts)
+        )
+        fromto = self._fromto
+        for idx in indices:
+            g1, g2 = self.geom_id_pairs[idx]
+            dist = mujoco.mj_geomDistance(
+                model, data, g1, g2, self.collision_detection_distance, fromto
+            )
+            if abs(dist - self.collision_detection_distance) < 1e-12:
+                continue
+            row = compute_contact_normal_jacobian(
+                model, data, g1, g2, fromto, self._normal, self._jac1, self._jac2
+            )
+            sign = -1.0 if dist >= 0 else 1.0
+            G[idx] = sign * row
+            # For a penetrating pair the witness normal flips, hence the sign on G.
+            h[idx] = self.gain * (dist - self.minimum_distance_from_collisions) / dt
+        return Constraint(G=G, h=h)

@@ -1,0 +1,138 @@
+"""Quality metrics of a retargeted motion, measured with MuJoCo on the robot model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from humimic.retarget.limits import contact_point_heights, foot_contact_points
+
+CONTACT_HEIGHT = 0.010
+"""A foot contact point touches the ground when its lowest point is below this [m]."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class QualityReport:
+    """Numbers that say how good a retargeted motion is. Lengths in mm, times in s.
+
+    Attributes:
+        keypoint_error_mm_mean: Mean distance of robot key points to the scaled human ones.
+        keypoint_error_mm_p95: Its 95th percentile.
+        foot_skating_mm_per_s: Mean horizontal speed of foot contact points while they touch
+            the ground (lowest point below 10 mm in two consecutive frames).
+        foot_contact_frames: Share of frames in which some foot point touches the ground.
+        max_ground_penetration_mm: Deepest penetration of any robot collision geom into the floor.
+        median_lowest_foot_mm: Median over frames of the lowest foot point's height.
+        joint_limit_violations: (frame, joint) pairs outside the joint range.
+        self_collision_frames: Frames in which a self-collision pair penetrates deeper than 1 mm.
+        max_self_penetration_mm: Deepest penetration among the self-collision pairs.
+        mean_joint_jerk: Mean absolute third derivative of the joint angles [rad/s^3].
+    """
+
+    keypoint_error_mm_mean: float
+    keypoint_error_mm_p95: float
+    foot_skating_mm_per_s: float
+    foot_contact_frames: float
+    max_ground_penetration_mm: float
+    median_lowest_foot_mm: float
+    joint_limit_violations: int
+    self_collision_frames: int
+    max_self_penetration_mm: float
+    mean_joint_jerk: float
+
+
+def evaluate(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    fps: float,
+    *,
+    keypoint_sites: list[str],
+    keypoint_targets: np.ndarray,
+    foot_bodies: list[str],
+    self_collision: list[tuple[list[int], list[int]]],
+    floor_geom: str = "floor",
+) -> QualityReport:
+    """Measure a motion.
+
+    Args:
+        model: Robot model with key point sites and a floor.
+        qpos: Configurations. Shape: (T, nq).
+        fps: Frame rate.
+        keypoint_sites: Site names of the key points, in target order.
+        keypoint_targets: Scaled human key points. Shape: (T, K, 3).
+        foot_bodies: Foot bodies (their collision geoms give the contact points).
+        self_collision: Geom-id groups that must not interpenetrate.
+        floor_geom: Name of the floor geom.
+    """
+    data = mujoco.MjData(model)
+    T = qpos.shape[0]
+    site_ids = np.array([model.site(s).id for s in keypoint_sites])
+    ids, pts, rad = foot_contact_points(model, foot_bodies)
+    floor = model.geom(floor_geom).id
+    robot_geoms = [
+        g
+        for g in range(model.ngeom)
+        if g != floor
+        and model.geom_bodyid[g] != 0
+        and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
+    ]
+    pairs = [(a, b) for ga, gb in self_collision for a in ga for b in gb]
+    pair_a = np.array([p[0] for p in pairs], dtype=int)
+    pair_b = np.array([p[1] for p in pairs], dtype=int)
+    fromto = np.zeros(6)
+
+    kp_err = np.zeros((T, len(site_ids)))
+    foot_xy = np.zeros((T, len(ids), 2))
+    foot_bottom = np.zeros((T, len(ids)))
+    ground_pen = np.zeros(T)
+    self_pen = np.zeros(T)
+    for t in range(T):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(model, data)
+        kp_err[t] = np.linalg.norm(data.site_xpos[site_ids] - keypoint_targets[t], axis=-1)
+        world, bottom = contact_point_heights(data, ids, pts, rad)
+        foot_xy[t] = world[:, :2]
+        foot_bottom[t] = bottom
+        pen = 0.0
+        for g in robot_geoms:
+            if data.geom_xpos[g, 2] - model.geom_rbound[g] > 0.0:
+                continue  # Its bounding sphere is above the floor.
+            d = mujoco.mj_geomDistance(model, data, floor, g, 0.01, fromto)
+            pen = max(pen, -d)
+        ground_pen[t] = pen
+        if len(pairs):
+            diff = data.geom_xpos[pair_a] - data.geom_xpos[pair_b]
+            near = (
+                np.einsum("ij,ij->i", diff, diff)
+                <= (model.geom_rbound[pair_a] + model.geom_rbound[pair_b]) ** 2
+            )
+            worst = 0.0
+            for a, b in zip(pair_a[near], pair_b[near], strict=True):
+                d = mujoco.mj_geomDistance(model, data, int(a), int(b), 0.01, fromto)
+                worst = max(worst, -d)
+            self_pen[t] = worst
+
+    touching = foot_bottom < CONTACT_HEIGHT
+    both = touching[1:] & touching[:-1]
+    speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
+    skating = float(speed[both].mean()) if both.any() else 0.0
+
+    joints = qpos[:, 7:]
+    lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
+    violations = int(np.sum((joints < lo - 1e-6) | (joints > hi + 1e-6)))
+    jerk = np.diff(joints, n=3, axis=0) * fps**3 if T > 3 else np.zeros((1, joints.shape[1]))
+
+    return QualityReport(
+        keypoint_error_mm_mean=float(kp_err.mean() * 1e3),
+        keypoint_error_mm_p95=float(np.percentile(kp_err, 95) * 1e3),
+        foot_skating_mm_per_s=skating * 1e3,
+        foot_contact_frames=float(touching.any(axis=1).mean()),
+        max_ground_penetration_mm=float(ground_pen.max() * 1e3),
+        median_lowest_foot_mm=float(np.median(foot_bottom.min(axis=1)) * 1e3),
+        joint_limit_violations=violations,
+        self_collision_frames=int(np.sum(self_pen > 1e-3)),
+        max_self_penetration_mm=float(self_pen.max() * 1e3),
+        mean_joint_jerk=float(np.abs(jerk).mean()),
+    )

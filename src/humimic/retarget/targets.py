@@ -1,0 +1,225 @@
+"""Turn a human clip into robot-sized IK targets. Pure numpy: no simulator imports.
+
+Steps (all documented in docs/retargeting.md):
+
+1. Key points and derived frames are read from the human clip.
+2. Heading: the clip is turned about z so that the first frame's pelvis faces +x, and shifted
+   so that the first frame's pelvis is above the origin.
+3. Ground: the human ground height is measured from the data as a low percentile of the
+   lowest foot point per frame (never a hard-coded offset).
+4. Scale per segment: the root moves by the ratio of robot to human leg length; every other
+   key point hangs from its parent along the human bone direction with the robot's own bone
+   length, or, for points rigid on a body (hips on the pelvis, shoulders on the chest), at the
+   robot's offset rotated by the human's derived frame.
+5. Feet: contacts are detected on the human; a planted heel or toe keeps one fixed position
+   for the whole contact, at the robot's standing height; a foot flat on the ground gets a
+   flat orientation target.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from humimic.configs.retarget import RetargetConfig
+from humimic.datasets.clip import HumanClip, estimate_height
+from humimic.retarget.contacts import detect_contacts, runs
+from humimic.robots.maps import RetargetMap
+from humimic.transforms import axis_angle_matrix, frame_from_left_up
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobotGeometry:
+    """The robot measured in its zero pose with the soles on the floor (z = 0).
+
+    Attributes:
+        keypoints: Key point positions, in map order. Shape: (K, 3).
+        frame_body_rot: World rotation of each frame's body. Shape: (F, 3, 3).
+        foot_body_rot: World rotation of each foot body, in map ``feet`` order. Shape: (2, 3, 3).
+    """
+
+    keypoints: np.ndarray
+    frame_body_rot: np.ndarray
+    foot_body_rot: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class Targets:
+    """IK targets for every output frame.
+
+    Attributes:
+        positions: Key point targets after contact handling. Shape: (T, K, 3).
+        scaled: Key point targets before contact handling: the scaled human. Shape: (T, K, 3).
+        position_weights: Position cost per key point and frame. Shape: (T, K).
+        frame_rots: Body orientation targets of the map's frames. Shape: (T, F, 3, 3).
+        foot_rots: Foot body orientation targets. Shape: (T, 2, 3, 3).
+        foot_weights: Foot orientation costs. Shape: (T, 2).
+        contacts: Human contact flags per foot and point (ankle, toe). Shape: (T, 2, 2).
+        scale: Root (leg-length) scale factor robot/human.
+        human_ground: Measured human ground height [m], in the clip's frame.
+        human_height: Estimated performer height [m].
+        fps: Frame rate.
+    """
+
+    positions: np.ndarray
+    scaled: np.ndarray
+    position_weights: np.ndarray
+    frame_rots: np.ndarray
+    foot_rots: np.ndarray
+    foot_weights: np.ndarray
+    contacts: np.ndarray
+    scale: float
+    human_ground: float
+    human_height: float
+    fps: float
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, 1e-9)
+
+
+def _derived_frames(p: np.ndarray, m: RetargetMap, names: list[str]) -> np.ndarray:
+    """Frames from key points. p: (..., K, 3) -> (..., F, 3, 3)."""
+    idx = {n: i for i, n in enumerate(names)}
+    out = []
+    for fr in m.frames.values():
+        left = p[..., idx[fr.left[1]], :] - p[..., idx[fr.left[0]], :]
+        up = p[..., idx[fr.up[1]], :] - p[..., idx[fr.up[0]], :]
+        out.append(frame_from_left_up(left, up))
+    return np.stack(out, axis=-3) if out else np.zeros((*p.shape[:-2], 0, 3, 3))
+
+
+def build_targets(
+    clip: HumanClip, m: RetargetMap, robot: RobotGeometry, cfg: RetargetConfig
+) -> Targets:
+    """Build robot IK targets from a human clip (already at the output frame rate)."""
+    names = list(m.keypoints)
+    idx = {n: i for i, n in enumerate(names)}
+    kps = list(m.keypoints.values())
+    human = np.stack([clip.position(kp.human) for kp in kps], axis=1)  # (T, K, 3)
+    T = human.shape[0]
+
+    # Heading and origin from the first frame.
+    frames_h = _derived_frames(human, m, names)  # (T, F, 3, 3)
+    root = idx[m.root]
+    if m.frames:
+        fwd = frames_h[0, 0, :, 0]
+        yaw0 = float(np.arctan2(fwd[1], fwd[0]))
+    else:
+        yaw0 = 0.0
+    rot = axis_angle_matrix("z", np.asarray(-yaw0))
+    origin = human[0, root].copy()
+    origin[2] = 0.0
+    human = (human - origin) @ rot.T
+    frames_h = np.einsum("ij,tfjk->tfik", rot, frames_h)
+
+    # Ground: the lowest foot point, robustly over the clip.
+    foot_pts = [idx[f.ankle] for f in m.feet.values()] + [idx[f.toe] for f in m.feet.values()]
+    if foot_pts:
+        lowest = human[:, foot_pts, 2].min(axis=1)
+        ground = float(np.percentile(lowest, 1.0))
+    else:
+        ground = float(np.percentile(human[:, :, 2].min(axis=1), 1.0))
+
+    # Bone lengths: robot from its zero pose, human as medians over the clip.
+    def bone(p: np.ndarray, a: int, b: int) -> np.ndarray:
+        return np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
+
+    leg_h, leg_r = [], []
+    for foot in m.feet.values():
+        knee = m.keypoints[foot.ankle].parent
+        hip = m.keypoints[knee].parent if knee else None
+        if knee and hip:
+            a, k, h = idx[foot.ankle], idx[knee], idx[hip]
+            leg_h.append(np.median(bone(human, a, k)) + np.median(bone(human, k, h)))
+            leg_r.append(bone(robot.keypoints, a, k) + bone(robot.keypoints, k, h))
+    scale = float(np.mean(leg_r) / np.mean(leg_h)) if leg_h else 1.0
+
+    # Robot-frame offsets measured in the zero pose.
+    frame_names = list(m.frames)
+    frames_r = _derived_frames(robot.keypoints, m, names)  # (F, 3, 3)
+    body_offsets = np.einsum("fji,fjk->fik", frames_r, robot.frame_body_rot)  # R_fr^T R_body
+
+    pos = np.zeros_like(human)
+    pos[:, root, :2] = scale * human[:, root, :2]
+    pos[:, root, 2] = scale * (human[:, root, 2] - ground)
+    for k, (name, kp) in enumerate(m.keypoints.items()):
+        if kp.parent is None:
+            continue
+        par = idx[kp.parent]
+        if kp.frame is not None:
+            f = frame_names.index(kp.frame)
+            local = frames_r[f].T @ (robot.keypoints[k] - robot.keypoints[par])
+            pos[:, k] = pos[:, par] + frames_h[:, f] @ local
+        else:
+            length = bone(robot.keypoints, k, par)
+            pos[:, k] = pos[:, par] + length * _unit(human[:, k] - human[:, par])
+        del name
+    frame_rots = np.einsum("tfij,fjk->tfik", frames_h, body_offsets)
+
+    # Contacts on the human, per foot point (ankle, toe).
+    sides = list(m.feet.values())
+    contacts = np.zeros((T, len(sides), 2), dtype=bool)
+    for s, foot in enumerate(sides):
+        for j, key in enumerate((foot.ankle, foot.toe)):
+            z = human[:, idx[key], 2]
+            rest = np.percentile(z, 2.0)  # The point's height when planted.
+            contacts[:, s, j] = detect_contacts(
+                z - rest,
+                human[:, idx[key], :2],
+                clip.fps,
+                max_height=cfg.contact_height,
+                max_speed=cfg.contact_speed,
+                min_frames=cfg.contact_min_frames,
+            )
+
+    # Vertical calibration: planted toes at the robot's standing toe height.
+    toe_idx = [idx[f.toe] for f in sides]
+    if toe_idx:
+        toe_z = pos[:, toe_idx, 2]
+        planted = contacts[:, :, 1]
+        ref = np.median(toe_z[planted]) if planted.any() else np.percentile(toe_z.min(axis=1), 1)
+        dz = float(robot.keypoints[toe_idx, 2].mean() - ref)
+        pos[:, :, 2] += dz
+    scaled = pos.copy()
+
+    # Planted points keep one position for the whole contact, at standing height.
+    weights = np.tile(np.array([kp.weight for kp in kps]), (T, 1))
+    foot_rots = np.zeros((T, len(sides), 3, 3))
+    foot_weights = np.full((T, len(sides)), cfg.foot_orientation_weight)
+    for s, foot in enumerate(sides):
+        a, t_ = idx[foot.ankle], idx[foot.toe]
+        d = human[:, t_] - human[:, a]
+        yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=-1))
+        both = contacts[:, s, 0] & contacts[:, s, 1]
+        flat_pitch = float(np.median(pitch[both])) if both.any() else float(np.max(pitch))
+        for j, key in enumerate((a, t_)):
+            for start, stop in runs(contacts[:, s, j]):
+                pos[start:stop, key, :2] = pos[start:stop, key, :2].mean(axis=0)
+                pos[start:stop, key, 2] = robot.keypoints[key, 2]
+                weights[start:stop, key] *= cfg.contact_weight_scale
+        pitch_rel = flat_pitch - pitch
+        for start, stop in runs(both):
+            pitch_rel[start:stop] = 0.0
+            yaw[start:stop] = yaw[start:stop].mean()
+            foot_weights[start:stop, s] = cfg.foot_contact_orientation_weight
+        foot_rots[:, s] = (
+            axis_angle_matrix("z", yaw) @ axis_angle_matrix("y", pitch_rel) @ robot.foot_body_rot[s]
+        )
+
+    return Targets(
+        positions=pos,
+        scaled=scaled,
+        position_weights=weights,
+        frame_rots=frame_rots,
+        foot_rots=foot_rots,
+        foot_weights=foot_weights,
+        contacts=contacts,
+        scale=scale,
+        human_ground=ground,
+        human_height=estimate_height(clip),
+        fps=clip.fps,
+    )

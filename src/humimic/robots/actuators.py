@@ -1,0 +1,137 @@
+"""Actuator models: PD position servos with explicit gains, effort limits and armature.
+
+The recipe (after BeyondMimic and mjlab) derives the gains from the reflected rotor inertia
+(armature) ``I`` of each motor so that every joint servo behaves like a second-order system with
+the same natural frequency ``wn`` and damping ratio ``zeta`` about its own rotor:
+
+    kp = I * wn**2
+    kd = 2 * zeta * I * wn
+
+Two motors driving one joint through a linkage (the G1's ankles and waist roll/pitch) double the
+armature and the effort limit. Pure data: no simulator imports.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+from humimic.errors import UnknownNameError
+
+
+@dataclass(frozen=True, kw_only=True)
+class MotorSpec:
+    """One motor (or motor group) as seen from the joint it drives.
+
+    Attributes:
+        armature: Reflected rotor inertia at the joint [kg m^2].
+        effort_limit: Peak torque at the joint [N m].
+        velocity_limit: Maximum joint speed [rad/s].
+    """
+
+    armature: float
+    effort_limit: float
+    velocity_limit: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointActuator:
+    """The resolved servo of one joint: what the simulator gets, with every number explicit."""
+
+    joint: str
+    kp: float
+    kd: float
+    effort_limit: float
+    armature: float
+    velocity_limit: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class ActuatorRecipe:
+    """Rotor-inertia gain recipe.
+
+    Attributes:
+        motors: Joint-name regular expression -> motor. Every actuated joint must match
+            exactly one pattern.
+        natural_frequency_hz: Servo natural frequency.
+        damping_ratio: Servo damping ratio.
+    """
+
+    motors: dict[str, MotorSpec]
+    natural_frequency_hz: float = 10.0
+    damping_ratio: float = 2.0
+
+    def resolve(self, joint_names: list[str]) -> dict[str, JointActuator]:
+        """Resolve one :class:`JointActuator` per joint name.
+
+        Raises:
+            UnknownNameError: If a joint matches no pattern or several.
+        """
+        wn = 2.0 * math.pi * self.natural_frequency_hz
+        out: dict[str, JointActuator] = {}
+        for joint in joint_names:
+            hits = [p for p in self.motors if re.fullmatch(p, joint)]
+            if len(hits) != 1:
+                what = "no motor pattern" if not hits else f"several motor patterns {hits}"
+                raise UnknownNameError(f"joint {joint!r} matches {what}")
+            m = self.motors[hits[0]]
+            # Six significant digits: the numbers survive an MJCF round trip exactly.
+            out[joint] = JointActuator(
+                joint=joint,
+                kp=float(f"{m.armature * wn**2:.6g}"),
+                kd=float(f"{2.0 * self.damping_ratio * m.armature * wn:.6g}"),
+                effort_limit=m.effort_limit,
+                armature=float(f"{m.armature:.6g}"),
+                velocity_limit=m.velocity_limit,
+            )
+        return out
+
+
+# Unitree motors, reflected rotor inertia from the gear train (BeyondMimic, mjlab).
+G1_MOTOR_5020 = MotorSpec(armature=0.003609725, effort_limit=25.0, velocity_limit=37.0)
+G1_MOTOR_7520_14 = MotorSpec(armature=0.010177520, effort_limit=88.0, velocity_limit=32.0)
+G1_MOTOR_7520_22 = MotorSpec(armature=0.025101925, effort_limit=139.0, velocity_limit=20.0)
+G1_MOTOR_4010 = MotorSpec(armature=0.00425, effort_limit=5.0, velocity_limit=22.0)
+G1_MOTOR_2X5020 = MotorSpec(armature=2 * 0.003609725, effort_limit=50.0, velocity_limit=37.0)
+
+
+def g1_actuators() -> ActuatorRecipe:
+    """Unitree G1 (29 DoF): motor per joint, 10 Hz natural frequency, damping ratio 2."""
+    return ActuatorRecipe(
+        motors={
+            r".*_hip_(pitch|yaw)_joint|waist_yaw_joint": G1_MOTOR_7520_14,
+            r".*_hip_roll_joint|.*_knee_joint": G1_MOTOR_7520_22,
+            r".*_ankle_(pitch|roll)_joint|waist_(roll|pitch)_joint": G1_MOTOR_2X5020,
+            r".*_shoulder_(pitch|roll|yaw)_joint|.*_elbow_joint|.*_wrist_roll_joint": G1_MOTOR_5020,
+            r".*_wrist_(pitch|yaw)_joint": G1_MOTOR_4010,
+        }
+    )
+
+
+def t1_actuators() -> ActuatorRecipe:
+    """Booster T1 (23 DoF).
+
+    Booster publishes no rotor inertias; these armatures are chosen so that the recipe gives
+    gains near the vendor's MuJoCo model (kp 75 on the legs) and the effort limits are the model's.
+    """
+    leg = MotorSpec(armature=0.019, effort_limit=60.0, velocity_limit=12.0)
+    hip = MotorSpec(armature=0.019, effort_limit=45.0, velocity_limit=12.0)
+    hip_ry = MotorSpec(armature=0.012, effort_limit=30.0, velocity_limit=12.0)
+    ankle_p = MotorSpec(armature=0.008, effort_limit=20.0, velocity_limit=12.0)
+    ankle_r = MotorSpec(armature=0.006, effort_limit=15.0, velocity_limit=12.0)
+    arm = MotorSpec(armature=0.005, effort_limit=18.0, velocity_limit=12.0)
+    head = MotorSpec(armature=0.002, effort_limit=7.0, velocity_limit=12.0)
+    waist = MotorSpec(armature=0.012, effort_limit=30.0, velocity_limit=12.0)
+    return ActuatorRecipe(
+        motors={
+            r".*_Knee_Pitch": leg,
+            r".*_Hip_Pitch": hip,
+            r".*_Hip_(Roll|Yaw)": hip_ry,
+            r".*_Ankle_Pitch": ankle_p,
+            r".*_Ankle_Roll": ankle_r,
+            r".*_(Shoulder|Elbow)_.*": arm,
+            r"AAHead_yaw|Head_pitch": head,
+            r"Waist": waist,
+        }
+    )

@@ -1,0 +1,213 @@
+"""Human-to-robot maps: typed, validated data, one YAML file per skeleton/robot pair.
+
+A map names, for each key point, the human joint and the robot point (a body origin plus an
+optional offset in that body's frame) that correspond, the key point's parent in the scaling
+tree, and its task weight. Frames (orientation targets) are derived from key points the same
+way on the human and on the robot, so no per-file rest-pose convention is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+from humimic.errors import MapError
+
+SCHEMA_VERSION = 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class KeypointMap:
+    """One key point.
+
+    Attributes:
+        human: Human joint name.
+        body: Robot body name.
+        offset: Point in the robot body's frame [m].
+        parent: Parent key point in the scaling tree (None for the root).
+        frame: If set, the key point is rigidly attached to this derived frame (e.g. the hips
+            to the pelvis frame): its target is placed from the frame, not from the human bone.
+        weight: Position task cost [1/m].
+    """
+
+    human: str
+    body: str
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    parent: str | None = None
+    frame: str | None = None
+    weight: float = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class FrameMap:
+    """An orientation target derived from key points.
+
+    The frame's y axis is ``left[1] - left[0]`` made orthogonal to its z axis
+    ``up[1] - up[0]``; x points forward. The robot body's orientation target is this frame
+    times the constant offset measured on the robot in its zero pose.
+    """
+
+    body: str
+    left: tuple[str, str]
+    up: tuple[str, str]
+    weight: float = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class FootMap:
+    """A foot: the key points at the ankle and the toe, and the robot's foot body."""
+
+    ankle: str
+    toe: str
+    body: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class RetargetMap:
+    """A skeleton-to-robot map. See the module docstring."""
+
+    skeleton: str
+    robot: str
+    root: str
+    keypoints: dict[str, KeypointMap]
+    frames: dict[str, FrameMap] = field(default_factory=dict)
+    feet: dict[str, FootMap] = field(default_factory=dict)
+    posture_weight: float = 0.05
+    source: str = "<memory>"
+
+    def validate(self, human_names: tuple[str, ...] | None, robot_bodies: set[str]) -> None:
+        """Check every name against a clip's joints and a robot's bodies.
+
+        Raises:
+            MapError: Naming the map file, the field and the bad name.
+        """
+        where = self.source
+        if self.root not in self.keypoints:
+            raise MapError(f"{where}: root {self.root!r} is not a key point")
+        seen: set[str] = set()
+        for name, kp in self.keypoints.items():
+            if human_names is not None and kp.human not in human_names:
+                raise MapError(
+                    f"{where}: keypoints.{name}.human: no joint {kp.human!r} in the clip "
+                    f"(joints: {', '.join(human_names)})"
+                )
+            if kp.body not in robot_bodies:
+                raise MapError(f"{where}: keypoints.{name}.body: robot has no body {kp.body!r}")
+            if name != self.root and kp.parent is None:
+                raise MapError(f"{where}: keypoints.{name}.parent: required for non-root points")
+            if kp.parent is not None and kp.parent not in seen:
+                raise MapError(
+                    f"{where}: keypoints.{name}.parent: {kp.parent!r} must be listed before it"
+                )
+            if kp.frame is not None and kp.frame not in self.frames:
+                raise MapError(f"{where}: keypoints.{name}.frame: no frame {kp.frame!r}")
+            if kp.weight < 0:
+                raise MapError(f"{where}: keypoints.{name}.weight must be >= 0")
+            seen.add(name)
+        for name, fr in self.frames.items():
+            if fr.body not in robot_bodies:
+                raise MapError(f"{where}: frames.{name}.body: robot has no body {fr.body!r}")
+            for k in (*fr.left, *fr.up):
+                if k not in self.keypoints:
+                    raise MapError(f"{where}: frames.{name}: no key point {k!r}")
+        for side, foot in self.feet.items():
+            for k in (foot.ankle, foot.toe):
+                if k not in self.keypoints:
+                    raise MapError(f"{where}: feet.{side}: no key point {k!r}")
+            if foot.body not in robot_bodies:
+                raise MapError(f"{where}: feet.{side}.body: robot has no body {foot.body!r}")
+
+
+def _pair(value: object, where: str) -> tuple[str, str]:
+    if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, str) for v in value)):
+        raise MapError(f"{where}: expected a list of two key point names, got {value!r}")
+    return (value[0], value[1])
+
+
+def _build(cls: type, data: object, where: str, convert: dict | None = None):
+    if not isinstance(data, dict):
+        raise MapError(f"{where}: expected a mapping, got {type(data).__name__}")
+    allowed = set(cls.__dataclass_fields__)
+    unknown = set(data) - allowed
+    if unknown:
+        raise MapError(f"{where}: unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+    kwargs = dict(data)
+    for key, fn in (convert or {}).items():
+        if key in kwargs:
+            kwargs[key] = fn(kwargs[key], f"{where}.{key}")
+    try:
+        return cls(**kwargs)
+    except TypeError as e:
+        raise MapError(f"{where}: {e}") from None
+
+
+def _offset(value: object, where: str) -> tuple[float, float, float]:
+    if not (isinstance(value, list) and len(value) == 3):
+        raise MapError(f"{where}: expected [x, y, z] in metres, got {value!r}")
+    try:
+        return (float(value[0]), float(value[1]), float(value[2]))
+    except (TypeError, ValueError):
+        raise MapError(f"{where}: expected numbers, got {value!r}") from None
+
+
+def parse_map(data: object, source: str) -> RetargetMap:
+    """Build a :class:`RetargetMap` from parsed YAML, with errors naming the field."""
+    if not isinstance(data, dict):
+        raise MapError(f"{source}: expected a mapping at the top level")
+    version = data.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise MapError(f"{source}: schema_version is {version!r}, expected {SCHEMA_VERSION}")
+    body = {k: v for k, v in data.items() if k != "schema_version"}
+    kps = body.get("keypoints")
+    if not isinstance(kps, dict) or not kps:
+        raise MapError(f"{source}: keypoints: expected a non-empty mapping")
+    body["keypoints"] = {
+        k: _build(KeypointMap, v, f"{source}: keypoints.{k}", {"offset": _offset})
+        for k, v in kps.items()
+    }
+    body["frames"] = {
+        k: _build(FrameMap, v, f"{source}: frames.{k}", {"left": _pair, "up": _pair})
+        for k, v in (body.get("frames") or {}).items()
+    }
+    body["feet"] = {
+        k: _build(FootMap, v, f"{source}: feet.{k}") for k, v in (body.get("feet") or {}).items()
+    }
+    return _build(RetargetMap, {**body, "source": source}, source)
+
+
+def load_map_file(path: str | Path) -> RetargetMap:
+    """Load and parse a map YAML file."""
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except OSError as e:
+        raise MapError(f"{p}: cannot read: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise MapError(f"{p}: invalid YAML: {e}") from None
+    return parse_map(data, str(p))
+
+
+def builtin_maps() -> dict[tuple[str, str], Path]:
+    """Shipped maps: (skeleton, robot) -> file."""
+    out: dict[tuple[str, str], Path] = {}
+    for entry in resources.files(__name__).iterdir():
+        name = entry.name
+        if name.endswith(".yaml"):
+            skeleton, robot = name[: -len(".yaml")].rsplit("_", 1)
+            out[(skeleton, robot)] = Path(str(entry))
+    return out
+
+
+def get_map(skeleton: str, robot: str) -> RetargetMap:
+    """The shipped map for a skeleton/robot pair."""
+    maps = builtin_maps()
+    if (skeleton, robot) not in maps:
+        pairs = ", ".join(f"{s}->{r}" for s, r in sorted(maps))
+        raise MapError(
+            f"no map from skeleton {skeleton!r} to robot {robot!r}; shipped maps: {pairs}. "
+            "Pass --map FILE to use your own."
+        )
+    return load_map_file(maps[(skeleton, robot)])
