@@ -23,6 +23,8 @@ class RetargetConfig:
             be in contact.
         contact_speed: ...and slower than this horizontally [m/s].
         contact_min_frames: Shorter contact runs are dropped.
+        plant_radius: A planted point is held at one place while the human's stays within this
+            distance [m] of where it landed; beyond it, the point is planted anew.
         contact_weight_scale: Foot position costs are multiplied by this in contact.
         foot_orientation_weight: Foot orientation cost (per radian) in swing.
         foot_contact_orientation_weight: Foot orientation cost while flat on the ground.
@@ -32,6 +34,12 @@ class RetargetConfig:
         collision_margin: Minimum distance kept between self-collision pairs [m].
         collision_detection: Pairs closer than this are constrained [m].
         collision_gain: Fraction of the remaining gap a pair may close per iteration.
+        smooth_weight: Cost [1/rad] of moving the joints away from the previous frame's
+            solution: keeps redundant chains from flipping between frames.
+        max_step: Largest joint change per QP iteration [rad] (a trust region, so that the
+            linearized collision limits are not tunnelled through).
+        repair_iters: Extra iterations when a self-collision pair ends a frame closer than
+            half the margin.
     """
 
     fps: float = 50.0
@@ -46,6 +54,7 @@ class RetargetConfig:
     contact_height: float = 0.05
     contact_speed: float = 0.5
     contact_min_frames: int = 2
+    plant_radius: float = 0.03
     contact_weight_scale: float = 3.0
     foot_orientation_weight: float = 1.0
     foot_contact_orientation_weight: float = 10.0
@@ -55,6 +64,9 @@ class RetargetConfig:
     collision_margin: float = 0.01
     collision_detection: float = 0.04
     collision_gain: float = 0.85
+    smooth_weight: float = 0.5
+    max_step: float = 0.3
+    repair_iters: int = 4
 
 
 def retarget_default() -> RetargetConfig:

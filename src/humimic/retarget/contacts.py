@@ -49,3 +49,26 @@ def runs(flags: np.ndarray) -> list[tuple[int, int]]:
     starts = np.flatnonzero(d == 1)
     stops = np.flatnonzero(d == -1)
     return list(zip(starts.tolist(), stops.tolist(), strict=True))
+
+
+def plant_segments(flags: np.ndarray, xy: np.ndarray, radius: float) -> list[tuple[int, int]]:
+    """Split contact runs into plants: a plant ends where the point drifts further than
+    ``radius`` from where it landed, and a new one starts there.
+
+    Args:
+        flags: Contact flags. Shape: (T,).
+        xy: Horizontal positions. Shape: (T, 2).
+        radius: Largest drift inside one plant [m].
+
+    Returns:
+        ``[start, stop)`` index pairs.
+    """
+    out: list[tuple[int, int]] = []
+    for start, stop in runs(flags):
+        anchor = start
+        for t in range(start + 1, stop):
+            if np.linalg.norm(xy[t] - xy[anchor]) > radius:
+                out.append((anchor, t))
+                anchor = t
+        out.append((anchor, stop))
+    return out

@@ -72,12 +72,14 @@ class KinematicResult:
         targets: The IK targets.
         solve_seconds: Wall time of the IK loop alone.
         iterations: QP solves per frame. Shape: (T,).
+        relaxed_iterations: QP solves in which conflicting limits had to be made soft.
     """
 
     qpos: np.ndarray
     targets: Targets
     solve_seconds: float
     iterations: np.ndarray
+    relaxed_iterations: int
 
 
 class KinematicRetargeter:
@@ -97,6 +99,7 @@ class KinematicRetargeter:
         )
         self.posture = mink.PostureTask(self.model, cost=m.posture_weight)
         self.posture.set_target(self.rest_qpos())
+        self.smooth = mink.PostureTask(self.model, cost=cfg.smooth_weight)
         self.tasks: list[mink.Task] = [self.keypoints, self.orientations, self.posture]
         if self.model.nq - 7 != self.model.nv - 6 or self.model.njnt - 1 != self.model.nv - 6:
             raise RetargetError(f"{robot.name}: expected one free joint and hinge/slide joints")
@@ -118,6 +121,7 @@ class KinematicRetargeter:
                 )
             )
         self.geometry = self._measure_geometry()
+        self.relaxed = 0
 
     def rest_qpos(self) -> np.ndarray:
         """Zero joint angles, identity base orientation, base at its default height."""
@@ -142,7 +146,20 @@ class KinematicRetargeter:
         def rot(body: str) -> np.ndarray:
             return data.body(body).xmat.reshape(3, 3).copy()
 
+        feet = []
+        floor = next((lim for lim in self.limits if isinstance(lim, FloorLimit)), None)
+        for foot in self.map.feet.values():
+            b = model.body(foot.body).id
+            if floor is None:
+                feet.append(np.zeros((1, 4)))
+                continue
+            sel = floor.ids == b
+            off = np.asarray(self.map.keypoints[foot.ankle].offset)
+            feet.append(np.column_stack([floor.pts[sel] - off, floor.rad[sel]]))
+        n = max((len(f) for f in feet), default=1)
+        foot_points = np.array([np.pad(f, ((0, n - len(f)), (0, 0)), mode="edge") for f in feet])
         return RobotGeometry(
+            foot_points=foot_points.reshape(len(feet), n, 4),
             keypoints=kp,
             frame_body_rot=np.array([rot(f.body) for f in self.map.frames.values()]).reshape(
                 -1, 3, 3
@@ -172,9 +189,14 @@ class KinematicRetargeter:
         conf.update(q)
         out = np.zeros((T, self.model.nq))
         iters = np.zeros(T, dtype=int)
+        self.relaxed = 0
         t0 = time.perf_counter()
         for t in range(T):
             self._set_targets(targets, t)
+            tasks = self.tasks
+            if t > 0 and cfg.smooth_weight > 0:
+                self.smooth.set_target(out[t - 1])
+                tasks = [*self.tasks, self.smooth]
             q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             budget = cfg.first_frame_iters if t == 0 else 1
             n = 0
@@ -182,13 +204,14 @@ class KinematicRetargeter:
                 self._set_stage_costs(targets, t, stage)
                 prev = np.inf
                 for _ in range(max_iters * budget):
-                    dq = self._solve(q_prev, step, clip.source, t)
+                    dq = self._solve(tasks, q_prev, step, clip.source, t)
                     conf.integrate_inplace(dq, 1.0)
                     n += 1
                     err = self._task_error()  # At the start of this QP.
                     if prev - err < cfg.tol * prev:
                         break
                     prev = err
+            n += self._repair(tasks, q_prev, step, clip.source, t)
             q = conf.q.copy()
             # Project away round-off beyond the joint ranges (the limit keeps it below 1e-9).
             q[7:] = np.clip(q[7:], self._range_lo, self._range_hi)
@@ -202,17 +225,45 @@ class KinematicRetargeter:
             targets=targets,
             solve_seconds=time.perf_counter() - t0,
             iterations=iters,
+            relaxed_iterations=self.relaxed,
         )
 
+    def _repair(
+        self,
+        tasks: list[mink.Task],
+        q_prev: np.ndarray | None,
+        step: np.ndarray | None,
+        source: str,
+        t: int,
+    ) -> int:
+        """Extra iterations while a self-collision pair is closer than half the margin."""
+        limit = next((lim for lim in self.limits if isinstance(lim, SelfCollisionLimit)), None)
+        if limit is None:
+            return 0
+        n = 0
+        for _ in range(self.cfg.repair_iters):
+            limit.compute_qp_inequalities(self.configuration, 1.0)
+            if limit.min_distance >= 0.5 * self.cfg.collision_margin:
+                break
+            dq = self._solve(tasks, q_prev, step, source, t)
+            self.configuration.integrate_inplace(dq, 1.0)
+            n += 1
+        return n
+
     def _solve(
-        self, q_prev: np.ndarray | None, step: np.ndarray | None, source: str, t: int
+        self,
+        tasks: list[mink.Task],
+        q_prev: np.ndarray | None,
+        step: np.ndarray | None,
+        source: str,
+        t: int,
     ) -> np.ndarray:
         """One QP: tasks as the objective, joint box as bounds, limits as inequalities."""
         conf = self.configuration
         nv = self.model.nv
         H = np.eye(nv) * self.cfg.damping
         c = np.zeros(nv)
-        for task in self.tasks:
+        for task in tasks:
             obj = task.compute_qp_objective(conf)
             H += obj.H
             c += obj.c
@@ -223,6 +274,8 @@ class KinematicRetargeter:
         if q_prev is not None and step is not None:
             lo = np.maximum(lo, q_prev - step - q)
             hi = np.minimum(hi, q_prev + step - q)
+        lo = np.maximum(lo, -self.cfg.max_step)
+        hi = np.minimum(hi, self.cfg.max_step)
         lo = np.minimum(lo, 0.0)
         hi = np.maximum(hi, 0.0)
         rows, ub = [], []
@@ -238,6 +291,12 @@ class KinematicRetargeter:
         blower = np.concatenate([np.full(6, -1e30), lo, np.full(A.shape[0], -1e30)])
         sense = np.zeros(bupper.size, dtype=np.int32)
         x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+        if exitflag < 1 and A.shape[0]:
+            # The limits conflict (e.g. the speed limit forbids resolving a collision in one
+            # frame): solve with the floor and collision rows soft, and count it.
+            sense[nv:] = 8
+            x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+            self.relaxed += 1
         if exitflag < 1:
             raise RetargetError(
                 f"{source}: IK QP has no solution at output frame {t} (daqp exit flag {exitflag})"

@@ -102,7 +102,12 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     linearization error of successive iterations can accumulate into penetration. Here the
     bound stays ``gain * (d - d_min)`` when negative: the QP must restore the margin.
     Called with ``dt = 1`` (displacements), the bound is in metres.
+
+    Attributes:
+        min_distance: Smallest pair distance found by the last evaluation (inf if none near).
     """
+
+    min_distance: float = np.inf
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         model = self.model
@@ -115,6 +120,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             else range(self.max_num_contacts)
         )
         fromto = self._fromto
+        self.min_distance = np.inf
         for idx in indices:
             g1, g2 = self.geom_id_pairs[idx]
             dist = mujoco.mj_geomDistance(
@@ -122,6 +128,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             )
             if abs(dist - self.collision_detection_distance) < 1e-12:
                 continue
+            self.min_distance = min(self.min_distance, dist)
             row = compute_contact_normal_jacobian(
                 model, data, g1, g2, fromto, self._normal, self._jac1, self._jac2
             )

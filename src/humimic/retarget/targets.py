@@ -11,8 +11,8 @@ Steps (all documented in docs/retargeting.md):
    key point hangs from its parent along the human bone direction with the robot's own bone
    length, or, for points rigid on a body (hips on the pelvis, shoulders on the chest), at the
    robot's offset rotated by the human's derived frame.
-5. Feet: contacts are detected on the human; a planted heel or toe keeps one fixed position
-   for the whole contact, at the robot's standing height; a foot flat on the ground gets a
+5. Feet: contacts are detected on the human; a planted heel or toe keeps the position where
+   it landed for the whole contact, at the robot's standing height; a foot flat on the ground gets a
    flat orientation target.
 """
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip, estimate_height
-from humimic.retarget.contacts import detect_contacts, runs
+from humimic.retarget.contacts import detect_contacts, plant_segments, runs
 from humimic.robots.maps import RetargetMap
 from humimic.transforms import axis_angle_matrix, frame_from_left_up
 
@@ -37,11 +37,15 @@ class RobotGeometry:
         keypoints: Key point positions, in map order. Shape: (K, 3).
         frame_body_rot: World rotation of each frame's body. Shape: (F, 3, 3).
         foot_body_rot: World rotation of each foot body, in map ``feet`` order. Shape: (2, 3, 3).
+        foot_points: Per foot, its contact points relative to the ankle key point, in the foot
+            body's frame, and their radii: ``[..., :3]`` position, ``[..., 3]`` radius.
+            Shape: (2, N, 4).
     """
 
     keypoints: np.ndarray
     frame_body_rot: np.ndarray
     foot_body_rot: np.ndarray
+    foot_points: np.ndarray
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -183,32 +187,46 @@ def build_targets(
         ref = np.median(toe_z[planted]) if planted.any() else np.percentile(toe_z.min(axis=1), 1)
         dz = float(robot.keypoints[toe_idx, 2].mean() - ref)
         pos[:, :, 2] += dz
+    # Foot heights follow the human's clearance over the ground, scaled: a heel that skims the
+    # floor at 3 cm on the human skims it at 3 cm x scale on the robot, whatever the leg
+    # proportions make of the chain.
+    for foot in sides:
+        for key in (idx[foot.ankle], idx[foot.toe]):
+            rest_h = np.percentile(human[:, key, 2], 2.0)
+            pos[:, key, 2] = robot.keypoints[key, 2] + scale * (human[:, key, 2] - rest_h)
+    # Soles keep the human's clearance: where the target foot pose (ankle position, foot
+    # orientation) would put a contact point lower than the human foot's scaled clearance,
+    # the foot's targets are lifted (a heel-down swing foot must not skim the floor).
+    clearance = np.zeros((T, len(sides)))
+    for s_, foot in enumerate(sides):
+        keys = [idx[foot.ankle], idx[foot.toe]]
+        rest_h = np.percentile(human[:, keys, 2], 2.0, axis=0)
+        clearance[:, s_] = scale * np.maximum((human[:, keys, 2] - rest_h).min(axis=1), 0.0)
+    foot_pitch_rots = _foot_rotations(human, m, idx, contacts, robot)[0]
+    for s_, foot in enumerate(sides):
+        a, t_ = idx[foot.ankle], idx[foot.toe]
+        pts = robot.foot_points[s_]
+        lowest = (
+            pos[:, a, 2][:, None]
+            + np.einsum("tj,nj->tn", foot_pitch_rots[:, s_, 2, :], pts[:, :3])
+            - pts[:, 3]
+        ).min(axis=1)
+        lift = np.maximum(clearance[:, s_] - lowest, 0.0)
+        pos[:, a, 2] += lift
+        pos[:, t_, 2] += lift
     scaled = pos.copy()
 
     # Planted points keep one position for the whole contact, at standing height.
     weights = np.tile(np.array([kp.weight for kp in kps]), (T, 1))
-    foot_rots = np.zeros((T, len(sides), 3, 3))
-    foot_weights = np.full((T, len(sides)), cfg.foot_orientation_weight)
-    for s, foot in enumerate(sides):
-        a, t_ = idx[foot.ankle], idx[foot.toe]
-        d = human[:, t_] - human[:, a]
-        yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-        pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=-1))
-        both = contacts[:, s, 0] & contacts[:, s, 1]
-        flat_pitch = float(np.median(pitch[both])) if both.any() else float(np.max(pitch))
-        for j, key in enumerate((a, t_)):
-            for start, stop in runs(contacts[:, s, j]):
+    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg)
+    for s_, foot in enumerate(sides):
+        for j, key in enumerate((idx[foot.ankle], idx[foot.toe])):
+            for start, stop in plant_segments(
+                contacts[:, s_, j], pos[:, key, :2], cfg.plant_radius
+            ):
                 pos[start:stop, key, :2] = pos[start:stop, key, :2].mean(axis=0)
                 pos[start:stop, key, 2] = robot.keypoints[key, 2]
                 weights[start:stop, key] *= cfg.contact_weight_scale
-        pitch_rel = flat_pitch - pitch
-        for start, stop in runs(both):
-            pitch_rel[start:stop] = 0.0
-            yaw[start:stop] = yaw[start:stop].mean()
-            foot_weights[start:stop, s] = cfg.foot_contact_orientation_weight
-        foot_rots[:, s] = (
-            axis_angle_matrix("z", yaw) @ axis_angle_matrix("y", pitch_rel) @ robot.foot_body_rot[s]
-        )
 
     return Targets(
         positions=pos,
@@ -223,3 +241,43 @@ def build_targets(
         human_height=estimate_height(clip),
         fps=clip.fps,
     )
+
+
+def _foot_rotations(
+    human: np.ndarray,
+    m: RetargetMap,
+    idx: dict[str, int],
+    contacts: np.ndarray,
+    robot: RobotGeometry,
+    cfg: RetargetConfig | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Foot orientation targets and costs.
+
+    Yaw follows the human ankle-to-toe direction; pitch follows its elevation relative to the
+    foot's elevation when flat on the ground; roll is zero. A foot whose heel and toe are both
+    planted gets a flat target at the contact's mean yaw, with the contact cost.
+
+    Returns:
+        Rotations (T, 2, 3, 3) and costs (T, 2).
+    """
+    sides = list(m.feet.values())
+    T = human.shape[0]
+    rots = np.zeros((T, len(sides), 3, 3))
+    w_swing = cfg.foot_orientation_weight if cfg else 1.0
+    w_contact = cfg.foot_contact_orientation_weight if cfg else 1.0
+    weights = np.full((T, len(sides)), w_swing)
+    for s, foot in enumerate(sides):
+        d = human[:, idx[foot.toe]] - human[:, idx[foot.ankle]]
+        yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+        pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=-1))
+        both = contacts[:, s, 0] & contacts[:, s, 1]
+        flat_pitch = float(np.median(pitch[both])) if both.any() else float(np.max(pitch))
+        pitch_rel = flat_pitch - pitch
+        for start, stop in runs(both):
+            pitch_rel[start:stop] = 0.0
+            yaw[start:stop] = yaw[start:stop].mean()
+            weights[start:stop, s] = w_contact
+        rots[:, s] = (
+            axis_angle_matrix("z", yaw) @ axis_angle_matrix("y", pitch_rel) @ robot.foot_body_rot[s]
+        )
+    return rots, weights
