@@ -192,6 +192,9 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
     version = int(data["schema_version"])
     if version != SCHEMA_VERSION:
         raise MotionDataError(f"{p}: schema_version {version}, this humimic reads {SCHEMA_VERSION}")
+    fps = float(data["fps"])
+    if not np.isfinite(fps) or fps <= 0:
+        raise MotionDataError(f"{p}: fps must be a positive number, got {fps}")
     T = data["qpos"].shape[0]
     for k in _REQUIRED[5:]:
         if data[k].shape[0] != T:
@@ -200,7 +203,7 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
             raise MotionDataError(f"{p}: {k} contains NaN or inf")
     return Motion(
         robot=str(data["robot"]),
-        fps=float(data["fps"]),
+        fps=fps,
         joint_names=tuple(str(s) for s in data["joint_names"]),
         body_names=tuple(str(s) for s in data["body_names"]),
         qpos=data["qpos"],

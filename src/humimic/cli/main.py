@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
 
-from humimic.configs import RetargetConfig, retarget_default
+from humimic.configs import RetargetConfig, retarget_default, retarget_fast
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable
 
-RETARGET_CONFIGS = {"default": retarget_default}
+RETARGET_CONFIGS = {"default": retarget_default, "fast": retarget_fast}
 """Named retargeting configurations (factories); see :mod:`humimic.configs`."""
 
 
@@ -40,6 +40,8 @@ class RetargetCommand:
     """Your own human-to-robot map (YAML); default: the shipped map for skeleton and robot."""
     start: int | None = None
     """First source frame to use (default: 1 for CMU files, whose frame 0 is a T-pose)."""
+    preset: Literal["default", "fast"] = "default"
+    """Named IK settings (humimic.configs); --ik.* flags change single fields on top of it."""
     ik: RetargetConfig = field(default_factory=retarget_default)
     """IK settings."""
     quiet: bool = False
@@ -137,6 +139,13 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         if report_path is not None:
             check_writable(report_path)
 
+    base = retarget_default()
+    changed = {
+        f.name: getattr(cmd.ik, f.name)
+        for f in fields(RetargetConfig)
+        if getattr(cmd.ik, f.name) != getattr(base, f.name)
+    }
+    ik_cfg = replace(RETARGET_CONFIGS[cmd.preset](), **changed)
     retargeters: dict[str, Retargeter] = {}
     reports = []
     for f, (motion_path, report_path) in zip(files, outs, strict=True):
@@ -150,9 +159,9 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         clip = clip.slice(start)
         key = clip.skeleton
         if key not in retargeters:
-            retargeters[key] = Retargeter(cmd.robot, clip.skeleton, cmd.ik, map_file=cmd.map)
+            retargeters[key] = Retargeter(cmd.robot, clip.skeleton, ik_cfg, map_file=cmd.map)
         rt = retargeters[key]
-        total = clip.resample(cmd.ik.fps).num_frames
+        total = clip.resample(ik_cfg.fps).num_frames
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
             result = rt.run(clip, progress=bar.update)
         result.report["start_frame"] = start

@@ -76,13 +76,15 @@ class ActuatorRecipe:
                 what = "no motor pattern" if not hits else f"several motor patterns {hits}"
                 raise UnknownNameError(f"joint {joint!r} matches {what}")
             m = self.motors[hits[0]]
-            # Six significant digits: the numbers survive an MJCF round trip exactly.
+            # Six significant digits: the numbers survive an MJCF round trip exactly, and the
+            # gains follow from the armature the simulator actually gets.
+            arm = float(f"{m.armature:.6g}")
             out[joint] = JointActuator(
                 joint=joint,
-                kp=float(f"{m.armature * wn**2:.6g}"),
-                kd=float(f"{2.0 * self.damping_ratio * m.armature * wn:.6g}"),
+                kp=float(f"{arm * wn**2:.6g}"),
+                kd=float(f"{2.0 * self.damping_ratio * arm * wn:.6g}"),
                 effort_limit=m.effort_limit,
-                armature=float(f"{m.armature:.6g}"),
+                armature=arm,
                 velocity_limit=m.velocity_limit,
             )
         return out

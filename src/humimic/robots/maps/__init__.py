@@ -138,6 +138,16 @@ def _build(cls: type, data: object, where: str, convert: dict | None = None):
     for key, fn in (convert or {}).items():
         if key in kwargs:
             kwargs[key] = fn(kwargs[key], f"{where}.{key}")
+    for key, value in kwargs.items():
+        expected = cls.__dataclass_fields__[key].type
+        if "float" in str(expected) and "tuple" not in str(expected):
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise MapError(f"{where}.{key}: expected a number, got {value!r}")
+            kwargs[key] = float(value)
+        elif str(expected) in ("str", "str | None") and not (
+            isinstance(value, str) or (value is None and "None" in str(expected))
+        ):
+            raise MapError(f"{where}.{key}: expected a name (text), got {value!r}")
     try:
         return cls(**kwargs)
     except TypeError as e:

@@ -1,0 +1,324 @@
+"""The ``humimic`` command line: exit codes, messages and no half-written outputs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import cast
+
+import mujoco
+import numpy as np
+import pytest
+import tyro
+
+import humimic.configs
+from humimic.cli.main import RETARGET_CONFIGS, main
+from humimic.configs import RetargetConfig
+from humimic.motion import load_motion
+
+REPORT_KEYS = (
+    "frames",
+    "fps",
+    "frames_per_second",
+    "keypoint_error_mm_mean",
+    "keypoint_error_mm_p95",
+    "foot_skating_mm_per_s",
+    "max_ground_penetration_mm",
+    "joint_limit_violations",
+    "self_collision_frames",
+    "mean_joint_jerk",
+)
+
+
+def _files(root: Path) -> set[str]:
+    """Every regular file under ``root`` (hidden temp files included), relative."""
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+
+
+def _trimmed_bvh(src: Path, dst: Path, frames: int) -> Path:
+    """Copy the header of ``src`` and its first ``frames`` frames, fixing the Frames: line."""
+    lines = src.read_bytes().decode().splitlines(keepends=True)
+    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
+    assert lines[i + 1].startswith("Frame Time:")
+    body = lines[i + 2 :]
+    assert len(body) >= frames
+    newline = "\r\n" if lines[i].endswith("\r\n") else "\n"
+    dst.write_bytes(
+        "".join([*lines[:i], f"Frames: {frames}{newline}", lines[i + 1], *body[:frames]]).encode()
+    )
+    return dst
+
+
+def _climb_npy(shared_data: Path) -> Path:
+    return sorted((shared_data / "holosoma_climb").glob("*/*_joint_positions_*.npy"))[0]
+
+
+@dataclass(frozen=True)
+class Case:
+    """A bad-input case: the inputs it makes, the argv, and what stderr must name."""
+
+    argv: list[str]
+    expect: list[str]
+
+
+def _case_truncated_bvh(tmp: Path, data: Path) -> Case:
+    lines = (data / "cmu" / "35_01.bvh").read_bytes().splitlines(keepends=True)
+    src = tmp / "in" / "truncated.bvh"
+    src.write_bytes(b"".join(lines[: int(0.6 * len(lines))]))
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["truncated.bvh", "truncated"],
+    )
+
+
+def _case_bad_number_bvh(tmp: Path, data: Path) -> Case:
+    lines = (data / "cmu" / "35_01.bvh").read_bytes().decode().splitlines(keepends=True)
+    i = next(k for k, line in enumerate(lines) if line.startswith("Frame Time:"))
+    bad = i + 1 + 5  # the sixth frame
+    fields = lines[bad].split(" ")
+    fields[4] = "1.2.3"
+    lines[bad] = " ".join(fields)
+    src = tmp / "in" / "badnum.bvh"
+    src.write_bytes("".join(lines).encode())
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        [f"badnum.bvh:{bad + 1}", "'1.2.3'"],
+    )
+
+
+def _case_nan_npy(tmp: Path, data: Path) -> Case:
+    arr = np.load(_climb_npy(data), allow_pickle=False)[:60].copy()
+    arr[17, 5, 1] = np.nan
+    src = tmp / "in" / "nan.npy"
+    np.save(src, arr)
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["nan.npy", "NaN", "frame 17"],
+    )
+
+
+def _case_zero_frames(tmp: Path, data: Path) -> Case:
+    src = tmp / "in" / "empty.npy"
+    np.save(src, np.zeros((0, 53, 3), dtype=np.float32))
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["empty.npy", "zero frames"],
+    )
+
+
+def _case_unknown_robot(tmp: Path, data: Path) -> Case:
+    src = _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "walk.bvh", 20)
+    return Case(
+        ["retarget", str(src), "--robot", "nope", "--out", str(tmp / "out" / "m.npz")],
+        ["'nope'", "g1", "t1"],
+    )
+
+
+def _case_unknown_suffix(tmp: Path, data: Path) -> Case:
+    src = tmp / "in" / "walk.txt"
+    src.write_text("HIERARCHY\n")
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["walk.txt", "'.txt'", ".bvh"],
+    )
+
+
+def _case_missing_input(tmp: Path, data: Path) -> Case:
+    return Case(
+        ["retarget", str(tmp / "in" / "ghost.bvh"), "--out", str(tmp / "out" / "m.npz")],
+        ["ghost.bvh", "no such file"],
+    )
+
+
+def _case_unwritable_output(tmp: Path, data: Path) -> Case:
+    src = _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "walk.bvh", 20)
+    (tmp / "out").mkdir()
+    (tmp / "out" / "afile").write_text("a regular file\n")
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "afile" / "m.npz")],
+        ["afile"],
+    )
+
+
+def _case_out_not_npz(tmp: Path, data: Path) -> Case:
+    src = _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "walk.bvh", 20)
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.json")],
+        ["m.json", ".npz"],
+    )
+
+
+CASES: dict[str, Callable[[Path, Path], Case]] = {
+    "truncated_bvh": _case_truncated_bvh,
+    "bad_number_bvh": _case_bad_number_bvh,
+    "nan_npy": _case_nan_npy,
+    "zero_frames_npy": _case_zero_frames,
+    "unknown_robot": _case_unknown_robot,
+    "unknown_suffix": _case_unknown_suffix,
+    "missing_input": _case_missing_input,
+    "unwritable_output": _case_unwritable_output,
+    "out_not_npz": _case_out_not_npz,
+}
+
+
+def _make_case(name: str, tmp_path: Path, shared_data: Path) -> tuple[Case, set[str]]:
+    (tmp_path / "in").mkdir()
+    case = CASES[name](tmp_path, shared_data)
+    return case, _files(tmp_path)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input_exits_2_with_message_and_no_output(
+    name: str, tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    case, before = _make_case(name, tmp_path, shared_data)
+    code = main(case.argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith("humimic: error: ")
+    assert "Traceback" not in err
+    for part in case.expect:
+        assert part in err, f"{part!r} not in {err!r}"
+    # No output and no temporary file anywhere: only the inputs the test made.
+    assert _files(tmp_path) == before
+    out = tmp_path / "out"
+    assert not out.exists() or all(p.is_dir() or p.name == "afile" for p in out.rglob("*"))
+
+
+def _humimic_command() -> list[str]:
+    script = Path(sys.executable).with_name("humimic")
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "humimic.cli.main"]
+
+
+@pytest.mark.parametrize("name", ["nan_npy", "unwritable_output"])
+def test_console_script_exit_code_and_no_traceback(
+    name: str, tmp_path: Path, shared_data: Path
+) -> None:
+    case, before = _make_case(name, tmp_path, shared_data)
+    proc = subprocess.run(
+        [*_humimic_command(), *case.argv], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    for part in case.expect:
+        assert part in proc.stderr
+    assert _files(tmp_path) == before
+
+
+# --- Success -----------------------------------------------------------------------------------
+
+
+def test_retarget_cmu_walk_writes_motion_and_report(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    src = _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", tmp_path / "walk40.bvh", 40)
+    out = tmp_path / "out"
+    argv = ["retarget", str(src), "--out", str(out / "walk.npz")]
+    code = main([*argv, "--report", str(out / "walk.json"), "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "Traceback" not in captured.err
+    assert _files(out) == {"walk.npz", "walk.json"}  # no temp files left
+    report = json.loads((out / "walk.json").read_text())
+    missing = [k for k in REPORT_KEYS if k not in report]
+    assert not missing, missing
+    assert report["fps"] == 50.0
+    # 40 source frames at 120 fps, the T-pose frame 0 skipped: 39 frames = 0.3167 s -> 16 at 50.
+    assert report["frames"] == 16
+    assert report["start_frame"] == 1
+    assert np.isfinite(report["keypoint_error_mm_mean"])
+    assert report["keypoint_error_mm_p95"] >= report["keypoint_error_mm_mean"] >= 0.0
+    motion = load_motion(out / "walk.npz")
+    assert motion.robot == "g1"
+    assert motion.num_frames == report["frames"]
+    assert motion.fps == 50.0
+    assert "walk.npz" in captured.out
+
+
+def test_robots_list(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["robots", "list"]) == 0
+    out = capsys.readouterr().out
+    names = [line.split()[0] for line in out.splitlines() if line.strip()]
+    assert {"g1", "t1"} <= set(names)
+
+
+def test_robots_export(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "X.xml"
+    assert main(["robots", "export", "g1", "--out", str(out)]) == 0
+    assert "X.xml" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["X.xml", "X_assets"]
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.nu == 29
+
+
+def test_robots_export_unknown_robot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["robots", "export", "nope", "--out", str(tmp_path / "X.xml")]) == 2
+    assert "'nope'" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- Configs and parsing -----------------------------------------------------------------------
+
+
+def _config_factories() -> dict[str, Callable[[], RetargetConfig]]:
+    factories: dict[str, Callable[[], RetargetConfig]] = {
+        f"cli:{k}": f for k, f in RETARGET_CONFIGS.items()
+    }
+    for name in humimic.configs.__all__:
+        obj = getattr(humimic.configs, name)
+        if name.startswith("retarget_") and callable(obj):
+            factories[f"configs:{name}"] = cast(Callable[[], RetargetConfig], obj)
+    return factories
+
+
+def test_config_factories_are_found() -> None:
+    names = set(_config_factories())
+    assert {"configs:retarget_default", "configs:retarget_fast"} <= names
+    assert any(n.startswith("cli:") for n in names)
+
+
+@pytest.mark.parametrize("name", sorted(_config_factories()))
+def test_every_registered_default_parses(name: str) -> None:
+    factory = _config_factories()[name]
+    default = factory()
+    assert isinstance(default, RetargetConfig)
+    assert tyro.cli(RetargetConfig, default=default, args=[]) == default
+
+
+def test_config_override_from_command_line() -> None:
+    cfg = tyro.cli(
+        RetargetConfig, default=humimic.configs.retarget_fast(), args=["--stage2-iters", "7"]
+    )
+    assert cfg.stage2_iters == 7
+    assert cfg.first_frame_iters == humimic.configs.retarget_fast().first_frame_iters
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        [],
+        ["retarget"],
+        ["demo"],
+        ["robots"],
+        ["robots", "list"],
+        ["robots", "export"],
+        ["fetch"],
+    ],
+    ids=lambda a: " ".join(a) or "top",
+)
+def test_help_exits_0(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main([*argv, "--help"])
+    assert info.value.code == 0
+    assert "usage" in capsys.readouterr().out.lower()
+
+
+def test_parse_error_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["retarget", "clip.bvh"])  # --out is required
+    assert info.value.code == 2
+    assert "--out" in capsys.readouterr().err

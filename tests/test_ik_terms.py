@@ -1,0 +1,201 @@
+"""IK terms: every Jacobian against finite differences; contact detection on synthetic signals."""
+
+from __future__ import annotations
+
+import mink
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from humimic.retarget.contacts import detect_contacts, plant_segments, runs
+from humimic.retarget.limits import FloorLimit, SelfCollisionLimit
+from humimic.retarget.tasks import (
+    KeypointsTask,
+    OrientationsTask,
+    rotation_log,
+    so3_right_jacobian_inverse,
+)
+
+ARM_XML = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="0 0 1"/>
+    <body name="base" pos="0 0 0.6">
+      <freejoint/>
+      <geom name="torso" type="capsule" fromto="0 0 -0.2 0 0 0.2" size="0.08"/>
+      <body name="upper" pos="0 0.15 0.1">
+        <joint name="shoulder" axis="0 1 0" range="-2 2"/>
+        <joint name="shoulder_roll" axis="1 0 0" range="-2 2"/>
+        <geom name="upper_geom" type="capsule" fromto="0 0 0 0 0 -0.25" size="0.03"/>
+        <body name="lower" pos="0 0 -0.25">
+          <joint name="elbow" axis="0 1 0" range="-2.5 0.1"/>
+          <geom name="lower_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025"/>
+          <site name="hand" pos="0.25 0 0"/>
+        </body>
+      </body>
+      <body name="foot" pos="0 0 -0.5">
+        <joint name="hip" axis="0 1 0" range="-1 1"/>
+        <geom name="sole" type="sphere" size="0.02" pos="0.05 0 -0.05"/>
+        <geom name="heel" type="box" size="0.03 0.02 0.01" pos="-0.05 0 -0.05"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.fixture
+def arm() -> mink.Configuration:
+    model = mujoco.MjModel.from_xml_string(ARM_XML)
+    conf = mink.Configuration(model)
+    q = model.qpos0.copy()
+    q[3:7] = Rotation.from_euler("xyz", [0.2, -0.3, 0.5]).as_quat(scalar_first=True)
+    q[7:] = [0.4, 0.5, -1.1, 0.3]
+    conf.update(q)
+    return conf
+
+
+def fd_jacobian(conf: mink.Configuration, f, eps: float = 1e-6) -> np.ndarray:
+    """Central finite differences of f(configuration) along each tangent direction."""
+    q0 = conf.q.copy()
+    cols = []
+    for i in range(conf.model.nv):
+        dq = np.zeros(conf.model.nv)
+        dq[i] = eps
+        conf.update(q0)
+        conf.integrate_inplace(dq, 1.0)
+        fp = f(conf)
+        conf.update(q0)
+        conf.integrate_inplace(-dq, 1.0)
+        fm = f(conf)
+        cols.append((fp - fm) / (2 * eps))
+    conf.update(q0)
+    return np.stack(cols, axis=1)
+
+
+def test_keypoints_task_jacobian(arm: mink.Configuration) -> None:
+    task = KeypointsTask(arm.model, ["hand"])
+    task.targets = np.array([[0.1, 0.2, 0.3]])
+    jac = task.compute_jacobian(arm)
+    fd = fd_jacobian(arm, lambda c: task.compute_error(c).copy())
+    np.testing.assert_allclose(jac, fd, atol=1e-6)
+
+
+@pytest.mark.parametrize("angle", [0.1, 1.0, 2.5])
+def test_orientations_task_jacobian(arm: mink.Configuration, angle: float) -> None:
+    task = OrientationsTask(arm.model, ["lower", "base"])
+    current = arm.data.xmat[[arm.model.body("lower").id, arm.model.body("base").id]]
+    offsets = Rotation.from_rotvec(np.array([[angle, 0.0, 0.0], [0.0, 0.0, angle]])).as_matrix()
+    task.targets = current.reshape(-1, 3, 3) @ offsets  # Errors of about `angle` radians.
+    err = task.compute_error(arm)
+    np.testing.assert_allclose(np.linalg.norm(err.reshape(2, 3), axis=1), angle, atol=1e-9)
+    jac = task.compute_jacobian(arm)
+    fd = fd_jacobian(arm, lambda c: task.compute_error(c).copy())
+    np.testing.assert_allclose(jac, fd, atol=1e-5)
+
+
+def test_floor_limit_rows_are_height_derivatives(arm: mink.Configuration) -> None:
+    limit = FloorLimit(arm.model, ["foot"])
+    # A sphere (one point) and a box (eight corners).
+    assert len(limit.ids) == 9
+    cons = limit.compute_qp_inequalities(arm, 1.0)
+    assert cons.G is not None and cons.h is not None
+
+    def bottoms(c: mink.Configuration) -> np.ndarray:
+        h = limit.compute_qp_inequalities(c, 1.0).h  # h = height - floor
+        assert h is not None
+        return h.copy()
+
+    fd = fd_jacobian(arm, bottoms)
+    np.testing.assert_allclose(-cons.G, fd, atol=1e-6)
+    expected_sphere_bottom = arm.data.geom_xpos[arm.model.geom("sole").id][2] - 0.02
+    assert cons.h[0] == pytest.approx(expected_sphere_bottom)
+
+
+def test_self_collision_limit_row_is_distance_derivative(arm: mink.Configuration) -> None:
+    model = arm.model
+    limit = SelfCollisionLimit(
+        model,
+        [(["lower_geom"], ["torso"])],
+        gain=1.0,
+        minimum_distance_from_collisions=0.0,
+        collision_detection_distance=1.0,
+    )
+    cons = limit.compute_qp_inequalities(arm, 1.0)
+    assert cons.G is not None and cons.h is not None
+    g1, g2 = model.geom("lower_geom").id, model.geom("torso").id
+
+    def dist(c: mink.Configuration) -> np.ndarray:
+        return np.array([mujoco.mj_geomDistance(model, c.data, g1, g2, 1.0, np.zeros(6))])
+
+    d0 = dist(arm)[0]
+    assert 0 < d0 < 1.0
+    fd = fd_jacobian(arm, dist)
+    # Row: -d(dist)/dq; bound: the distance itself (gain 1, zero margin).
+    np.testing.assert_allclose(-cons.G[0], fd[0], atol=1e-5)
+    assert cons.h[0] == pytest.approx(d0)
+    assert limit.min_distance == pytest.approx(d0)
+
+
+def test_self_collision_limit_pushes_out_penetrating_pairs() -> None:
+    xml = """<mujoco><worldbody>
+      <body name="a"><joint name="x" type="slide" axis="1 0 0"/>
+        <geom name="ga" type="sphere" size="0.1"/></body>
+      <body name="b" pos="0.15 0 0"><joint name="y" type="slide" axis="0 1 0"/>
+        <geom name="gb" type="sphere" size="0.1"/></body>
+    </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    conf = mink.Configuration(model)
+    limit = SelfCollisionLimit(
+        model, [(["ga"], ["gb"])], gain=0.5, minimum_distance_from_collisions=0.01
+    )
+    cons = limit.compute_qp_inequalities(conf, 1.0)
+    assert cons.G is not None and cons.h is not None
+    # Penetration 5 cm: moving a by dx changes the distance by -dx. The limit must demand
+    # dx <= -0.5 * (0.05 + 0.01), i.e. a push apart, not merely "no closer".
+    assert cons.G[0, 0] * 1.0 > 0
+    assert cons.h[0] == pytest.approx(0.5 * (-0.05 - 0.01))
+
+
+def test_rotation_log_and_right_jacobian() -> None:
+    rots = Rotation.random(500, rng=np.random.default_rng(3))
+    np.testing.assert_allclose(rotation_log(rots.as_matrix()), rots.as_rotvec(), atol=1e-9)
+    near_pi = Rotation.from_rotvec([[np.pi - 1e-5, 0, 0], [0, 0, 1e-9]])
+    np.testing.assert_allclose(rotation_log(near_pi.as_matrix()), near_pi.as_rotvec(), atol=1e-7)
+    # Jr^{-1}(phi) maps a small right perturbation to the change of log: check by differences.
+    phi = np.array([[0.3, -0.7, 1.1]])
+    jinv = so3_right_jacobian_inverse(phi)[0]
+    base = Rotation.from_rotvec(phi[0])
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = 1e-6
+        plus = (base * Rotation.from_rotvec(d)).as_rotvec()
+        minus = (base * Rotation.from_rotvec(-d)).as_rotvec()
+        np.testing.assert_allclose((plus - minus) / 2e-6, jinv[:, i], atol=1e-6)
+
+
+def test_runs_and_contacts() -> None:
+    assert runs(np.array([0, 1, 1, 0, 1], dtype=bool)) == [(1, 3), (4, 5)]
+    assert runs(np.zeros(4, dtype=bool)) == []
+    fps = 50.0
+    t = np.arange(100) / fps
+    heights = np.where((t > 0.5) & (t < 1.2), 0.005, 0.2)
+    xy = np.zeros((100, 2))
+    xy[:, 0] = np.where(heights < 0.01, 1.0, t)  # Still while down.
+    c = detect_contacts(heights, xy, fps, max_height=0.05, max_speed=0.3, min_frames=2)
+    (run,) = runs(c)
+    assert 25 <= run[0] <= 27 and 59 <= run[1] <= 61
+    # A fast-moving low point is not in contact.
+    xy_fast = np.stack([t * 3.0, np.zeros_like(t)], axis=1)
+    assert not detect_contacts(heights, xy_fast, fps, max_height=0.05, max_speed=0.3).any()
+
+
+def test_plant_segments_split_on_drift() -> None:
+    flags = np.ones(10, dtype=bool)
+    xy = np.zeros((10, 2))
+    xy[:, 0] = np.arange(10) * 0.01  # Drifts 1 cm per frame.
+    segs = plant_segments(flags, xy, radius=0.025)
+    assert segs[0] == (0, 3) and segs[-1][1] == 10
+    for a, b in segs:
+        assert np.abs(xy[a:b, 0] - xy[a, 0]).max() <= 0.025

@@ -1,0 +1,108 @@
+"""Kinematic retargeting of the real clips: the acceptance numbers of issue 2, measured."""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.configs import retarget_default
+from humimic.datasets import load_clip
+from humimic.retarget import Retargeter, RetargetOutput
+
+CLIPS = [
+    "cmu/35_01.bvh",
+    "cmu/09_01.bvh",
+    "holosoma_climb/mocap_climb_seq_0",
+    "holosoma_climb/mocap_climb_seq_1",
+    "holosoma_climb/mocap_climb_seq_2",
+]
+
+
+@cache
+def _retargeter(robot: str, skeleton: str) -> Retargeter:
+    return Retargeter(robot, skeleton, retarget_default())
+
+
+def _clip_path(root: Path, name: str) -> Path:
+    p = root / name
+    return p if p.suffix else next(p.glob("*.npy"))
+
+
+@cache
+def _retarget(root: Path, name: str, robot: str = "g1") -> RetargetOutput:
+    clip = load_clip(_clip_path(root, name))
+    if clip.skeleton == "cmu":
+        clip = clip.slice(1)  # Frame 0 of the CMU files is a T-pose added by the converter.
+    return _retargeter(robot, clip.skeleton).run(clip)
+
+
+@pytest.mark.parametrize("name", CLIPS)
+def test_real_clip_meets_quality_bars(shared_data: Path, name: str) -> None:
+    r = _retarget(shared_data, name).report
+    assert r["joint_limit_violations"] == 0
+    assert r["max_ground_penetration_mm"] <= 5.0
+    assert r["self_collision_frames"] == 0, r["max_self_penetration_mm"]
+    assert r["max_self_penetration_mm"] <= 1.0
+    assert r["foot_skating_mm_per_s"] <= 150.0
+    assert r["keypoint_error_mm_mean"] <= 40.0
+    assert r["relaxed_qp_iterations"] <= 5
+
+
+def test_walk_feet_are_on_the_floor(shared_data: Path) -> None:
+    r = _retarget(shared_data, "cmu/35_01.bvh").report
+    assert r["median_lowest_foot_mm"] <= 15.0
+    assert r["foot_contact_frames"] >= 0.9  # A walk always has a foot down.
+
+
+def test_run_feet_follow_the_human_clearance(shared_data: Path) -> None:
+    """The run has a flight phase in about half its frames: the median lowest foot is the
+    scaled human's own clearance (15 mm), not floating feet (GMR: 47-92 mm)."""
+    r = _retarget(shared_data, "cmu/09_01.bvh").report
+    assert r["median_lowest_foot_mm"] <= 20.0
+    assert 0.3 <= r["foot_contact_frames"] <= 0.8
+
+
+def test_motion_fields_are_consistent(shared_data: Path) -> None:
+    out = _retarget(shared_data, "cmu/35_01.bvh")
+    m = out.motion
+    assert m.fps == 50.0
+    assert m.num_frames == out.report["frames"]
+    # 358 frames at 120 fps -> 2.975 s -> 149 frames at 50 fps.
+    assert m.num_frames == 149
+    np.testing.assert_allclose(m.body_pos_w[:, 0], m.qpos[:, :3])
+    np.testing.assert_allclose(m.joint_pos, m.qpos[:, 7:])
+    assert m.body_names[0] == "pelvis" and len(m.joint_names) == 29
+    # The walk goes forward (+x after heading alignment) at a walking speed.
+    speed = np.linalg.norm(m.body_lin_vel_w[:, 0, :2], axis=1).mean()
+    assert 0.5 < speed < 2.0
+    assert m.body_pos_w[-1, 0, 0] > 1.5
+
+
+def test_planted_feet_stay_planted(shared_data: Path) -> None:
+    out = _retarget(shared_data, "cmu/35_01.bvh")
+    assert out.motion.extras is not None
+    contacts = out.motion.extras["human_contacts"]  # (T, 2 feet, [heel, toe])
+    heel = out.motion.body_pos_w[
+        :,
+        [out.motion.body_names.index(b) for b in ("left_ankle_roll_link", "right_ankle_roll_link")],
+    ]
+    both = contacts[:, :, 0] & contacts[:, :, 1]
+    moved = []
+    for s in range(2):
+        f = np.flatnonzero(both[1:, s] & both[:-1, s])
+        moved.append(np.linalg.norm(heel[f + 1, s, :2] - heel[f, s, :2], axis=1))
+    step = np.concatenate(moved)
+    assert step.size > 50
+    assert np.median(step) < 0.002  # Under 2 mm per frame while both heel and toe are down.
+
+
+def test_second_robot_uses_the_same_code(shared_data: Path) -> None:
+    r = _retarget(shared_data, "cmu/35_01.bvh", robot="t1").report
+    assert r["robot"] == "t1"
+    assert r["joint_limit_violations"] == 0
+    assert r["max_ground_penetration_mm"] <= 5.0
+    assert r["median_lowest_foot_mm"] <= 15.0
+    assert r["keypoint_error_mm_mean"] <= 40.0

