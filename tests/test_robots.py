@@ -120,9 +120,9 @@ def test_nominal_model_actuators_are_explicit_position_servos(
         armature = model.dof_armature[model.jnt_dofadr[j]]
         motor = _motor_for(cfg.actuators, name)
         assert armature == act.armature == _sig6(motor.armature)
-        # The recipe, as actuators.py writes it (from the motor's armature).
-        assert kp == _sig6(motor.armature * wn**2)
-        assert kd == _sig6(2.0 * zeta * motor.armature * wn)
+        # The recipe, from the armature the simulator gets.
+        assert kp == _sig6(armature * wn**2)
+        assert kd == _sig6(2.0 * zeta * armature * wn)
         # ...and consistent with the simulated armature to the six digits kept.
         assert kp == pytest.approx(armature * wn**2, rel=1e-5)
         assert kd == pytest.approx(2.0 * zeta * armature * wn, rel=1e-5)
