@@ -62,6 +62,7 @@ def test_run_feet_follow_the_human_clearance(shared_data: Path) -> None:
     scaled human's own clearance (15 mm), not floating feet (GMR: 47-92 mm)."""
     r = _retarget(shared_data, "cmu/09_01.bvh").report
     assert r["median_lowest_foot_mm"] <= 20.0
+    assert r["median_lowest_foot_in_contact_mm"] <= 5.0
     assert 0.3 <= r["foot_contact_frames"] <= 0.8
 
 

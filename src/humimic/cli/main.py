@@ -161,6 +161,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         if key not in retargeters:
             retargeters[key] = Retargeter(cmd.robot, clip.skeleton, ik_cfg, map_file=cmd.map)
         rt = retargeters[key]
+        rt.validate(clip)
         total = clip.resample(ik_cfg.fps).num_frames
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
             result = rt.run(clip, progress=bar.update)

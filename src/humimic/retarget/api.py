@@ -54,11 +54,15 @@ class Retargeter:
         self.ik = KinematicRetargeter(self.robot, self.map, cfg)
         self.setup_seconds = time.perf_counter() - t0
 
-    def run(self, clip: HumanClip, progress: Callable[[int], Any] | None = None) -> RetargetOutput:
-        """Retarget one clip; the report holds the speed and the quality metrics."""
+    def validate(self, clip: HumanClip) -> None:
+        """Check that the map fits this clip's joints (raises :class:`MapError`)."""
         self.map.validate(
             clip.names, {self.ik.model.body(b).name for b in range(self.ik.model.nbody)}
         )
+
+    def run(self, clip: HumanClip, progress: Callable[[int], Any] | None = None) -> RetargetOutput:
+        """Retarget one clip; the report holds the speed and the quality metrics."""
+        self.validate(clip)
         t0 = time.perf_counter()
         res = self.ik.run(clip, progress=progress)
         tg = res.targets
@@ -79,6 +83,7 @@ class Retargeter:
             foot_bodies=[f.body for f in self.map.feet.values()],
             self_collision=self_collision_geoms(self.ik.model, self.robot),
             floor_geom=self.robot.floor_geom,
+            human_contact=tg.contacts.any(axis=(1, 2)),
         )
         T = motion.num_frames
         report: dict[str, Any] = {

@@ -242,8 +242,7 @@ class KinematicRetargeter:
             return 0
         n = 0
         for _ in range(self.cfg.repair_iters):
-            limit.compute_qp_inequalities(self.configuration, 1.0)
-            if limit.min_distance >= 0.5 * self.cfg.collision_margin:
+            if limit.active_min_distance(self.configuration) >= 0.5 * self.cfg.collision_margin:
                 break
             dq = self._solve(tasks, q_prev, step, source, t)
             self.configuration.integrate_inplace(dq, 1.0)

@@ -121,6 +121,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         )
         fromto = self._fromto
         self.min_distance = np.inf
+        active = []
         for idx in indices:
             g1, g2 = self.geom_id_pairs[idx]
             dist = mujoco.mj_geomDistance(
@@ -129,6 +130,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             if abs(dist - self.collision_detection_distance) < 1e-12:
                 continue
             self.min_distance = min(self.min_distance, dist)
+            active.append(idx)
             row = compute_contact_normal_jacobian(
                 model, data, g1, g2, fromto, self._normal, self._jac1, self._jac2
             )
@@ -136,4 +138,25 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             G[idx] = sign * row
             # For a penetrating pair the witness normal flips, hence the sign on G.
             h[idx] = self.gain * (dist - self.minimum_distance_from_collisions) / dt
+        self._active = active
         return Constraint(G=G, h=h)
+
+    def active_min_distance(self, configuration: mink.Configuration) -> float:
+        """Smallest distance now among the pairs that were near at the last evaluation.
+
+        A cheap final check after the last QP step: pairs farther than the detection distance
+        before a (trust-region bounded) step cannot have met.
+        """
+        out = np.inf
+        for idx in getattr(self, "_active", []):
+            g1, g2 = self.geom_id_pairs[idx]
+            d = mujoco.mj_geomDistance(
+                self.model,
+                configuration.data,
+                g1,
+                g2,
+                self.collision_detection_distance,
+                self._fromto,
+            )
+            out = min(out, d)
+        return out

@@ -25,6 +25,8 @@ class QualityReport:
         foot_contact_frames: Share of frames in which some foot point touches the ground.
         max_ground_penetration_mm: Deepest penetration of any robot collision geom into the floor.
         median_lowest_foot_mm: Median over frames of the lowest foot point's height.
+        median_lowest_foot_in_contact_mm: The same over the frames in which the human has a
+            foot on the ground (flight phases of a run excluded); NaN without contact frames.
         joint_limit_violations: (frame, joint) pairs outside the joint range.
         self_collision_frames: Frames in which a self-collision pair penetrates deeper than 1 mm.
         max_self_penetration_mm: Deepest penetration among the self-collision pairs.
@@ -37,6 +39,7 @@ class QualityReport:
     foot_contact_frames: float
     max_ground_penetration_mm: float
     median_lowest_foot_mm: float
+    median_lowest_foot_in_contact_mm: float
     joint_limit_violations: int
     self_collision_frames: int
     max_self_penetration_mm: float
@@ -53,6 +56,7 @@ def evaluate(
     foot_bodies: list[str],
     self_collision: list[tuple[list[int], list[int]]],
     floor_geom: str = "floor",
+    human_contact: np.ndarray | None = None,
 ) -> QualityReport:
     """Measure a motion.
 
@@ -65,6 +69,7 @@ def evaluate(
         foot_bodies: Foot bodies (their collision geoms give the contact points).
         self_collision: Geom-id groups that must not interpenetrate.
         floor_geom: Name of the floor geom.
+        human_contact: Frames in which the human has a foot on the ground. Shape: (T,).
     """
     data = mujoco.MjData(model)
     T = qpos.shape[0]
@@ -131,6 +136,11 @@ def evaluate(
         foot_contact_frames=float(touching.any(axis=1).mean()),
         max_ground_penetration_mm=float(ground_pen.max() * 1e3),
         median_lowest_foot_mm=float(np.median(foot_bottom.min(axis=1)) * 1e3),
+        median_lowest_foot_in_contact_mm=(
+            float(np.median(foot_bottom.min(axis=1)[human_contact]) * 1e3)
+            if human_contact is not None and human_contact.any()
+            else float("nan")
+        ),
         joint_limit_violations=violations,
         self_collision_frames=int(np.sum(self_pen > 1e-3)),
         max_self_penetration_mm=float(self_pen.max() * 1e3),
