@@ -38,6 +38,8 @@ class RetargetCommand:
     """Skeleton name for the map (default: detected from the joint names)."""
     map: Path | None = None
     """Your own human-to-robot map (YAML); default: the shipped map for skeleton and robot."""
+    menagerie_root: Path | None = None
+    """A MuJoCo Menagerie folder (or the robot's own folder) to load the robot from."""
     start: int | None = None
     """First source frame to use (default: 1 for CMU files, whose frame 0 is a T-pose)."""
     preset: Literal["default", "fast"] = "default"
@@ -73,6 +75,8 @@ class RobotsExport:
     """Robot name."""
     out: Path
     """Output .xml file."""
+    menagerie_root: Path | None = None
+    """A MuJoCo Menagerie folder (or the robot's own folder) to load the robot from."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -159,7 +163,13 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         clip = clip.slice(start)
         key = clip.skeleton
         if key not in retargeters:
-            retargeters[key] = Retargeter(cmd.robot, clip.skeleton, ik_cfg, map_file=cmd.map)
+            retargeters[key] = Retargeter(
+                cmd.robot,
+                clip.skeleton,
+                ik_cfg,
+                map_file=cmd.map,
+                menagerie_root=cmd.menagerie_root,
+            )
         rt = retargeters[key]
         rt.validate(clip)
         total = clip.resample(ik_cfg.fps).num_frames
@@ -220,7 +230,7 @@ def run_robots(cmd: RobotsList | RobotsExport) -> None:
             cfg = get_robot(name)
             print(f"{name:6s} {cfg.description} [{cfg.license}]")
         return
-    path = export_nominal(get_robot(cmd.name), cmd.out)
+    path = export_nominal(get_robot(cmd.name), cmd.out, menagerie_root=cmd.menagerie_root)
     print(f"wrote {path} (meshes in {path.parent / (path.stem + '_assets')})")
 
 

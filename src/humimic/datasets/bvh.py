@@ -27,7 +27,7 @@ import numpy as np
 
 from humimic.datasets.clip import HumanClip
 from humimic.errors import BvhParseError, InputError
-from humimic.transforms import Y_UP_TO_Z_UP, euler_to_matrix
+from humimic.transforms import Y_UP_TO_Z_UP, euler_to_matrix, matrix_to_quat
 
 UNIT_FACTORS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
 """Metres per file unit for the named units, in the order ``units="auto"`` tries them."""
@@ -154,7 +154,7 @@ def load_bvh(
         names=names,
         parents=parents,
         positions_w=pos_w,
-        quats_w=_matrices_to_quats(rot_w),
+        quats_w=matrix_to_quat(rot_w),
         fps=1.0 / frame_time,
         source=str(p),
         skeleton=skeleton,
@@ -549,36 +549,3 @@ def _forward_kinematics(joints: list[_Joint], data: np.ndarray) -> tuple[np.ndar
             rot[:, j] = parent_rot @ local
             pos[:, j] = pos[:, joint.parent] + np.einsum("tij,tj->ti", parent_rot, trans)
     return rot, pos
-
-
-def _matrices_to_quats(m: np.ndarray) -> np.ndarray:
-    """Rotation matrices to unit quaternions (wxyz, w >= 0), vectorized Shepperd's method.
-
-    Args:
-        m: Rotation matrices. Shape: (..., 3, 3).
-
-    Returns:
-        Quaternions. Shape: (..., 4).
-    """
-    shape = m.shape[:-2]
-    r = m.reshape(-1, 3, 3)
-    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
-    tr = m00 + m11 + m22
-    k = np.argmax(np.stack([tr, m00, m11, m22], axis=1), axis=1)
-    q = np.empty((r.shape[0], 4))
-    d21, d02, d10 = r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]
-    s01, s02, s12 = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]
-    cases = (
-        (1.0 + tr, lambda s, i: (0.25 * s, d21[i] / s, d02[i] / s, d10[i] / s)),
-        (1.0 + m00 - m11 - m22, lambda s, i: (d21[i] / s, 0.25 * s, s01[i] / s, s02[i] / s)),
-        (1.0 - m00 + m11 - m22, lambda s, i: (d02[i] / s, s01[i] / s, 0.25 * s, s12[i] / s)),
-        (1.0 - m00 - m11 + m22, lambda s, i: (d10[i] / s, s02[i] / s, s12[i] / s, 0.25 * s)),
-    )
-    for case, (radicand, parts) in enumerate(cases):
-        i = np.flatnonzero(k == case)
-        if i.size:
-            s = 2.0 * np.sqrt(np.maximum(radicand[i], 1e-300))
-            q[i] = np.stack(parts(s, i), axis=1)
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q.reshape(*shape, 4)

@@ -44,6 +44,7 @@ class Retargeter:
         skeleton: str,
         cfg: RetargetConfig,
         map_file: str | Path | None = None,
+        menagerie_root: str | Path | None = None,
     ) -> None:
         t0 = time.perf_counter()
         self.robot = get_robot(robot)
@@ -51,7 +52,7 @@ class Retargeter:
             load_map_file(map_file) if map_file is not None else get_map(skeleton, robot)
         )
         self.cfg = cfg
-        self.ik = KinematicRetargeter(self.robot, self.map, cfg)
+        self.ik = KinematicRetargeter(self.robot, self.map, cfg, menagerie_root=menagerie_root)
         self.setup_seconds = time.perf_counter() - t0
 
     def validate(self, clip: HumanClip) -> None:
@@ -83,7 +84,7 @@ class Retargeter:
             foot_bodies=[f.body for f in self.map.feet.values()],
             self_collision=self_collision_geoms(self.ik.model, self.robot),
             floor_geom=self.robot.floor_geom,
-            human_contact=tg.contacts.any(axis=(1, 2)),
+            human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
         )
         T = motion.num_frames
         report: dict[str, Any] = {

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import daqp
@@ -31,13 +32,15 @@ from humimic.robots.registry import RobotConfig
 KEYPOINT_SITE_PREFIX = "humimic_kp_"
 
 
-def ik_model(robot: RobotConfig, m: RetargetMap) -> tuple[mujoco.MjModel, dict[str, float]]:
+def ik_model(
+    robot: RobotConfig, m: RetargetMap, *, menagerie_root: str | Path | None = None
+) -> tuple[mujoco.MjModel, dict[str, float]]:
     """The nominal model plus one site per key point (sites change no physics).
 
     Returns:
         The model and each actuated joint's speed limit [rad/s].
     """
-    spec, acts = nominal_spec(robot)
+    spec, acts = nominal_spec(robot, menagerie_root=menagerie_root)
     for name, kp in m.keypoints.items():
         body = spec.body(kp.body)
         if body is None:
@@ -85,11 +88,18 @@ class KinematicResult:
 class KinematicRetargeter:
     """Retarget human clips to one robot with one map. Build once, run on many clips."""
 
-    def __init__(self, robot: RobotConfig, m: RetargetMap, cfg: RetargetConfig) -> None:
+    def __init__(
+        self,
+        robot: RobotConfig,
+        m: RetargetMap,
+        cfg: RetargetConfig,
+        *,
+        menagerie_root: str | Path | None = None,
+    ) -> None:
         self.robot = robot
         self.map = m
         self.cfg = cfg
-        self.model, speed = ik_model(robot, m)
+        self.model, speed = ik_model(robot, m, menagerie_root=menagerie_root)
         m.validate(None, {self.model.body(b).name for b in range(self.model.nbody)})
         self.configuration = mink.Configuration(self.model)
         self.keypoints = KeypointsTask(self.model, [KEYPOINT_SITE_PREFIX + n for n in m.keypoints])
