@@ -130,6 +130,11 @@ class KinematicRetargeter:
                     collision_detection_distance=cfg.collision_detection,
                 )
             )
+        # The orientation-led first stage skips the (costly) self-collision rows: the position
+        # stage that follows always enforces them, pushing apart any pair stage 1 brought close.
+        self._stage1_limits = [
+            lim for lim in self.limits if not isinstance(lim, SelfCollisionLimit)
+        ]
         self.geometry = self._measure_geometry()
         self.relaxed = 0
 
@@ -214,7 +219,8 @@ class KinematicRetargeter:
                 self._set_stage_costs(targets, t, stage)
                 prev = np.inf
                 for _ in range(max_iters * budget):
-                    dq = self._solve(tasks, q_prev, step, clip.source, t)
+                    limits = self._stage1_limits if stage == 1 and t > 0 else None
+                    dq = self._solve(tasks, q_prev, step, clip.source, t, limits)
                     conf.integrate_inplace(dq, 1.0)
                     n += 1
                     err = self._task_error()  # At the start of this QP.
@@ -266,6 +272,7 @@ class KinematicRetargeter:
         step: np.ndarray | None,
         source: str,
         t: int,
+        limits: list[mink.Limit] | None = None,
     ) -> np.ndarray:
         """One QP: tasks as the objective, joint box as bounds, limits as inequalities."""
         conf = self.configuration
@@ -288,7 +295,7 @@ class KinematicRetargeter:
         lo = np.minimum(lo, 0.0)
         hi = np.maximum(hi, 0.0)
         rows, ub = [], []
-        for lim in self.limits:
+        for lim in self.limits if limits is None else limits:
             cons = lim.compute_qp_inequalities(conf, 1.0)
             if cons.G is None or cons.h is None:
                 continue
