@@ -152,7 +152,17 @@ def _case_out_not_npz(tmp: Path, data: Path) -> Case:
     )
 
 
+def _case_unknown_joint_names(tmp: Path, data: Path) -> Case:
+    src = _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "walk.bvh", 20)
+    src.write_text(src.read_text().replace("LeftUpLeg", "LeftThigh"))
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["cmu_g1.yaml", "keypoints.left_hip.human", "'LeftUpLeg'", "LeftThigh"],
+    )
+
+
 CASES: dict[str, Callable[[Path, Path], Case]] = {
+    "unknown_joint_names": _case_unknown_joint_names,
     "truncated_bvh": _case_truncated_bvh,
     "bad_number_bvh": _case_bad_number_bvh,
     "nan_npy": _case_nan_npy,

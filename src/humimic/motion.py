@@ -10,9 +10,11 @@ kinematics of ``qpos``; velocities are central finite differences (one-sided at 
 from __future__ import annotations
 
 import io
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -51,7 +53,8 @@ class Motion:
         joint_pos: Shape: (T, J). joint_vel: Shape: (T, J).
         body_pos_w: Shape: (T, B, 3). body_quat_w: Shape: (T, B, 4), wxyz.
         body_lin_vel_w: Shape: (T, B, 3). body_ang_vel_w: Shape: (T, B, 3), world frame.
-        extras: Further named arrays stored alongside (e.g. ``contacts``).
+        extras: Further per-frame named arrays (first axis T), e.g. ``human_contacts``.
+        info: Free-form metadata (JSON-able), e.g. the source clip and how it was aligned.
     """
 
     robot: str
@@ -66,6 +69,7 @@ class Motion:
     body_lin_vel_w: np.ndarray
     body_ang_vel_w: np.ndarray
     extras: dict[str, np.ndarray] | None = None
+    info: dict[str, Any] | None = None
 
     @property
     def num_frames(self) -> int:
@@ -107,6 +111,7 @@ def motion_from_qpos(
     fps: float,
     robot: str,
     extras: dict[str, np.ndarray] | None = None,
+    info: dict[str, Any] | None = None,
 ) -> Motion:
     """Compute every field of a :class:`Motion` from generalized positions by MuJoCo FK."""
     T = qpos.shape[0]
@@ -143,6 +148,7 @@ def motion_from_qpos(
         body_lin_vel_w=_diff(pos, fps),
         body_ang_vel_w=angular_velocity_w(quat, fps),
         extras=extras,
+        info=info,
     )
 
 
@@ -169,6 +175,8 @@ def save_motion(motion: Motion, path: str | os.PathLike[str]) -> Path:
     }
     for k, v in (motion.extras or {}).items():
         arrays[f"extra_{k}"] = np.asarray(v)
+    if motion.info:
+        arrays["info_json"] = np.array(json.dumps(motion.info))
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]
     with atomic_write(p, "wb") as f:
@@ -214,4 +222,17 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
         body_lin_vel_w=data["body_lin_vel_w"],
         body_ang_vel_w=data["body_ang_vel_w"],
         extras={k[len("extra_") :]: v for k, v in data.items() if k.startswith("extra_")},
+        info=_info(p, data),
     )
+
+
+def _info(p: Path, data: dict[str, np.ndarray]) -> dict[str, Any] | None:
+    if "info_json" not in data:
+        return None
+    try:
+        info = json.loads(str(data["info_json"]))
+    except json.JSONDecodeError as e:
+        raise MotionDataError(f"{p}: info_json is not valid JSON ({e})") from None
+    if not isinstance(info, dict):
+        raise MotionDataError(f"{p}: info_json must hold a JSON object")
+    return info

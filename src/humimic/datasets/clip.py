@@ -77,10 +77,12 @@ class HumanClip:
         return self.positions_w[:, self.index(name)]
 
     def slice(self, start: int, stop: int | None = None) -> HumanClip:
-        """Frames ``start:stop``."""
+        """Frames ``start:stop``; ``meta["start_frame"]`` keeps the first frame's source index."""
         sl = slice(start, stop)
         q = None if self.quats_w is None else self.quats_w[sl]
-        return replace(self, positions_w=self.positions_w[sl], quats_w=q)
+        first = range(self.num_frames)[sl].start
+        meta = {**self.meta, "start_frame": str(int(self.meta.get("start_frame", 0)) + first)}
+        return replace(self, positions_w=self.positions_w[sl], quats_w=q, meta=meta)
 
     def resample(self, fps: float) -> HumanClip:
         """Resample to ``fps`` over the same duration: linear for positions, slerp for rotations."""

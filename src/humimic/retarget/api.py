@@ -73,9 +73,20 @@ class Retargeter:
             tg.fps,
             self.robot.name,
             extras={"human_contacts": tg.contacts, "keypoint_targets": tg.scaled},
+            info={
+                "source": str(Path(clip.source).resolve())
+                if Path(clip.source).exists()
+                else clip.source,
+                "skeleton": clip.skeleton,
+                "source_fps": clip.fps,
+                "start_frame": int(clip.meta.get("start_frame", 0)),
+                "human_yaw": tg.yaw,
+                "human_origin": [float(x) for x in tg.origin],
+                "keypoints": list(self.map.keypoints),
+            },
         )
         seconds = time.perf_counter() - t0
-        quality = evaluate(
+        quality, per_frame = evaluate(
             self.ik.model,
             res.qpos,
             tg.fps,
@@ -109,4 +120,6 @@ class Retargeter:
             "leg_scale": tg.scale,
             **dataclasses.asdict(quality),
         }
+        extras = {**(motion.extras or {}), **{f"metric_{k}": v for k, v in per_frame.items()}}
+        motion = dataclasses.replace(motion, extras=extras)
         return RetargetOutput(motion=motion, report=report)

@@ -57,8 +57,8 @@ def evaluate(
     self_collision: list[tuple[list[int], list[int]]],
     floor_geom: str = "floor",
     human_contact: np.ndarray | None = None,
-) -> QualityReport:
-    """Measure a motion.
+) -> tuple[QualityReport, dict[str, np.ndarray]]:
+    """Measure a motion: the summary report, and per-frame arrays for the viewer.
 
     Args:
         model: Robot model with key point sites and a floor.
@@ -70,6 +70,11 @@ def evaluate(
         self_collision: Geom-id groups that must not interpenetrate.
         floor_geom: Name of the floor geom.
         human_contact: Frames in which the human has a foot on the ground. Shape: (T,).
+
+    Returns:
+        The report, and per-frame arrays: ``keypoint_error`` (T,) [m], ``ground_penetration``
+        (T,) [m], ``self_penetration`` (T,) [m], ``lowest_foot`` (T,) [m], ``foot_touching``
+        (T, N) for the N foot contact points.
     """
     data = mujoco.MjData(model)
     T = qpos.shape[0]
@@ -129,7 +134,7 @@ def evaluate(
     violations = int(np.sum((joints < lo - 1e-6) | (joints > hi + 1e-6)))
     jerk = np.diff(joints, n=3, axis=0) * fps**3 if T > 3 else np.zeros((1, joints.shape[1]))
 
-    return QualityReport(
+    report = QualityReport(
         keypoint_error_mm_mean=float(kp_err.mean() * 1e3),
         keypoint_error_mm_p95=float(np.percentile(kp_err, 95) * 1e3),
         foot_skating_mm_per_s=skating * 1e3,
@@ -146,3 +151,11 @@ def evaluate(
         max_self_penetration_mm=float(self_pen.max() * 1e3),
         mean_joint_jerk=float(np.abs(jerk).mean()),
     )
+    frames = {
+        "keypoint_error": kp_err.mean(axis=1),
+        "ground_penetration": ground_pen,
+        "self_penetration": self_pen,
+        "lowest_foot": foot_bottom.min(axis=1),
+        "foot_touching": touching,
+    }
+    return report, frames

@@ -64,6 +64,8 @@ class Targets:
         human_ground: Measured human ground height [m], in the clip's frame.
         human_height: Estimated performer height [m].
         fps: Frame rate.
+        yaw: Rotation about z applied to the human clip (heading alignment) [rad].
+        origin: Point of the human clip moved to the world origin (before the rotation) [m].
     """
 
     positions: np.ndarray
@@ -77,6 +79,8 @@ class Targets:
     human_ground: float
     human_height: float
     fps: float
+    yaw: float
+    origin: np.ndarray
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -240,6 +244,8 @@ def build_targets(
         human_ground=ground,
         human_height=estimate_height(clip),
         fps=clip.fps,
+        yaw=-yaw0,
+        origin=origin,
     )
 
 

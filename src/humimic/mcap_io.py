@@ -1,0 +1,606 @@
+"""MCAP files that Foxglove opens: motion references, rollouts and robot logs.
+
+One module reads and writes them, with the ``mcap`` package, JSON message encoding and
+``jsonschema`` schemas (checked by a small compiled validator: the ``jsonschema`` package
+costs 3 ms per message here). Topics and their schemas are fixed here (:data:`TOPICS`), so a file
+written by humimic, by a robot's logger or by a user's script is read and validated the same
+way. Quaternions in humimic's own schemas are ``wxyz`` (fields named ``w, x, y, z``); the
+``foxglove.FrameTransforms`` messages written for Foxglove's 3D panel use Foxglove's field names.
+
+Log times are nanoseconds. Message headers carry ``stamp: {sec, nanosec}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import struct
+import tempfile
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from humimic.errors import InputError, MotionDataError
+from humimic.io import check_writable
+
+_NUM = {"type": "number"}
+_NUMS = {"type": "array", "items": _NUM}
+_NAMES = {"type": "array", "items": {"type": "string"}}
+_VEC3 = {
+    "type": "object",
+    "properties": {"x": _NUM, "y": _NUM, "z": _NUM},
+    "required": ["x", "y", "z"],
+}
+_QUAT = {
+    "type": "object",
+    "properties": {"w": _NUM, "x": _NUM, "y": _NUM, "z": _NUM},
+    "required": ["w", "x", "y", "z"],
+}
+_HEADER = {
+    "type": "object",
+    "properties": {
+        "stamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nanosec": {"type": "integer"}},
+            "required": ["sec", "nanosec"],
+        },
+        "frame_id": {"type": "string"},
+    },
+    "required": ["stamp"],
+}
+
+
+def _object(properties: dict[str, Any], required: list[str], title: str) -> dict[str, Any]:
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": title,
+        "type": "object",
+        "properties": properties,
+        "required": required,
+    }
+
+
+SCHEMAS: dict[str, dict[str, Any]] = {
+    "humimic.JointState": _object(
+        {"header": _HEADER, "name": _NAMES, "position": _NUMS, "velocity": _NUMS, "effort": _NUMS},
+        ["header", "name", "position"],
+        "Joint positions [rad], velocities [rad/s], efforts [N m]",
+    ),
+    "humimic.JointCommand": _object(
+        {
+            "header": _HEADER,
+            "name": _NAMES,
+            "position": _NUMS,
+            "velocity": _NUMS,
+            "effort": _NUMS,
+            "kp": _NUMS,
+            "kd": _NUMS,
+        },
+        ["header", "name", "position"],
+        "PD targets, feed-forward torques and the gains the drives were told to use",
+    ),
+    "humimic.Pose": _object(
+        {"header": _HEADER, "position": _VEC3, "orientation": _QUAT},
+        ["header", "position", "orientation"],
+        "A pose in the world frame (orientation w, x, y, z)",
+    ),
+    "humimic.Imu": _object(
+        {
+            "header": _HEADER,
+            "orientation": _QUAT,
+            "angular_velocity": _VEC3,
+            "linear_acceleration": _VEC3,
+        },
+        ["header"],
+        "IMU: orientation (w, x, y, z), angular velocity [rad/s], linear acceleration [m/s^2]",
+    ),
+    "humimic.Qpos": _object(
+        {"header": _HEADER, "qpos": _NUMS},
+        ["header", "qpos"],
+        "MuJoCo generalized positions (free joint: x y z qw qx qy qz, then joints)",
+    ),
+    "humimic.BodyStates": _object(
+        {
+            "header": _HEADER,
+            "name": _NAMES,
+            "position": {"type": "array", "items": _NUMS},
+            "orientation": {"type": "array", "items": _NUMS},
+            "linear_velocity": {"type": "array", "items": _NUMS},
+            "angular_velocity": {"type": "array", "items": _NUMS},
+        },
+        ["header", "name", "position", "orientation"],
+        "World-frame body states; orientation rows are w, x, y, z",
+    ),
+    "humimic.NamedArrays": _object(
+        {"header": _HEADER, "arrays": {"type": "object"}},
+        ["header", "arrays"],
+        "Named arrays (nested lists) for one time step",
+    ),
+    "humimic.RewardTerms": _object(
+        {"header": _HEADER, "terms": {"type": "object", "additionalProperties": _NUM}},
+        ["header", "terms"],
+        "Per-step reward terms of one environment",
+    ),
+    "foxglove.FrameTransforms": {
+        "title": "foxglove.FrameTransforms",
+        "type": "object",
+        "properties": {
+            "transforms": {
+                "type": "array",
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "timestamp": {
+                            "type": "object",
+                            "properties": {
+                                "sec": {"type": "integer"},
+                                "nsec": {"type": "integer"},
+                            },
+                        },
+                        "parent_frame_id": {"type": "string"},
+                        "child_frame_id": {"type": "string"},
+                        "translation": _VEC3,
+                        "rotation": _QUAT,
+                    },
+                },
+            }
+        },
+        "required": ["transforms"],
+    },
+}
+
+TOPICS: dict[str, str] = {
+    "/joint_states": "humimic.JointState",
+    "/joint_commands": "humimic.JointCommand",
+    "/base_pose": "humimic.Pose",
+    "/imu": "humimic.Imu",
+    "/qpos": "humimic.Qpos",
+    "/body_states": "humimic.BodyStates",
+    "/reward_terms": "humimic.RewardTerms",
+    "/reference/qpos": "humimic.Qpos",
+    "/reference/joint_states": "humimic.JointState",
+    "/reference/body_states": "humimic.BodyStates",
+    "/reference/extras": "humimic.NamedArrays",
+    "/tf": "foxglove.FrameTransforms",
+}
+"""Known topics -> schema name. Other topics may be written with an explicit schema."""
+
+Checker = Any  # Callable[[object, str], str | None]: value, path -> error or None
+
+
+def compile_schema(schema: dict[str, Any]) -> Checker:
+    """A fast checker for the JSON Schema subset humimic's schemas use.
+
+    Supported keywords: ``type`` (object, array, number, integer, string, boolean),
+    ``properties``, ``required``, ``items``, ``additionalProperties`` (a schema). Others are
+    ignored. The checker returns ``None`` or a message that starts with the failing field's
+    dotted path. Arrays of numbers are checked in one pass (they dominate the messages).
+    """
+    kind = schema.get("type")
+    props = {k: compile_schema(v) for k, v in schema.get("properties", {}).items()}
+    required = list(schema.get("required", []))
+    items = compile_schema(schema["items"]) if isinstance(schema.get("items"), dict) else None
+    addl = schema.get("additionalProperties")
+    addl_check = compile_schema(addl) if isinstance(addl, dict) else None
+    numeric_items = (
+        isinstance(schema.get("items"), dict) and schema["items"].get("type") == "number"
+    )
+
+    def where(path: str) -> str:
+        return path or "(message)"
+
+    def check(value: object, path: str = "") -> str | None:
+        if kind == "object":
+            if not isinstance(value, dict):
+                return f"{where(path)}: expected an object, got {type(value).__name__}"
+            for k in required:
+                if k not in value:
+                    return f"{where(path + '.' + k if path else k)}: required field missing"
+            for k, v in value.items():
+                sub = f"{path}.{k}" if path else k
+                c = props.get(k, addl_check)
+                if c is not None:
+                    err = c(v, sub)
+                    if err:
+                        return err
+            return None
+        if kind == "array":
+            if not isinstance(value, list):
+                return f"{where(path)}: expected an array, got {type(value).__name__}"
+            if numeric_items:
+                for i, x in enumerate(value):
+                    if type(x) not in (int, float):
+                        return f"{path}.{i}: expected a number, got {x!r}"
+                return None
+            if items is not None:
+                for i, x in enumerate(value):
+                    err = items(x, f"{path}.{i}")
+                    if err:
+                        return err
+            return None
+        if kind == "number":
+            if type(value) not in (int, float):
+                return f"{where(path)}: expected a number, got {value!r}"
+        elif kind == "integer":
+            if type(value) is not int:
+                return f"{where(path)}: expected an integer, got {value!r}"
+        elif kind == "string":
+            if not isinstance(value, str):
+                return f"{where(path)}: expected a string, got {value!r}"
+        elif kind == "boolean" and not isinstance(value, bool):
+            return f"{where(path)}: expected true or false, got {value!r}"
+        return None
+
+    return check
+
+
+_VALIDATORS: dict[str, Checker] = {name: compile_schema(s) for name, s in SCHEMAS.items()}
+
+
+class McapFormatError(InputError):
+    """An MCAP file is truncated, corrupt, or its messages do not match their schemas."""
+
+
+def stamp(t_ns: int) -> dict[str, int]:
+    """A header stamp from nanoseconds."""
+    return {"sec": int(t_ns // 1_000_000_000), "nanosec": int(t_ns % 1_000_000_000)}
+
+
+class McapWriter:
+    """Write an MCAP file atomically: a temporary file renamed into place on success only.
+
+    Use as a context manager. Each message is validated against its topic's schema; the first
+    invalid message raises :class:`McapFormatError` naming the topic and the field, and no
+    file is left behind.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, profile: str = "humimic") -> None:
+        self.path = check_writable(path)
+        if self.path.suffix != ".mcap":
+            raise InputError(f"{self.path}: MCAP files must end in .mcap")
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+        )
+        self._tmp = Path(tmp)
+        self._file = os.fdopen(fd, "wb")
+        self._writer = Writer(self._file)
+        self._writer.start(profile=profile, library="humimic")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, tuple[int, str]] = {}
+        self._seq: dict[str, int] = {}
+
+    def __enter__(self) -> McapWriter:
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record (string to string)."""
+        self._writer.add_metadata(name, {k: str(v) for k, v in data.items()})
+
+    def _channel(self, topic: str, schema: str | None) -> tuple[int, str]:
+        if topic in self._channels:
+            return self._channels[topic]
+        name = schema or TOPICS.get(topic)
+        if name is None or name not in SCHEMAS:
+            raise InputError(
+                f"topic {topic}: no schema known; pass one of {sorted(SCHEMAS)} or use a known "
+                f"topic ({', '.join(sorted(TOPICS))})"
+            )
+        if name not in self._schemas:
+            self._schemas[name] = self._writer.register_schema(
+                name=name, encoding="jsonschema", data=json.dumps(SCHEMAS[name]).encode()
+            )
+        cid = self._writer.register_channel(
+            topic=topic, message_encoding="json", schema_id=self._schemas[name]
+        )
+        self._channels[topic] = (cid, name)
+        return cid, name
+
+    def write(
+        self, topic: str, log_time_ns: int, message: dict[str, Any], *, schema: str | None = None
+    ) -> None:
+        """Validate and write one message."""
+        cid, name = self._channel(topic, schema)
+        err = _VALIDATORS[name](message)
+        if err is not None:
+            raise McapFormatError(f"topic {topic} ({name}): field {err}")
+        seq = self._seq.get(topic, 0)
+        self._seq[topic] = seq + 1
+        data = json.dumps(message, separators=(",", ":"), allow_nan=False).encode()
+        self._writer.add_message(
+            channel_id=cid, log_time=int(log_time_ns), data=data, publish_time=int(log_time_ns),
+            sequence=seq,
+        )  # fmt: skip
+
+    def close(self) -> Path:
+        """Finish the file and move it into place."""
+        self._writer.finish()
+        self._file.close()
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Discard everything written."""
+        with contextlib.suppress(Exception):
+            self._file.close()
+        with contextlib.suppress(OSError):
+            self._tmp.unlink()
+
+
+@dataclass
+class McapLog:
+    """An MCAP file in memory: metadata records and validated JSON messages per topic.
+
+    Attributes:
+        path: The file.
+        metadata: Record name -> string map.
+        messages: Topic -> list of (log time [ns], message).
+        schemas: Topic -> schema name.
+    """
+
+    path: Path
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    messages: dict[str, list[tuple[int, dict[str, Any]]]] = field(default_factory=dict)
+    schemas: dict[str, str] = field(default_factory=dict)
+
+    def topic(self, name: str) -> list[tuple[int, dict[str, Any]]]:
+        """Messages of one topic; :class:`McapFormatError` names the topics present if absent."""
+        if name not in self.messages or not self.messages[name]:
+            present = ", ".join(sorted(self.messages)) or "none"
+            raise McapFormatError(f"{self.path}: no messages on topic {name} (topics: {present})")
+        return self.messages[name]
+
+    def meta(self, name: str) -> dict[str, str]:
+        """One metadata record; :class:`McapFormatError` if absent."""
+        if name not in self.metadata:
+            raise McapFormatError(
+                f"{self.path}: no metadata record {name!r} "
+                f"(records: {', '.join(sorted(self.metadata)) or 'none'})"
+            )
+        return self.metadata[name]
+
+
+def read_mcap(
+    path: str | os.PathLike[str],
+    *,
+    topics: Iterable[str] | None = None,
+    require: Iterable[str] = (),
+) -> McapLog:
+    """Read an MCAP file, validating every JSON message against its schema.
+
+    Args:
+        path: The file.
+        topics: Only these topics (default: all).
+        require: Topics that must have at least one message.
+
+    Raises:
+        InputError: Missing file.
+        McapFormatError: Truncated or corrupt file; a known topic with the wrong schema; a
+            message that does not match its schema (names topic, message index and field); a
+            required topic without messages.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    log = McapLog(path=p)
+    wanted = None if topics is None else set(topics)
+    validators: dict[str, Checker] = {}
+    try:
+        with p.open("rb") as f:
+            reader = make_reader(f)
+            for schema, channel, message in reader.iter_messages(
+                topics=None if wanted is None else sorted(wanted)
+            ):
+                topic = channel.topic
+                if topic not in validators:
+                    validators[topic] = _validator_for(p, topic, schema)
+                    log.schemas[topic] = schema.name if schema is not None else ""
+                if channel.message_encoding != "json":
+                    raise McapFormatError(
+                        f"{p}: topic {topic}: message encoding {channel.message_encoding!r}, "
+                        "expected 'json'"
+                    )
+                try:
+                    msg = json.loads(message.data)
+                except (UnicodeDecodeError, json.JSONDecodeError) as e:
+                    raise McapFormatError(
+                        f"{p}: topic {topic}: message is not JSON ({e})"
+                    ) from None
+                msgs = log.messages.setdefault(topic, [])
+                err = validators[topic](msg)
+                if err is not None:
+                    raise McapFormatError(
+                        f"{p}: topic {topic} ({log.schemas[topic]}), message {len(msgs)}: "
+                        f"field {err}"
+                    )
+                msgs.append((message.log_time, msg))
+            for record in reader.iter_metadata():
+                log.metadata[record.name] = dict(record.metadata)
+    except McapFormatError:
+        raise
+    except (McapError, struct.error, EOFError, ValueError, KeyError) as e:
+        raise McapFormatError(
+            f"{p}: not a readable MCAP file (truncated or corrupt): {e!r}"
+        ) from None
+    for topic in require:
+        log.topic(topic)
+    return log
+
+
+def _validator_for(p: Path, topic: str, schema: Any) -> Checker:
+    expected = TOPICS.get(topic)
+    name = schema.name if schema is not None else None
+    if expected is not None and name != expected:
+        raise McapFormatError(f"{p}: topic {topic} has schema {name!r}, expected {expected!r}")
+    if name in _VALIDATORS:
+        return _VALIDATORS[name]
+    if schema is None or schema.encoding != "jsonschema":
+        return compile_schema({})
+    try:
+        return compile_schema(json.loads(schema.data))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise McapFormatError(f"{p}: topic {topic}: schema {name!r} is not JSON ({e})") from None
+
+
+def iter_frames(fps: float, n: int) -> Iterator[tuple[int, int]]:
+    """(frame index, log time in ns) for ``n`` frames at ``fps``."""
+    for i in range(n):
+        yield i, round(i * 1e9 / fps)
+
+
+def _vec(v: np.ndarray) -> dict[str, float]:
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+def _quat(q: np.ndarray) -> dict[str, float]:
+    return {"w": float(q[0]), "x": float(q[1]), "y": float(q[2]), "z": float(q[3])}
+
+
+def tf_message(t_ns: int, names: Iterable[str], pos: np.ndarray, quat: np.ndarray) -> dict:
+    """Foxglove FrameTransforms of bodies in the world frame (Foxglove's field names)."""
+    ts = {"sec": int(t_ns // 1_000_000_000), "nsec": int(t_ns % 1_000_000_000)}
+    return {
+        "transforms": [
+            {
+                "timestamp": ts,
+                "parent_frame_id": "world",
+                "child_frame_id": n,
+                "translation": _vec(p),
+                "rotation": _quat(q),
+            }
+            for n, p, q in zip(names, pos, quat, strict=True)
+        ]
+    }
+
+
+def write_motion_mcap(motion: Any, path: str | os.PathLike[str]) -> Path:
+    """Write a :class:`humimic.motion.Motion` as MCAP, losslessly (plus ``/tf`` for Foxglove)."""
+    from humimic.motion import SCHEMA_VERSION
+
+    extras = motion.extras or {}
+    with McapWriter(path) as w:
+        w.add_metadata(
+            "motion",
+            {
+                "schema_version": str(SCHEMA_VERSION),
+                "robot": motion.robot,
+                "fps": repr(float(motion.fps)),
+                "joint_names": json.dumps(list(motion.joint_names)),
+                "body_names": json.dumps(list(motion.body_names)),
+                "extras": json.dumps(
+                    {k: [str(v.dtype), list(v.shape[1:])] for k, v in extras.items()}
+                ),
+                "info": json.dumps(motion.info or {}),
+            },
+        )
+        for i, t in iter_frames(motion.fps, motion.num_frames):
+            header = {"stamp": stamp(t), "frame_id": "world"}
+            w.write("/reference/qpos", t, {"header": header, "qpos": motion.qpos[i].tolist()})
+            w.write(
+                "/reference/joint_states",
+                t,
+                {
+                    "header": header,
+                    "name": list(motion.joint_names),
+                    "position": motion.joint_pos[i].tolist(),
+                    "velocity": motion.joint_vel[i].tolist(),
+                },
+            )
+            w.write(
+                "/reference/body_states",
+                t,
+                {
+                    "header": header,
+                    "name": list(motion.body_names),
+                    "position": motion.body_pos_w[i].tolist(),
+                    "orientation": motion.body_quat_w[i].tolist(),
+                    "linear_velocity": motion.body_lin_vel_w[i].tolist(),
+                    "angular_velocity": motion.body_ang_vel_w[i].tolist(),
+                },
+            )
+            if extras:
+                w.write(
+                    "/reference/extras",
+                    t,
+                    {"header": header, "arrays": {k: v[i].tolist() for k, v in extras.items()}},
+                )
+            w.write(
+                "/tf",
+                t,
+                tf_message(t, motion.body_names, motion.body_pos_w[i], motion.body_quat_w[i]),
+            )
+    return Path(path)
+
+
+def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
+    """Read a motion reference written by :func:`write_motion_mcap`."""
+    from humimic.motion import SCHEMA_VERSION, Motion
+
+    topics = ["/reference/qpos", "/reference/joint_states", "/reference/body_states"]
+    log = read_mcap(path, topics=[*topics, "/reference/extras"], require=topics)
+    meta = log.meta("motion")
+    try:
+        version = int(meta["schema_version"])
+        fps = float(meta["fps"])
+        joint_names = tuple(json.loads(meta["joint_names"]))
+        body_names = tuple(json.loads(meta["body_names"]))
+        extra_types = json.loads(meta.get("extras", "{}"))
+        info = json.loads(meta.get("info", "{}"))
+        robot = meta["robot"]
+    except (KeyError, ValueError) as e:
+        raise McapFormatError(f"{log.path}: metadata 'motion': missing or bad field {e}") from None
+    if version != SCHEMA_VERSION:
+        raise McapFormatError(f"{log.path}: schema_version {version}, expected {SCHEMA_VERSION}")
+
+    def stack(topic: str, key: str) -> np.ndarray:
+        msgs = log.topic(topic)
+        try:
+            return np.array([m[key] for _, m in msgs], dtype=np.float64)
+        except (KeyError, ValueError) as e:
+            raise McapFormatError(f"{log.path}: topic {topic}: field {key}: {e}") from None
+
+    qpos = stack("/reference/qpos", "qpos")
+    n = qpos.shape[0]
+    fields = {
+        "joint_pos": stack("/reference/joint_states", "position"),
+        "joint_vel": stack("/reference/joint_states", "velocity"),
+        "body_pos_w": stack("/reference/body_states", "position"),
+        "body_quat_w": stack("/reference/body_states", "orientation"),
+        "body_lin_vel_w": stack("/reference/body_states", "linear_velocity"),
+        "body_ang_vel_w": stack("/reference/body_states", "angular_velocity"),
+    }
+    for k, v in fields.items():
+        if v.shape[0] != n:
+            raise MotionDataError(f"{log.path}: {k} has {v.shape[0]} frames, qpos has {n}")
+    extras = {}
+    if extra_types:
+        msgs = log.topic("/reference/extras")
+        for k, (dtype, _shape) in extra_types.items():
+            try:
+                extras[k] = np.array([m["arrays"][k] for _, m in msgs], dtype=dtype)
+            except KeyError:
+                raise McapFormatError(
+                    f"{log.path}: topic /reference/extras: field arrays.{k} missing"
+                ) from None
+    return Motion(
+        robot=robot,
+        fps=fps,
+        joint_names=joint_names,
+        body_names=body_names,
+        qpos=qpos,
+        extras=extras or None,
+        info=info or None,
+        **fields,
+    )
