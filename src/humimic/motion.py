@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -192,7 +193,7 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
     try:
         with np.load(p, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise MotionDataError(f"{p}: not a readable .npz motion file ({e})") from None
     missing = [k for k in _REQUIRED if k not in data]
     if missing:
@@ -203,6 +204,11 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
     fps = float(data["fps"])
     if not np.isfinite(fps) or fps <= 0:
         raise MotionDataError(f"{p}: fps must be a positive number, got {fps}")
+    for k in _REQUIRED[5:]:
+        if data[k].ndim < 2:
+            raise MotionDataError(
+                f"{p}: {k} must be an array with a frame axis, got shape {data[k].shape}"
+            )
     T = data["qpos"].shape[0]
     for k in _REQUIRED[5:]:
         if data[k].shape[0] != T:

@@ -191,11 +191,6 @@ def quat_to_xyzw(q: np.ndarray) -> np.ndarray:
     return np.roll(np.asarray(q, dtype=np.float64), -1, axis=-1)
 
 
-def yaw_matrix(yaw: float) -> np.ndarray:
-    """Rotation about world z by ``yaw`` radians. Shape: (3, 3)."""
-    return axis_angle_matrix("z", np.asarray(yaw))
-
-
 def frame_from_axes(forward: np.ndarray, up: np.ndarray) -> np.ndarray:
     """Right-handed frame with x along ``forward`` (made orthogonal to ``up``) and z along ``up``.
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import tyro
 
@@ -16,6 +17,18 @@ from humimic.io import atomic_write_text, check_writable
 
 RETARGET_CONFIGS = {"default": retarget_default, "fast": retarget_fast}
 """Named retargeting configurations (factories); see :mod:`humimic.configs`."""
+
+_PRESET = ["default"]
+"""The --preset found on the command line before parsing: the base the --ik.* flags change."""
+
+
+def _scan_preset(argv: list[str]) -> str:
+    for i, a in enumerate(argv):
+        if a == "--preset" and i + 1 < len(argv):
+            return argv[i + 1]
+        if a.startswith("--preset="):
+            return a.split("=", 1)[1]
+    return "default"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,8 +57,8 @@ class RetargetCommand:
     """First source frame to use (default: 1 for CMU files, whose frame 0 is a T-pose)."""
     preset: Literal["default", "fast"] = "default"
     """Named IK settings (humimic.configs); --ik.* flags change single fields on top of it."""
-    ik: RetargetConfig = field(default_factory=retarget_default)
-    """IK settings."""
+    ik: RetargetConfig = field(default_factory=lambda: RETARGET_CONFIGS[_PRESET[0]]())
+    """IK settings (defaults: those of --preset)."""
     quiet: bool = False
     """No progress bars; print only the report summary."""
 
@@ -60,6 +73,35 @@ class DemoCommand:
     clip: int = 0
     """Which climbing sequence (0-2)."""
     quiet: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class ViewCommand:
+    """Look at a motion in the browser, beside the human it came from (viser)."""
+
+    motion: Annotated[Path, tyro.conf.Positional]
+    """Robot motion (.npz or .mcap)."""
+    human: Path | None = None
+    """The human clip it was retargeted from (.bvh, .npy, .npz), drawn as a skeleton."""
+    scene: Path | None = None
+    """Scene objects: a mesh file (.obj, .stl, .ply) or a folder of them, in the clip's frame."""
+    rollout: Path | None = None
+    """A rollout or robot log (.mcap with /qpos, or /base_pose and /joint_states)."""
+    host: str = "127.0.0.1"
+    """Address to bind; 127.0.0.1 keeps the viewer on this machine (0.0.0.0 exposes it)."""
+    port: int = 8080
+    frame: int = 0
+    """Frame to show first."""
+    duration: float | None = None
+    """Stop after this many seconds (default: run until Ctrl-C)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ConvertCommand:
+    """Convert a motion between .npz and .mcap (lossless both ways)."""
+
+    src: Annotated[Path, tyro.conf.Positional]
+    dst: Annotated[Path, tyro.conf.Positional]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,43 +139,73 @@ class FetchCommand:
     """climb: the holosoma climbing clips with box meshes."""
 
 
-def _clip_files(inputs: tuple[Path, ...]) -> list[Path]:
+def _clip_files(inputs: tuple[Path, ...], out: Path) -> list[tuple[Path, Path]]:
+    """Input files, each with its output name (relative to its input folder, without suffix).
+
+    Files inside the output folder are skipped, so outputs of an earlier run are not read.
+    """
     from humimic.datasets import SUPPORTED_SUFFIXES
 
-    files: list[Path] = []
+    out_dir = out.resolve()
+    files: list[tuple[Path, Path]] = []
     for p in inputs:
         if p.is_dir():
-            found = sorted(f for f in p.rglob("*") if f.suffix.lower() in SUPPORTED_SUFFIXES)
+            found = sorted(
+                f
+                for f in p.rglob("*")
+                if f.suffix.lower() in SUPPORTED_SUFFIXES and out_dir not in f.resolve().parents
+            )
             if not found:
                 raise InputError(f"{p}: folder holds no {', '.join(SUPPORTED_SUFFIXES)} files")
-            files += found
+            files += [(f, f.relative_to(p).with_suffix("")) for f in found]
         elif p.exists():
-            files.append(p)
+            files.append((p, Path(p.stem)))
         else:
             raise InputError(f"{p}: no such file or folder")
+    seen: dict[Path, Path] = {}
+    for f, name in files:
+        if name in seen:
+            raise InputError(f"{f} and {seen[name]} would both be written as {name}.npz")
+        seen[name] = f
     return files
 
 
+def _json_ready(value: Any) -> Any:
+    """NaN and infinities become null: reports are strict JSON."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_ready(v) for v in value]
+    return value
+
+
 def run_retarget(cmd: RetargetCommand) -> list[dict]:
-    """Run ``humimic retarget``; returns the reports."""
+    """Run ``humimic retarget``; returns the reports.
+
+    Every input is read and checked before any retargeting, so bad input fails the whole call
+    before anything is written.
+    """
     from tqdm import tqdm
 
-    from humimic.datasets import load_bvh, load_clip
+    from humimic.datasets import HumanClip, load_bvh, load_clip
     from humimic.motion import save_motion
     from humimic.retarget import Retargeter
     from humimic.robots import get_robot
 
     get_robot(cmd.robot)  # Unknown robot: fail before any work.
+    cmd.ik.validate()
     if not cmd.inputs:
         raise InputError("give at least one input clip or folder")
-    files = _clip_files(cmd.inputs)
+    files = _clip_files(cmd.inputs, cmd.out)
     several = len(files) > 1 or any(p.is_dir() for p in cmd.inputs)
     if several:
         if cmd.out.suffix:
             raise InputError(f"{cmd.out}: with several inputs --out must be a folder")
         if cmd.report is not None:
             raise InputError("--report names one file: with several inputs the reports go in --out")
-        outs = [(cmd.out / f"{f.stem}.npz", cmd.out / f"{f.stem}.json") for f in files]
+        outs = [(cmd.out / f"{n}.npz", cmd.out / f"{n}.json") for _, n in files]
     else:
         if cmd.out.suffix != ".npz":
             raise InputError(f"{cmd.out}: the output motion file must end in .npz")
@@ -143,16 +215,10 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         if report_path is not None:
             check_writable(report_path)
 
-    base = retarget_default()
-    changed = {
-        f.name: getattr(cmd.ik, f.name)
-        for f in fields(RetargetConfig)
-        if getattr(cmd.ik, f.name) != getattr(base, f.name)
-    }
-    ik_cfg = replace(RETARGET_CONFIGS[cmd.preset](), **changed)
+    # Read and check everything first.
+    clips: list[HumanClip] = []
     retargeters: dict[str, Retargeter] = {}
-    reports = []
-    for f, (motion_path, report_path) in zip(files, outs, strict=True):
+    for f, _ in files:
         if f.suffix.lower() == ".bvh":
             clip = load_bvh(f, units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton)
         else:
@@ -161,27 +227,32 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         if not 0 <= start < clip.num_frames:
             raise InputError(f"{f}: --start {start} outside the clip's {clip.num_frames} frames")
         clip = clip.slice(start)
-        key = clip.skeleton
-        if key not in retargeters:
-            retargeters[key] = Retargeter(
+        if clip.skeleton not in retargeters:
+            retargeters[clip.skeleton] = Retargeter(
                 cmd.robot,
                 clip.skeleton,
-                ik_cfg,
+                cmd.ik,
                 map_file=cmd.map,
                 menagerie_root=cmd.menagerie_root,
             )
-        rt = retargeters[key]
-        rt.validate(clip)
-        total = clip.resample(ik_cfg.fps).num_frames
+        retargeters[clip.skeleton].validate(clip)
+        clips.append(clip)
+
+    reports = []
+    for (f, _), clip, (motion_path, report_path) in zip(files, clips, outs, strict=True):
+        total = clip.num_frames_at(cmd.ik.fps)
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
-            result = rt.run(clip, progress=bar.update)
-        result.report["start_frame"] = start
+            result = retargeters[clip.skeleton].run(clip, progress=bar.update)
+        report = _json_ready({**result.report, "start_frame": int(clip.meta["start_frame"])})
         save_motion(result.motion, motion_path)
-        text = json.dumps(result.report, indent=2)
         if report_path is not None:
-            atomic_write_text(report_path, text + "\n")
+            try:
+                atomic_write_text(report_path, json.dumps(report, indent=2, allow_nan=False) + "\n")
+            except BaseException:
+                motion_path.unlink(missing_ok=True)  # No motion without its report.
+                raise
         _print_summary(result.report, motion_path)
-        reports.append(result.report)
+        reports.append(report)
     return reports
 
 
@@ -218,8 +289,79 @@ def run_demo(cmd: DemoCommand) -> dict:
     (r,) = run_retarget(
         RetargetCommand(inputs=(clip,), robot=cmd.robot, out=out, report=report, quiet=cmd.quiet)
     )
-    print(json.dumps(r, indent=2))
+    print(json.dumps(r, indent=2, allow_nan=False))
     return r
+
+
+def read_any_motion(path: Path):
+    """A motion from .npz or .mcap."""
+    from humimic.mcap_io import read_motion_mcap
+    from humimic.motion import load_motion
+
+    if path.suffix == ".npz":
+        return load_motion(path)
+    if path.suffix == ".mcap":
+        return read_motion_mcap(path)
+    raise InputError(f"{path}: a motion must be .npz or .mcap")
+
+
+def run_convert(cmd: ConvertCommand) -> None:
+    """Run ``humimic convert``."""
+    from humimic.mcap_io import write_motion_mcap
+    from humimic.motion import save_motion
+
+    if cmd.dst.suffix not in (".npz", ".mcap"):
+        raise InputError(f"{cmd.dst}: convert to .npz or .mcap")
+    motion = read_any_motion(cmd.src)
+    if cmd.dst.suffix == ".mcap":
+        write_motion_mcap(motion, cmd.dst)
+    else:
+        save_motion(motion, cmd.dst)
+    print(f"wrote {cmd.dst} ({motion.num_frames} frames)")
+
+
+def run_view(cmd: ViewCommand) -> None:
+    """Run ``humimic view``."""
+    import time
+
+    import numpy as np
+
+    from humimic.datasets import load_clip
+    from humimic.mcap_io import qpos_from_log, read_mcap, sample_at
+    from humimic.robots import get_robot, nominal_model
+    from humimic.viewer import Viewer, load_scene_meshes
+
+    t0 = time.perf_counter()
+    motion = read_any_motion(cmd.motion)
+    model = nominal_model(get_robot(motion.robot))
+    names = tuple(model.joint(j).name for j in range(1, model.njnt))
+    if names != motion.joint_names:
+        raise InputError(f"{cmd.motion}: joint names do not match robot {motion.robot}")
+    human = load_clip(cmd.human) if cmd.human is not None else None
+    scene = load_scene_meshes(cmd.scene) if cmd.scene is not None else None
+    rollout = None
+    if cmd.rollout is not None:
+        times, qpos = qpos_from_log(read_mcap(cmd.rollout), names)
+        ref_t = np.round(np.arange(motion.num_frames) * 1e9 / motion.fps).astype(np.int64)
+        rollout = sample_at(times - times[0], qpos, ref_t)
+    viewer = Viewer(
+        motion, model, human=human, scene=scene, rollout_qpos=rollout, host=cmd.host, port=cmd.port
+    )
+    if not 0 <= cmd.frame < motion.num_frames:
+        raise InputError(f"--frame {cmd.frame}: the motion has {motion.num_frames} frames")
+    try:
+        viewer.start(frame=cmd.frame)
+    except OSError as e:
+        raise InputError(f"cannot serve on {cmd.host}:{cmd.port}: {e.strerror}") from None
+    print(
+        f"humimic view: {viewer.url} ({motion.num_frames} frames, loaded in "
+        f"{time.perf_counter() - t0:.1f} s); Ctrl-C to stop",
+        flush=True,
+    )
+    try:
+        viewer.serve_forever(cmd.duration)
+    finally:
+        viewer.stop()
 
 
 def run_robots(cmd: RobotsList | RobotsExport) -> None:
@@ -243,6 +385,8 @@ def run_fetch(cmd: FetchCommand) -> None:
 Commands = (
     Annotated[RetargetCommand, tyro.conf.subcommand("retarget")]
     | Annotated[DemoCommand, tyro.conf.subcommand("demo")]
+    | Annotated[ViewCommand, tyro.conf.subcommand("view")]
+    | Annotated[ConvertCommand, tyro.conf.subcommand("convert")]
     | Annotated[RobotsCommand, tyro.conf.subcommand("robots")]
     | Annotated[FetchCommand, tyro.conf.subcommand("fetch")]
 )
@@ -250,9 +394,12 @@ Commands = (
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``humimic`` console script. Bad input exits with code 2."""
+    args = sys.argv[1:] if argv is None else argv
+    preset = _scan_preset(args)
+    _PRESET[0] = preset if preset in RETARGET_CONFIGS else "default"
     cmd = tyro.cli(
         Commands,  # type: ignore[arg-type]
-        args=argv,
+        args=args,
         prog="humimic",
         config=(tyro.conf.OmitSubcommandPrefixes,),
     )
@@ -261,6 +408,10 @@ def main(argv: list[str] | None = None) -> int:
             run_retarget(cmd)
         elif isinstance(cmd, DemoCommand):
             run_demo(cmd)
+        elif isinstance(cmd, ViewCommand):
+            run_view(cmd)
+        elif isinstance(cmd, ConvertCommand):
+            run_convert(cmd)
         elif isinstance(cmd, RobotsCommand):
             run_robots(cmd.command)
         elif isinstance(cmd, FetchCommand):

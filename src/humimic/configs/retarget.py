@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+
+from humimic.errors import InputError
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -11,7 +14,6 @@ class RetargetConfig:
 
     Attributes:
         fps: Output frame rate; the human clip is resampled to it before IK.
-        solver: QP solver passed to qpsolvers (``daqp`` is the fastest here).
         damping: Levenberg-Marquardt damping of the IK QP.
         stage1_iters: Most iterations of the orientation-led first stage, per frame.
         stage2_iters: Most iterations of the position stage, per frame.
@@ -43,7 +45,6 @@ class RetargetConfig:
     """
 
     fps: float = 50.0
-    solver: str = "daqp"
     damping: float = 1e-3
     stage1_iters: int = 1
     stage2_iters: int = 4
@@ -67,6 +68,32 @@ class RetargetConfig:
     smooth_weight: float = 0.5
     max_step: float = 0.3
     repair_iters: int = 4
+
+    def validate(self) -> None:
+        """Check the values; :class:`InputError` names the field (``--ik.<field>`` on the CLI)."""
+        positive = ("fps", "max_step", "contact_speed", "contact_height", "plant_radius")
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"ik.{name}: must be a positive number, got {v}")
+        if self.fps > 1000:
+            raise InputError(f"ik.fps: {self.fps} frames per second is beyond any motion capture")
+        non_negative = (
+            "damping", "tol", "stage1_position_scale", "stage2_orientation_scale",
+            "contact_weight_scale", "foot_orientation_weight", "foot_contact_orientation_weight",
+            "velocity_limit_scale", "collision_margin", "collision_detection", "smooth_weight",
+        )  # fmt: skip
+        for name in non_negative:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"ik.{name}: must be a number >= 0, got {v}")
+        for name in ("stage1_iters", "stage2_iters", "first_frame_iters", "repair_iters"):
+            if getattr(self, name) < 0:
+                raise InputError(f"ik.{name}: must be >= 0")
+        if self.stage1_iters + self.stage2_iters < 1:
+            raise InputError("ik.stage1_iters + ik.stage2_iters: at least one QP per frame")
+        if not 0 < self.collision_gain <= 1:
+            raise InputError(f"ik.collision_gain: must be in (0, 1], got {self.collision_gain}")
 
 
 def retarget_default() -> RetargetConfig:

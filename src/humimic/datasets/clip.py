@@ -63,6 +63,12 @@ class HumanClip:
         """Seconds between the first and the last frame."""
         return (self.num_frames - 1) / self.fps
 
+    def num_frames_at(self, fps: float) -> int:
+        """Frames :meth:`resample` gives at ``fps``."""
+        if abs(fps - self.fps) < 1e-9 or self.num_frames == 1:
+            return self.num_frames
+        return int(np.floor(self.duration * fps + 1e-9)) + 1
+
     def index(self, name: str) -> int:
         """Index of a joint by name; :class:`UnknownNameError` lists the known names."""
         try:
@@ -90,7 +96,7 @@ class HumanClip:
             raise MotionDataError(f"target fps must be a positive number, got {fps}")
         if abs(fps - self.fps) < 1e-9 or self.num_frames == 1:
             return replace(self, fps=float(fps))
-        n = int(np.floor(self.duration * fps + 1e-9)) + 1
+        n = self.num_frames_at(fps)
         t = np.arange(n) / fps * self.fps  # Fractional source frame indices.
         i0 = np.clip(np.floor(t).astype(int), 0, self.num_frames - 1)
         i1 = np.clip(i0 + 1, 0, self.num_frames - 1)

@@ -8,6 +8,7 @@ file holds ``positions`` (T, J, 3), ``joint_names`` (J,) and optionally ``fps`` 
 from __future__ import annotations
 
 import os
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -194,6 +195,8 @@ def load_positions(
 def _load(p: Path) -> object:
     try:
         return np.load(p, allow_pickle=False)
+    except (zipfile.BadZipFile, EOFError) as e:
+        raise MotionDataError(f"{p}: not a readable .npy/.npz file ({e})") from None
     except ValueError as e:
         raise MotionDataError(f"{p}: cannot read as a numpy array file: {e}") from e
     except OSError as e:

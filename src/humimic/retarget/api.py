@@ -82,6 +82,9 @@ class Retargeter:
                 "start_frame": int(clip.meta.get("start_frame", 0)),
                 "human_yaw": tg.yaw,
                 "human_origin": [float(x) for x in tg.origin],
+                "human_ground": tg.human_ground,
+                "human_scale": tg.scale,
+                "human_z_offset": tg.z_offset,
                 "keypoints": list(self.map.keypoints),
             },
         )

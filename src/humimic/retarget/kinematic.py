@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +21,13 @@ import numpy as np
 
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip
-from humimic.errors import RetargetError
-from humimic.retarget.limits import FloorLimit, SelfCollisionLimit
+from humimic.errors import MapError, RetargetError
+from humimic.retarget.limits import (
+    FloorLimit,
+    SelfCollisionLimit,
+    contact_point_heights,
+    foot_contact_points,
+)
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask
 from humimic.robots.maps import RetargetMap
@@ -44,7 +49,9 @@ def ik_model(
     for name, kp in m.keypoints.items():
         body = spec.body(kp.body)
         if body is None:
-            raise RetargetError(f"{m.source}: robot {robot.name} has no body {kp.body!r}")
+            raise MapError(
+                f"{m.source}: keypoints.{name}.body: robot {robot.name} has no body {kp.body!r}"
+            )
         body.add_site(name=KEYPOINT_SITE_PREFIX + name, pos=list(kp.offset), group=5)
     return spec.compile(), {j: a.velocity_limit for j, a in acts.items()}
 
@@ -85,6 +92,18 @@ class KinematicResult:
     relaxed_iterations: int
 
 
+@dataclass(kw_only=True)
+class _Frame:
+    """Per-frame solver state (kept out of the retargeter, which is reused across clips)."""
+
+    source: str
+    t: int = 0
+    tasks: list[mink.Task] = field(default_factory=list)
+    q_prev: np.ndarray | None = None
+    step: np.ndarray | None = None
+    relaxed: int = 0
+
+
 class KinematicRetargeter:
     """Retarget human clips to one robot with one map. Build once, run on many clips."""
 
@@ -96,90 +115,88 @@ class KinematicRetargeter:
         *,
         menagerie_root: str | Path | None = None,
     ) -> None:
+        cfg.validate()
         self.robot = robot
         self.map = m
         self.cfg = cfg
         self.model, speed = ik_model(robot, m, menagerie_root=menagerie_root)
-        m.validate(None, {self.model.body(b).name for b in range(self.model.nbody)})
-        self.configuration = mink.Configuration(self.model)
-        self.keypoints = KeypointsTask(self.model, [KEYPOINT_SITE_PREFIX + n for n in m.keypoints])
-        self.orientations = OrientationsTask(
-            self.model,
-            [fr.body for fr in m.frames.values()] + [f.body for f in m.feet.values()],
-        )
-        self.posture = mink.PostureTask(self.model, cost=m.posture_weight)
-        self.posture.set_target(self.rest_qpos())
-        self.smooth = mink.PostureTask(self.model, cost=cfg.smooth_weight)
-        self.tasks: list[mink.Task] = [self.keypoints, self.orientations, self.posture]
-        if self.model.nq - 7 != self.model.nv - 6 or self.model.njnt - 1 != self.model.nv - 6:
-            raise RetargetError(f"{robot.name}: expected one free joint and hinge/slide joints")
-        self._range_lo = self.model.jnt_range[1:, 0].copy()
-        self._range_hi = self.model.jnt_range[1:, 1].copy()
-        joint_names = [self.model.joint(j).name for j in range(1, self.model.njnt)]
-        self.speed_limits = np.array([speed.get(j, np.inf) for j in joint_names])
-        self.limits: list[mink.Limit] = []
-        if cfg.floor_limit and m.feet:
-            self.limits.append(FloorLimit(self.model, [f.body for f in m.feet.values()]))
-        if cfg.self_collision and robot.self_collision:
-            self.limits.append(
-                SelfCollisionLimit(
-                    self.model,
-                    self_collision_geoms(self.model, robot),  # type: ignore[arg-type]
-                    gain=cfg.collision_gain,
-                    minimum_distance_from_collisions=cfg.collision_margin,
-                    collision_detection_distance=cfg.collision_detection,
+        model = self.model
+        m.validate(None, {model.body(b).name for b in range(model.nbody)})
+        for side, foot in m.feet.items():
+            if foot.body not in robot.feet.values():
+                raise MapError(
+                    f"{m.source}: feet.{side}.body: {foot.body!r} is not a foot of {robot.name} "
+                    f"({', '.join(robot.feet.values())})"
                 )
+        if model.nq - 7 != model.nv - 6 or model.njnt - 1 != model.nv - 6:
+            raise RetargetError(f"{robot.name}: expected one free joint and hinge/slide joints")
+        self.configuration = mink.Configuration(model)
+        self.keypoints = KeypointsTask(model, [KEYPOINT_SITE_PREFIX + n for n in m.keypoints])
+        self.orientations = OrientationsTask(
+            model, [fr.body for fr in m.frames.values()] + [f.body for f in m.feet.values()]
+        )
+        self.posture = mink.PostureTask(model, cost=m.posture_weight)
+        self.posture.set_target(model.qpos0)
+        self.smooth = mink.PostureTask(model, cost=cfg.smooth_weight)
+        self.tasks: list[mink.Task] = [self.keypoints, self.orientations, self.posture]
+        self._root = list(m.keypoints).index(m.root)
+        self._frame_weights = np.array([fr.weight for fr in m.frames.values()])
+        self._range_lo = model.jnt_range[1:, 0].copy()
+        self._range_hi = model.jnt_range[1:, 1].copy()
+        joint_names = [model.joint(j).name for j in range(1, model.njnt)]
+        self.speed_limits = np.array([speed.get(j, np.inf) for j in joint_names])
+        foot_bodies = [f.body for f in m.feet.values()]
+        try:
+            self.foot_points = foot_contact_points(model, foot_bodies)
+        except ValueError:
+            raise MapError(
+                f"{m.source}: feet: the foot bodies {foot_bodies} have no sphere, box or capsule "
+                "collision geoms to stand on"
+            ) from None
+        self.limits: list[mink.Limit] = []
+        if cfg.floor_limit:
+            self.limits.append(FloorLimit(model, foot_bodies))
+        self.self_collision: SelfCollisionLimit | None = None
+        if cfg.self_collision and robot.self_collision:
+            self.self_collision = SelfCollisionLimit(
+                model,
+                self_collision_geoms(model, robot),  # type: ignore[arg-type]
+                gain=cfg.collision_gain,
+                minimum_distance_from_collisions=cfg.collision_margin,
+                collision_detection_distance=cfg.collision_detection,
             )
+            self.limits.append(self.self_collision)
         # The orientation-led first stage skips the (costly) self-collision rows: the position
         # stage that follows always enforces them, pushing apart any pair stage 1 brought close.
-        self._stage1_limits = [
-            lim for lim in self.limits if not isinstance(lim, SelfCollisionLimit)
-        ]
+        self._stage1_limits = [lim for lim in self.limits if lim is not self.self_collision]
         self.geometry = self._measure_geometry()
-        self.relaxed = 0
-
-    def rest_qpos(self) -> np.ndarray:
-        """Zero joint angles, identity base orientation, base at its default height."""
-        q = self.model.qpos0.copy()
-        return q
 
     def _measure_geometry(self) -> RobotGeometry:
+        """The robot in its zero pose, soles on the floor (for the target construction)."""
         model = self.model
         data = mujoco.MjData(model)
-        data.qpos[:] = self.rest_qpos()
+        data.qpos[:] = model.qpos0
         mujoco.mj_kinematics(model, data)
-        sole = 0.0
-        for lim in self.limits:
-            if isinstance(lim, FloorLimit):
-                from humimic.retarget.limits import contact_point_heights
-
-                _, bottom = contact_point_heights(data, lim.ids, lim.pts, lim.rad)
-                sole = float(bottom.min())
+        ids, pts, rad = self.foot_points
+        _, bottom = contact_point_heights(data, ids, pts, rad)
         kp = np.array([data.site(KEYPOINT_SITE_PREFIX + n).xpos.copy() for n in self.map.keypoints])
-        kp[:, 2] -= sole
+        kp[:, 2] -= float(bottom.min())
 
         def rot(body: str) -> np.ndarray:
             return data.body(body).xmat.reshape(3, 3).copy()
 
         feet = []
-        floor = next((lim for lim in self.limits if isinstance(lim, FloorLimit)), None)
         for foot in self.map.feet.values():
-            b = model.body(foot.body).id
-            if floor is None:
-                feet.append(np.zeros((1, 4)))
-                continue
-            sel = floor.ids == b
+            sel = ids == model.body(foot.body).id
             off = np.asarray(self.map.keypoints[foot.ankle].offset)
-            feet.append(np.column_stack([floor.pts[sel] - off, floor.rad[sel]]))
-        n = max((len(f) for f in feet), default=1)
+            feet.append(np.column_stack([pts[sel] - off, rad[sel]]))
+        n = max(len(f) for f in feet)
         foot_points = np.array([np.pad(f, ((0, n - len(f)), (0, 0)), mode="edge") for f in feet])
         return RobotGeometry(
-            foot_points=foot_points.reshape(len(feet), n, 4),
+            foot_points=foot_points,
             keypoints=kp,
-            frame_body_rot=np.array([rot(f.body) for f in self.map.frames.values()]).reshape(
-                -1, 3, 3
-            ),
-            foot_body_rot=np.array([rot(f.body) for f in self.map.feet.values()]).reshape(-1, 3, 3),
+            frame_body_rot=np.array([rot(f.body) for f in self.map.frames.values()]),
+            foot_body_rot=np.array([rot(f.body) for f in self.map.feet.values()]),
         )
 
     def targets(self, clip: HumanClip) -> Targets:
@@ -197,37 +214,37 @@ class KinematicRetargeter:
             if cfg.velocity_limit_scale > 0
             else None
         )
-        # Cold start: rest pose under the first root target, facing +x.
-        q = self.rest_qpos()
-        root = list(self.map.keypoints).index(self.map.root)
-        q[:3] = targets.positions[0, root]
+        # Cold start: zero pose under the first root target, facing +x.
+        q = self.model.qpos0.copy()
+        q[:3] = targets.positions[0, self._root]
         conf.update(q)
         out = np.zeros((T, self.model.nq))
         iters = np.zeros(T, dtype=int)
-        self.relaxed = 0
+        frame = _Frame(source=clip.source)
         t0 = time.perf_counter()
         for t in range(T):
+            frame.t = t
+            frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
+            frame.step = step
             self._set_targets(targets, t)
-            tasks = self.tasks
+            frame.tasks = self.tasks
             if t > 0 and cfg.smooth_weight > 0:
                 self.smooth.set_target(out[t - 1])
-                tasks = [*self.tasks, self.smooth]
-            q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
+                frame.tasks = [*self.tasks, self.smooth]
             budget = cfg.first_frame_iters if t == 0 else 1
             n = 0
             for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
                 self._set_stage_costs(targets, t, stage)
+                limits = self._stage1_limits if stage == 1 and t > 0 else self.limits
                 prev = np.inf
                 for _ in range(max_iters * budget):
-                    limits = self._stage1_limits if stage == 1 and t > 0 else None
-                    dq = self._solve(tasks, q_prev, step, clip.source, t, limits)
-                    conf.integrate_inplace(dq, 1.0)
+                    conf.integrate_inplace(self._solve(frame, limits), 1.0)
                     n += 1
-                    err = self._task_error()  # At the start of this QP.
+                    err = self._task_error()
                     if prev - err < cfg.tol * prev:
                         break
                     prev = err
-            n += self._repair(tasks, q_prev, step, clip.source, t)
+            n += self._repair(frame)
             q = conf.q.copy()
             # Project away round-off beyond the joint ranges (the limit keeps it below 1e-9).
             q[7:] = np.clip(q[7:], self._range_lo, self._range_hi)
@@ -241,61 +258,48 @@ class KinematicRetargeter:
             targets=targets,
             solve_seconds=time.perf_counter() - t0,
             iterations=iters,
-            relaxed_iterations=self.relaxed,
+            relaxed_iterations=frame.relaxed,
         )
 
-    def _repair(
-        self,
-        tasks: list[mink.Task],
-        q_prev: np.ndarray | None,
-        step: np.ndarray | None,
-        source: str,
-        t: int,
-    ) -> int:
-        """Extra iterations while a self-collision pair is closer than half the margin."""
-        limit = next((lim for lim in self.limits if isinstance(lim, SelfCollisionLimit)), None)
+    def _repair(self, frame: _Frame) -> int:
+        """Extra QPs while a self-collision pair is closer than half the margin.
+
+        Checks the pairs found near at the last evaluation (a cheap heuristic: the metrics
+        check every pair in every frame, and report what this misses).
+        """
+        limit = self.self_collision
         if limit is None:
             return 0
         n = 0
         for _ in range(self.cfg.repair_iters):
             if limit.active_min_distance(self.configuration) >= 0.5 * self.cfg.collision_margin:
                 break
-            dq = self._solve(tasks, q_prev, step, source, t)
-            self.configuration.integrate_inplace(dq, 1.0)
+            self.configuration.integrate_inplace(self._solve(frame, self.limits), 1.0)
             n += 1
         return n
 
-    def _solve(
-        self,
-        tasks: list[mink.Task],
-        q_prev: np.ndarray | None,
-        step: np.ndarray | None,
-        source: str,
-        t: int,
-        limits: list[mink.Limit] | None = None,
-    ) -> np.ndarray:
+    def _solve(self, frame: _Frame, limits: list[mink.Limit]) -> np.ndarray:
         """One QP: tasks as the objective, joint box as bounds, limits as inequalities."""
         conf = self.configuration
         nv = self.model.nv
         H = np.eye(nv) * self.cfg.damping
         c = np.zeros(nv)
-        for task in tasks:
+        for task in frame.tasks:
             obj = task.compute_qp_objective(conf)
             H += obj.H
             c += obj.c
-        # Joint box: the range (with mink's 0.95 gain) and the per-frame speed limit.
+        # Joint box: the range (with mink's 0.95 gain), the per-frame speed limit, the trust
+        # region; always admitting zero (round-off can leave q a hair outside).
         q = conf.q[7:]
         lo = 0.95 * (self._range_lo - q)
         hi = 0.95 * (self._range_hi - q)
-        if q_prev is not None and step is not None:
-            lo = np.maximum(lo, q_prev - step - q)
-            hi = np.minimum(hi, q_prev + step - q)
-        lo = np.maximum(lo, -self.cfg.max_step)
-        hi = np.minimum(hi, self.cfg.max_step)
-        lo = np.minimum(lo, 0.0)
-        hi = np.maximum(hi, 0.0)
+        if frame.q_prev is not None and frame.step is not None:
+            lo = np.maximum(lo, frame.q_prev - frame.step - q)
+            hi = np.minimum(hi, frame.q_prev + frame.step - q)
+        lo = np.minimum(np.maximum(lo, -self.cfg.max_step), 0.0)
+        hi = np.maximum(np.minimum(hi, self.cfg.max_step), 0.0)
         rows, ub = [], []
-        for lim in self.limits if limits is None else limits:
+        for lim in limits:
             cons = lim.compute_qp_inequalities(conf, 1.0)
             if cons.G is None or cons.h is None:
                 continue
@@ -312,10 +316,13 @@ class KinematicRetargeter:
             # frame): solve with the floor and collision rows soft, and count it.
             sense[nv:] = 8
             x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
-            self.relaxed += 1
+            frame.relaxed += 1
+        if exitflag >= 1 and not np.all(np.isfinite(x)):
+            exitflag = -100
         if exitflag < 1:
             raise RetargetError(
-                f"{source}: IK QP has no solution at output frame {t} (daqp exit flag {exitflag})"
+                f"{frame.source}: IK QP has no solution at output frame {frame.t} "
+                f"(daqp exit flag {exitflag})"
             )
         return np.asarray(x)
 
@@ -328,13 +335,15 @@ class KinematicRetargeter:
         pos_scale = cfg.stage1_position_scale if stage == 1 else 1.0
         ori_scale = 1.0 if stage == 1 else cfg.stage2_orientation_scale
         costs = targets.position_weights[t] * pos_scale
-        root = list(self.map.keypoints).index(self.map.root)
-        costs[root] = targets.position_weights[t, root]
+        costs[self._root] = targets.position_weights[t, self._root]
         self.keypoints.set_costs(costs)
-        frame_w = np.array([fr.weight for fr in self.map.frames.values()])
-        self.orientations.set_costs(np.concatenate([frame_w, targets.foot_weights[t]]) * ori_scale)
+        self.orientations.set_costs(
+            np.concatenate([self._frame_weights, targets.foot_weights[t]]) * ori_scale
+        )
 
     def _task_error(self) -> float:
-        """Weighted key-point and orientation error at the start of the last QP."""
+        """Weighted key-point and orientation error at the current configuration."""
         k, o = self.keypoints, self.orientations
-        return float(np.sum((k.cost * k.last_error) ** 2) + np.sum((o.cost * o.last_error) ** 2))
+        ek = k.compute_error(self.configuration)
+        eo = o.compute_error(self.configuration)
+        return float(np.sum((k.cost * ek) ** 2) + np.sum((o.cost * eo) ** 2))

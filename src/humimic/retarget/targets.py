@@ -5,8 +5,10 @@ Steps (all documented in docs/retargeting.md):
 1. Key points and derived frames are read from the human clip.
 2. Heading: the clip is turned about z so that the first frame's pelvis faces +x, and shifted
    so that the first frame's pelvis is above the origin.
-3. Ground: the human ground height is measured from the data as a low percentile of the
-   lowest foot point per frame (never a hard-coded offset).
+3. Heights are measured from the data, never a hard-coded offset: the body is shifted so that
+   the planted toes stand at the robot's standing toe height, and each foot point's height is
+   the robot's standing height plus the scaled height of the human point above its planted
+   height (the 2nd percentile over the clip).
 4. Scale per segment: the root moves by the ratio of robot to human leg length; every other
    key point hangs from its parent along the human bone direction with the robot's own bone
    length, or, for points rigid on a body (hips on the pelvis, shoulders on the chest), at the
@@ -24,6 +26,7 @@ import numpy as np
 
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip, estimate_height
+from humimic.errors import MotionDataError
 from humimic.retarget.contacts import detect_contacts, plant_segments, runs
 from humimic.robots.maps import RetargetMap
 from humimic.transforms import axis_angle_matrix, frame_from_left_up
@@ -66,6 +69,8 @@ class Targets:
         fps: Frame rate.
         yaw: Rotation about z applied to the human clip (heading alignment) [rad].
         origin: Point of the human clip moved to the world origin (before the rotation) [m].
+        z_offset: Height added after scaling: a point of the aligned clip at height ``z`` above
+            the human ground maps to ``scale * z + z_offset`` on the robot's side [m].
     """
 
     positions: np.ndarray
@@ -81,6 +86,7 @@ class Targets:
     fps: float
     yaw: float
     origin: np.ndarray
+    z_offset: float
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -110,7 +116,15 @@ def build_targets(
     T = human.shape[0]
 
     # Heading and origin from the first frame.
-    frames_h = _derived_frames(human, m, names)  # (T, F, 3, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frames_h = _derived_frames(human, m, names)  # (T, F, 3, 3)
+    bad = np.flatnonzero(~np.isfinite(frames_h).all(axis=(1, 2, 3)))
+    if bad.size:
+        raise MotionDataError(
+            f"{clip.source}: key points coincide or are aligned (no left-right or up direction) "
+            f"in {bad.size} frame(s), first at t = {bad[0] / clip.fps:.2f} s: a capture dropout? "
+            f"(frames used: {', '.join(f'{n}: {fr.left} {fr.up}' for n, fr in m.frames.items())})"
+        )
     root = idx[m.root]
     if m.frames:
         fwd = frames_h[0, 0, :, 0]
@@ -153,7 +167,7 @@ def build_targets(
     pos = np.zeros_like(human)
     pos[:, root, :2] = scale * human[:, root, :2]
     pos[:, root, 2] = scale * (human[:, root, 2] - ground)
-    for k, (name, kp) in enumerate(m.keypoints.items()):
+    for k, kp in enumerate(m.keypoints.values()):
         if kp.parent is None:
             continue
         par = idx[kp.parent]
@@ -164,19 +178,20 @@ def build_targets(
         else:
             length = bone(robot.keypoints, k, par)
             pos[:, k] = pos[:, par] + length * _unit(human[:, k] - human[:, par])
-        del name
     frame_rots = np.einsum("tfij,fjk->tfik", frames_h, body_offsets)
 
-    # Contacts on the human, per foot point (ankle, toe).
+    # Contacts on the human, per foot point (ankle, toe); a point's planted height is the 2nd
+    # percentile of its height over the clip.
     sides = list(m.feet.values())
+    foot_keys = np.array([[idx[f.ankle], idx[f.toe]] for f in sides])  # (2, 2)
+    planted_h = np.percentile(human[:, foot_keys, 2], 2.0, axis=0)  # (2, 2)
     contacts = np.zeros((T, len(sides), 2), dtype=bool)
-    for s, foot in enumerate(sides):
-        for j, key in enumerate((foot.ankle, foot.toe)):
-            z = human[:, idx[key], 2]
-            rest = np.percentile(z, 2.0)  # The point's height when planted.
-            contacts[:, s, j] = detect_contacts(
-                z - rest,
-                human[:, idx[key], :2],
+    for s_ in range(len(sides)):
+        for j in range(2):
+            key = foot_keys[s_, j]
+            contacts[:, s_, j] = detect_contacts(
+                human[:, key, 2] - planted_h[s_, j],
+                human[:, key, :2],
                 clip.fps,
                 max_height=cfg.contact_height,
                 max_speed=cfg.contact_speed,
@@ -185,6 +200,7 @@ def build_targets(
 
     # Vertical calibration: planted toes at the robot's standing toe height.
     toe_idx = [idx[f.toe] for f in sides]
+    dz = 0.0
     if toe_idx:
         toe_z = pos[:, toe_idx, 2]
         planted = contacts[:, :, 1]
@@ -194,25 +210,19 @@ def build_targets(
     # Foot heights follow the human's clearance over the ground, scaled: a heel that skims the
     # floor at 3 cm on the human skims it at 3 cm x scale on the robot, whatever the leg
     # proportions make of the chain.
-    for foot in sides:
-        for key in (idx[foot.ankle], idx[foot.toe]):
-            rest_h = np.percentile(human[:, key, 2], 2.0)
-            pos[:, key, 2] = robot.keypoints[key, 2] + scale * (human[:, key, 2] - rest_h)
+    above = human[:, foot_keys, 2] - planted_h  # (T, 2, 2)
+    pos[:, foot_keys, 2] = robot.keypoints[foot_keys, 2] + scale * above
     # Soles keep the human's clearance: where the target foot pose (ankle position, foot
     # orientation) would put a contact point lower than the human foot's scaled clearance,
     # the foot's targets are lifted (a heel-down swing foot must not skim the floor).
-    clearance = np.zeros((T, len(sides)))
-    for s_, foot in enumerate(sides):
-        keys = [idx[foot.ankle], idx[foot.toe]]
-        rest_h = np.percentile(human[:, keys, 2], 2.0, axis=0)
-        clearance[:, s_] = scale * np.maximum((human[:, keys, 2] - rest_h).min(axis=1), 0.0)
-    foot_pitch_rots = _foot_rotations(human, m, idx, contacts, robot)[0]
-    for s_, foot in enumerate(sides):
-        a, t_ = idx[foot.ankle], idx[foot.toe]
+    clearance = scale * np.maximum(above.min(axis=2), 0.0)  # (T, 2)
+    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg)
+    for s_ in range(len(sides)):
+        a, t_ = foot_keys[s_]
         pts = robot.foot_points[s_]
         lowest = (
             pos[:, a, 2][:, None]
-            + np.einsum("tj,nj->tn", foot_pitch_rots[:, s_, 2, :], pts[:, :3])
+            + np.einsum("tj,nj->tn", foot_rots[:, s_, 2, :], pts[:, :3])
             - pts[:, 3]
         ).min(axis=1)
         lift = np.maximum(clearance[:, s_] - lowest, 0.0)
@@ -220,11 +230,11 @@ def build_targets(
         pos[:, t_, 2] += lift
     scaled = pos.copy()
 
-    # Planted points keep one position for the whole contact, at standing height.
+    # Planted points keep one position (the mean over the plant) at standing height; a plant
+    # ends where the human point drifts further than plant_radius.
     weights = np.tile(np.array([kp.weight for kp in kps]), (T, 1))
-    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg)
-    for s_, foot in enumerate(sides):
-        for j, key in enumerate((idx[foot.ankle], idx[foot.toe])):
+    for s_ in range(len(sides)):
+        for j, key in enumerate(foot_keys[s_]):
             for start, stop in plant_segments(
                 contacts[:, s_, j], pos[:, key, :2], cfg.plant_radius
             ):
@@ -246,6 +256,7 @@ def build_targets(
         fps=clip.fps,
         yaw=-yaw0,
         origin=origin,
+        z_offset=dz,
     )
 
 
@@ -255,7 +266,7 @@ def _foot_rotations(
     idx: dict[str, int],
     contacts: np.ndarray,
     robot: RobotGeometry,
-    cfg: RetargetConfig | None = None,
+    cfg: RetargetConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Foot orientation targets and costs.
 
@@ -269,20 +280,18 @@ def _foot_rotations(
     sides = list(m.feet.values())
     T = human.shape[0]
     rots = np.zeros((T, len(sides), 3, 3))
-    w_swing = cfg.foot_orientation_weight if cfg else 1.0
-    w_contact = cfg.foot_contact_orientation_weight if cfg else 1.0
-    weights = np.full((T, len(sides)), w_swing)
+    weights = np.full((T, len(sides)), cfg.foot_orientation_weight)
     for s, foot in enumerate(sides):
         d = human[:, idx[foot.toe]] - human[:, idx[foot.ankle]]
         yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
         pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=-1))
         both = contacts[:, s, 0] & contacts[:, s, 1]
-        flat_pitch = float(np.median(pitch[both])) if both.any() else float(np.max(pitch))
+        flat_pitch = float(np.median(pitch[both] if both.any() else pitch))
         pitch_rel = flat_pitch - pitch
         for start, stop in runs(both):
             pitch_rel[start:stop] = 0.0
             yaw[start:stop] = yaw[start:stop].mean()
-            weights[start:stop, s] = w_contact
+            weights[start:stop, s] = cfg.foot_contact_orientation_weight
         rots[:, s] = (
             axis_angle_matrix("z", yaw) @ axis_angle_matrix("y", pitch_rel) @ robot.foot_body_rot[s]
         )

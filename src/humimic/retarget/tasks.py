@@ -63,7 +63,7 @@ class KeypointsTask(mink.Task):
 
     def __init__(self, model: mujoco.MjModel, sites: list[str]) -> None:
         self.model = model
-        self.site_ids = np.array([model.site(s).id for s in sites])
+        self.site_ids = np.array([model.site(s).id for s in sites], dtype=int)
         k = len(sites)
         super().__init__(cost=np.ones(3 * k))
         self.targets = np.zeros((k, 3))
@@ -97,7 +97,7 @@ class OrientationsTask(mink.Task):
 
     def __init__(self, model: mujoco.MjModel, bodies: list[str]) -> None:
         self.model = model
-        self.body_ids = np.array([model.body(b).id for b in bodies])
+        self.body_ids = np.array([model.body(b).id for b in bodies], dtype=int)
         n = len(bodies)
         super().__init__(cost=np.ones(3 * n))
         self.targets = np.tile(np.eye(3), (n, 1, 1))
@@ -119,6 +119,11 @@ class OrientationsTask(mink.Task):
         return e
 
     def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
+        return self._error_and_jacobian(configuration)[1]
+
+    def _error_and_jacobian(
+        self, configuration: mink.Configuration
+    ) -> tuple[np.ndarray, np.ndarray]:
         data = configuration.data
         r = self._rotations(data)
         rel = np.einsum("nji,njk->nik", self.targets, r)
@@ -128,4 +133,10 @@ class OrientationsTask(mink.Task):
         for i, b in enumerate(self.body_ids):
             mujoco.mj_jacBody(self.model, data, None, self._jr, int(b))
             out[3 * i : 3 * i + 3] = jinv[i] @ (r[i].T @ self._jr)
-        return out
+        self.last_error = phi.ravel()
+        return self.last_error, out
+
+    def compute_qp_objective(self, configuration: mink.Configuration) -> mink.Objective:
+        """The objective from one evaluation of the error and the Jacobian (one log each)."""
+        e, jac = self._error_and_jacobian(configuration)
+        return self._assemble_qp(e, jac, configuration._eye_nv)

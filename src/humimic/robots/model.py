@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from humimic.errors import InputError
+from humimic.errors import InputError, OutputPathError
 from humimic.io import atomic_write_text, check_writable
 from humimic.robots.actuators import JointActuator
 from humimic.robots.assets import find_robot_file
@@ -49,7 +49,10 @@ def nominal_spec(
         The spec and the resolved actuator of every actuated joint.
     """
     path = robot_xml_path(cfg, menagerie_root=menagerie_root)
-    spec = mujoco.MjSpec.from_file(str(path))
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except ValueError as e:
+        raise InputError(f"{path}: MuJoCo cannot load this model: {e}") from None
     spec.meshdir = str(Path(path).parent / (spec.meshdir or ""))
     # No compile-time magic left in the defaults either (dampratio, inheritrange).
     for default in [spec.default, *(a.classname for a in spec.actuators)]:
@@ -101,9 +104,9 @@ def export_nominal(
     The meshes are copied into ``<out stem>_assets/`` beside the file and referenced relative
     to it, so the file loads from any working directory. The XML is written atomically.
     """
+    if Path(out).suffix.lower() != ".xml":
+        raise InputError(f"{out}: the exported model must be an .xml file")
     out_path = check_writable(out)
-    if out_path.suffix.lower() != ".xml":
-        raise InputError(f"{out_path}: the exported model must be an .xml file")
     spec, _ = nominal_spec(cfg, menagerie_root=menagerie_root)
     src_meshdir = Path(spec.meshdir)
     asset_dir_name = f"{out_path.stem}_assets"
@@ -111,22 +114,28 @@ def export_nominal(
     tmp_assets = out_path.parent / f".{asset_dir_name}.tmp"
     if tmp_assets.exists():
         shutil.rmtree(tmp_assets)
-    tmp_assets.mkdir()
-    for mesh in spec.meshes:
-        shutil.copy2(src_meshdir / mesh.file, tmp_assets / Path(mesh.file).name)
-        mesh.file = Path(mesh.file).name
-    abs_dir = str(tmp_assets.resolve())
-    spec.meshdir = abs_dir
-    spec.compile()  # Validate before anything is written in place.
-    xml = spec.to_xml().replace(f'meshdir="{abs_dir}', f'meshdir="{asset_dir_name}')
-    if asset_dir_name not in xml:
-        raise RuntimeError("could not relocate the mesh folder in the exported XML")
-    licence = src_meshdir.parent / "LICENSE"
-    if licence.is_file():
-        shutil.copy2(licence, tmp_assets / "LICENSE")
-    if asset_dir.exists():
-        shutil.rmtree(asset_dir)
-    os.replace(tmp_assets, asset_dir)
+    try:
+        tmp_assets.mkdir()
+        for mesh in spec.meshes:
+            shutil.copy2(src_meshdir / mesh.file, tmp_assets / Path(mesh.file).name)
+            mesh.file = Path(mesh.file).name
+        abs_dir = str(tmp_assets.resolve())
+        spec.meshdir = abs_dir
+        spec.compile()  # Validate before anything is written in place.
+        xml = spec.to_xml().replace(f'meshdir="{abs_dir}', f'meshdir="{asset_dir_name}')
+        if asset_dir_name not in xml:
+            raise RuntimeError("could not relocate the mesh folder in the exported XML")
+        licence = src_meshdir.parent / "LICENSE"
+        if licence.is_file():
+            shutil.copy2(licence, tmp_assets / "LICENSE")
+        if asset_dir.exists():
+            shutil.rmtree(asset_dir)
+        os.replace(tmp_assets, asset_dir)
+    except OSError as e:
+        raise OutputPathError(f"{out_path}: cannot write the model's meshes: {e}") from None
+    finally:
+        if tmp_assets.exists():
+            shutil.rmtree(tmp_assets, ignore_errors=True)
     header = (
         f"<!-- humimic nominal model of {cfg.name}: {cfg.description}. "
         f"Model files: {cfg.license}; see {asset_dir_name}/LICENSE. -->\n"

@@ -21,8 +21,8 @@ class RobotConfig:
         robot_descriptions_module: ``robot_descriptions`` module name, for online fallback.
         license: Licence of the model files (shown by ``humimic robots list``).
         root_body: The floating base body.
-        feet: Side (``left``/``right``) -> foot body. Its collision geoms are the foot's contact
-            geometry.
+        feet: Side (``left``/``right``) -> foot body. Maps must put their feet on these bodies;
+            the bodies' collision geoms are the feet's contact geometry.
         self_collision: Pairs of body-name groups that must not interpenetrate (checked by the
             retargeter and the quality report). Each group is a tuple of body names.
         actuators: Gain recipe for the PD servos.
@@ -85,9 +85,11 @@ def t1() -> RobotConfig:
         root_body="Trunk",
         feet={"left": "left_foot_link", "right": "right_foot_link"},
         self_collision=(
+            (("AL3", "left_hand_link"), ("Trunk", "Hip_Yaw_Left", "Shank_Left")),
+            (("AR3", "right_hand_link"), ("Trunk", "Hip_Yaw_Right", "Shank_Right")),
             (
-                ("left_foot_link", "Ankle_Cross_Left", "Shank_Left"),
-                ("right_foot_link", "Ankle_Cross_Right", "Shank_Right"),
+                ("Hip_Yaw_Left", "Shank_Left", "left_foot_link"),
+                ("Hip_Yaw_Right", "Shank_Right", "right_foot_link"),
             ),
         ),
         actuators=t1_actuators(),

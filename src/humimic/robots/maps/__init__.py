@@ -43,7 +43,8 @@ class KeypointMap:
 
 @dataclass(frozen=True, kw_only=True)
 class FrameMap:
-    """An orientation target derived from key points.
+    """An orientation target derived from key points. The map's first frame (the pelvis) gives
+    the clip's heading.
 
     The frame's y axis is ``left[1] - left[0]`` made orthogonal to its z axis
     ``up[1] - up[0]``; x points forward. The robot body's orientation target is this frame
@@ -85,6 +86,16 @@ class RetargetMap:
             MapError: Naming the map file, the field and the bad name.
         """
         where = self.source
+        if not self.frames:
+            raise MapError(
+                f"{where}: frames: at least one is required (the first gives the heading)"
+            )
+        if set(self.feet) != {"left", "right"}:
+            raise MapError(
+                f"{where}: feet: expected exactly 'left' and 'right', got {sorted(self.feet)}"
+            )
+        if not (self.posture_weight >= 0):
+            raise MapError(f"{where}: posture_weight must be >= 0, got {self.posture_weight}")
         if self.root not in self.keypoints:
             raise MapError(f"{where}: root {self.root!r} is not a key point")
         seen: set[str] = set()
@@ -104,7 +115,7 @@ class RetargetMap:
                 )
             if kp.frame is not None and kp.frame not in self.frames:
                 raise MapError(f"{where}: keypoints.{name}.frame: no frame {kp.frame!r}")
-            if kp.weight < 0:
+            if not (kp.weight >= 0):
                 raise MapError(f"{where}: keypoints.{name}.weight must be >= 0")
             seen.add(name)
         for name, fr in self.frames.items():
@@ -119,6 +130,11 @@ class RetargetMap:
                     raise MapError(f"{where}: feet.{side}: no key point {k!r}")
             if foot.body not in robot_bodies:
                 raise MapError(f"{where}: feet.{side}.body: robot has no body {foot.body!r}")
+            if self.keypoints[foot.ankle].body != foot.body:
+                raise MapError(
+                    f"{where}: feet.{side}: the ankle key point {foot.ankle!r} must be on the foot "
+                    f"body {foot.body!r}, not {self.keypoints[foot.ankle].body!r}"
+                )
 
 
 def _pair(value: object, where: str) -> tuple[str, str]:
@@ -197,6 +213,8 @@ def load_map_file(path: str | Path) -> RetargetMap:
         raise MapError(f"{p}: cannot read: {e.strerror}") from None
     except yaml.YAMLError as e:
         raise MapError(f"{p}: invalid YAML: {e}") from None
+    except UnicodeDecodeError:
+        raise MapError(f"{p}: not a UTF-8 text file") from None
     return parse_map(data, str(p))
 
 
