@@ -161,7 +161,62 @@ def _case_unknown_joint_names(tmp: Path, data: Path) -> Case:
     )
 
 
+def _case_capture_dropout(tmp: Path, data: Path) -> Case:
+    arr = np.load(_climb_npy(data), allow_pickle=False)[:300].copy()
+    arr[140:160] = 0.0  # A dropout: every joint at the origin.
+    src = tmp / "in" / "dropout.npy"
+    np.save(src, arr)
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["dropout.npy", "t = 1.1"],
+    )
+
+
+def _case_corrupt_npz(tmp: Path, data: Path) -> Case:
+    src = tmp / "in" / "broken.npz"
+    src.write_bytes(b"PK\x03\x04" + b"\x00" * 40)
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
+        ["broken.npz", "not a readable"],
+    )
+
+
+def _case_bad_ik_setting(tmp: Path, data: Path) -> Case:
+    src = _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "walk.bvh", 20)
+    return Case(
+        ["retarget", str(src), "--out", str(tmp / "out" / "m.npz"), "--ik.max-step", "0"],
+        ["ik.max_step", "positive"],
+    )
+
+
+def _case_same_output_name(tmp: Path, data: Path) -> Case:
+    for sub in ("a", "b"):
+        (tmp / "in" / sub).mkdir()
+        _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / sub / "walk.bvh", 20)
+    return Case(
+        ["retarget", str(tmp / "in" / "a" / "walk.bvh"), str(tmp / "in" / "b" / "walk.bvh"),
+         "--out", str(tmp / "out")],
+        ["walk.bvh", "both be written as walk.npz"],
+    )  # fmt: skip
+
+
+def _case_second_clip_bad(tmp: Path, data: Path) -> Case:
+    """Every input is read before any output is written: no partial batch."""
+    (tmp / "in" / "batch").mkdir()
+    _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "batch" / "a_walk.bvh", 20)
+    np.save(tmp / "in" / "batch" / "b_nan.npy", np.full((5, 53, 3), np.nan))
+    return Case(
+        ["retarget", str(tmp / "in" / "batch"), "--out", str(tmp / "out")],
+        ["b_nan.npy", "NaN"],
+    )
+
+
 CASES: dict[str, Callable[[Path, Path], Case]] = {
+    "capture_dropout": _case_capture_dropout,
+    "corrupt_npz": _case_corrupt_npz,
+    "bad_ik_setting": _case_bad_ik_setting,
+    "same_output_name": _case_same_output_name,
+    "second_clip_bad": _case_second_clip_bad,
     "unknown_joint_names": _case_unknown_joint_names,
     "truncated_bvh": _case_truncated_bvh,
     "bad_number_bvh": _case_bad_number_bvh,
@@ -332,3 +387,48 @@ def test_parse_error_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
         main(["retarget", "clip.bvh"])  # --out is required
     assert info.value.code == 2
     assert "--out" in capsys.readouterr().err
+
+
+def test_preset_is_the_base_of_ik_flags(tmp_path: Path, shared_data: Path) -> None:
+    """--ik.* flags set on top of --preset, even to the value of the default preset."""
+    src = _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", tmp_path / "walk.bvh", 40)
+    out = tmp_path / "m.npz"
+    argv = ["retarget", str(src), "--out", str(out), "--quiet", "--preset", "fast"]
+    assert main([*argv, "--report", str(tmp_path / "fast.json")]) == 0
+    fast = json.loads((tmp_path / "fast.json").read_text())
+    assert main([*argv, "--report", str(tmp_path / "f4.json"), "--ik.stage2-iters", "4"]) == 0
+    f4 = json.loads((tmp_path / "f4.json").read_text())
+    # fast allows 1 + 2 QPs per frame after the first; with stage2_iters 4 it may use more.
+    assert f4["qp_iterations_per_frame"] > fast["qp_iterations_per_frame"]
+
+
+def test_report_is_strict_json(tmp_path: Path, shared_data: Path) -> None:
+    """A clip with no foot contact has no 'in contact' height: null, never NaN."""
+    arr = np.load(_climb_npy(shared_data), allow_pickle=False)[:40].copy()
+    arr[:, :, 2] += np.linspace(0.0, 0.3, 40)[:, None]  # Rising: the feet never rest.
+    arr[:, :, 0] += np.linspace(0.0, 1.2, 40)[:, None]  # ...and they move.
+    src = tmp_path / "flying.npy"
+    np.save(src, arr)
+    report = tmp_path / "r.json"
+    assert main(["retarget", str(src), "--out", str(tmp_path / "m.npz"), "--report",
+                 str(report), "--quiet"]) == 0  # fmt: skip
+    text = report.read_text()
+    assert "NaN" not in text
+    assert json.loads(text)["median_lowest_foot_in_contact_mm"] is None
+
+
+def test_folder_outputs_keep_relative_names_and_skip_the_output_folder(
+    tmp_path: Path, shared_data: Path
+) -> None:
+    root = tmp_path / "clips"
+    (root / "a").mkdir(parents=True)
+    (root / "b").mkdir()
+    _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", root / "a" / "walk.bvh", 20)
+    _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", root / "b" / "walk.bvh", 20)
+    out = root / "out"  # Inside the input folder: its files must not be read back.
+    for _ in range(2):
+        assert main(["retarget", str(root), "--out", str(out), "--quiet"]) == 0
+    assert (out / "a" / "walk.npz").is_file() and (out / "b" / "walk.npz").is_file()
+    assert (out / "a" / "walk.json").is_file()
+    mode = (out / "a" / "walk.npz").stat().st_mode & 0o777
+    assert mode & 0o044, f"outputs must be readable by others (umask permitting): {oct(mode)}"

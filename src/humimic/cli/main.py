@@ -92,6 +92,8 @@ class ViewCommand:
     port: int = 8080
     frame: int = 0
     """Frame to show first."""
+    screenshot: Path | None = None
+    """Save a PNG of the viewer (headless Chromium, which must be installed) and exit."""
     duration: float | None = None
     """Stop after this many seconds (default: run until Ctrl-C)."""
 
@@ -235,7 +237,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
                 map_file=cmd.map,
                 menagerie_root=cmd.menagerie_root,
             )
-        retargeters[clip.skeleton].validate(clip)
+        retargeters[clip.skeleton].check(clip)
         clips.append(clip)
 
     reports = []
@@ -359,7 +361,14 @@ def run_view(cmd: ViewCommand) -> None:
         flush=True,
     )
     try:
-        viewer.serve_forever(cmd.duration)
+        if cmd.screenshot is not None:
+            from humimic.viewer.browser import screenshot
+
+            check_writable(cmd.screenshot)
+            screenshot(viewer.url, cmd.screenshot, wait=8.0)
+            print(f"wrote {cmd.screenshot}")
+        else:
+            viewer.serve_forever(cmd.duration)
     finally:
         viewer.stop()
 

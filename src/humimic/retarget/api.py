@@ -61,6 +61,12 @@ class Retargeter:
             clip.names, {self.ik.model.body(b).name for b in range(self.ik.model.nbody)}
         )
 
+    def check(self, clip: HumanClip) -> None:
+        """Everything that can be wrong with a clip, before any IK: the map fits its joints,
+        and targets can be built from every frame (raises :class:`InputError`)."""
+        self.validate(clip)
+        self.ik.targets(clip)
+
     def run(self, clip: HumanClip, progress: Callable[[int], Any] | None = None) -> RetargetOutput:
         """Retarget one clip; the report holds the speed and the quality metrics."""
         self.validate(clip)

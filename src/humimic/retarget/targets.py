@@ -69,8 +69,9 @@ class Targets:
         fps: Frame rate.
         yaw: Rotation about z applied to the human clip (heading alignment) [rad].
         origin: Point of the human clip moved to the world origin (before the rotation) [m].
-        z_offset: Height added after scaling: a point of the aligned clip at height ``z`` above
-            the human ground maps to ``scale * z + z_offset`` on the robot's side [m].
+        z_offset: Height added after scaling: a point of the scene at height ``z`` above the
+            human ground maps to ``scale * z + z_offset`` on the robot's side, as the feet do
+            (a surface the human toes rest on is where the robot's toes rest) [m].
     """
 
     positions: np.ndarray
@@ -256,7 +257,10 @@ def build_targets(
         fps=clip.fps,
         yaw=-yaw0,
         origin=origin,
-        z_offset=dz,
+        z_offset=float(
+            np.mean(robot.keypoints[foot_keys[:, 1], 2])
+            + scale * (ground - np.mean(planted_h[:, 1]))
+        ),
     )
 
 

@@ -206,7 +206,6 @@ class Viewer:
                 opacity=0.8,
             )  # fmt: skip
         self._build_gui(server)
-        self._slider.value = frame
         self.set_frame(frame)
 
     def _build_gui(self, server: Any) -> None:
@@ -240,7 +239,7 @@ class Viewer:
 
         @self._slider.on_update
         def _(_: Any) -> None:
-            self.set_frame(int(self._slider.value))
+            self._render(int(self._slider.value))
 
         @prev_btn.on_click
         def _(_: Any) -> None:
@@ -252,7 +251,7 @@ class Viewer:
 
         @self._beside.on_update
         def _(_: Any) -> None:
-            self.set_frame(self.frame)
+            self._render(self.frame)
 
         @self._show_targets.on_update
         def _(_: Any) -> None:
@@ -260,7 +259,13 @@ class Viewer:
                 self._targets.visible = bool(self._show_targets.value)
 
     def set_frame(self, t: int) -> None:
-        """Move everything to frame ``t``."""
+        """Move everything, and the timeline, to frame ``t`` (clamped to the motion)."""
+        t = int(np.clip(t, 0, self.motion.num_frames - 1))
+        self._render(t)
+        if int(self._slider.value) != t:
+            self._slider.value = t
+
+    def _render(self, t: int) -> None:
         with self._lock:
             self.frame = t = int(np.clip(t, 0, self.motion.num_frames - 1))
             server = self._server
@@ -321,7 +326,7 @@ class Viewer:
                 self._playing.value = False
                 return
             t %= n
-        self._slider.value = t
+        self.set_frame(t)
 
     def serve_forever(self, duration: float | None = None) -> None:
         """Play until interrupted (or for ``duration`` seconds)."""
