@@ -7,8 +7,11 @@ package ``chromium``); Playwright's own browser download is not used.
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -55,7 +58,7 @@ def screenshot(
     from websockets.sync.client import connect
 
     port = free_port()
-    with tempfile.TemporaryDirectory() as profile:
+    with tempfile.TemporaryDirectory(ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen(
             [
                 find_chromium(),
@@ -67,6 +70,7 @@ def screenshot(
             ],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
+            start_new_session=True,  # Its own process group: every helper process ends with it.
         )
         try:
             tabs = _wait_for_tabs(port, timeout=30.0)
@@ -87,7 +91,8 @@ def screenshot(
                 time.sleep(wait)
                 data = call("Page.captureScreenshot", format="png")["data"]
         finally:
-            proc.kill()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     path = Path(out)
     path.write_bytes(base64.b64decode(data))
