@@ -1,0 +1,81 @@
+"""Time from `humimic view` to a served 3,000-frame clip (issue 3: under 5 s). Prints JSON.
+
+Makes a 3,011-frame G1 motion (climbing clip 2 at 120 fps), then starts the viewer as a user
+would, with the human and the scene, and measures the wall time until it prints its URL
+(Python start, imports, model compile, forward kinematics of every frame, scene upload).
+
+Usage: .venv/bin/python benchmarks/viewer_load.py [--data PATH] [--repeats N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from humimic.configs import retarget_default
+from humimic.datasets import load_clip
+from humimic.motion import save_motion
+from humimic.retarget import Retargeter
+from humimic.viewer.browser import free_port
+
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def time_view(args: list[str]) -> float:
+    port = free_port()
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "humimic.cli.main", "view", *args, "--port", str(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert proc.stdout is not None
+    try:
+        for line in proc.stdout:
+            if "humimic view: http" in line:
+                return time.perf_counter() - t0
+        raise RuntimeError("the viewer exited without serving")
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    seq = args.data / "holosoma_climb" / "mocap_climb_seq_2"
+    clip_path = next(seq.glob("*.npy"))
+    clip = load_clip(clip_path)
+    out = Retargeter("g1", clip.skeleton, replace(retarget_default(), fps=120.0)).run(clip)
+    with tempfile.TemporaryDirectory() as tmp:
+        motion = Path(tmp) / "climb_120fps.npz"
+        save_motion(out.motion, motion)
+        view_args = [str(motion), "--human", str(clip_path), "--scene", str(seq / "box_models")]
+        times = [time_view(view_args) for _ in range(args.repeats)]
+    print(
+        json.dumps(
+            {
+                "benchmark": "viewer_load",
+                "machine": {"cpu": platform.machine(), "cores": os.cpu_count()},
+                "frames": out.motion.num_frames,
+                "seconds_to_served_best": min(times),
+                "seconds_to_served_all": times,
+            },
+            indent=2,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
