@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
@@ -130,6 +131,42 @@ class RobotsCommand:
     command: tyro.conf.OmitSubcommandPrefixes[
         Annotated[RobotsList, tyro.conf.subcommand("list")]
         | Annotated[RobotsExport, tyro.conf.subcommand("export")]
+    ]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SysidSimulate:
+    """Write a realistic fixed-base robot log (MCAP) from the nominal model plus injected effects."""
+
+    robot: str = "g1"
+    inject: tuple[str, ...] = ()
+    """Effects as EFFECT:JOINT[,JOINT...]=VALUE, e.g. coulomb_friction:left_knee_joint=2.0."""
+    duration: float = 40.0
+    """Seconds."""
+    seed: int = 0
+    out: Path
+    """Output .mcap file."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SysidResidual:
+    """The nominal model's k-step open-loop prediction error on a robot log, per joint."""
+
+    log: Annotated[Path, tyro.conf.Positional]
+    """Robot log (.mcap): /joint_states, /joint_commands, metadata 'robot'."""
+    horizon: float = 0.5
+    """Prediction window [s]."""
+    report: Path | None = None
+    """Write the numbers as JSON here."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SysidCommand:
+    """Real2sim: simulate robot logs with injected effects; measure the simulator's residual."""
+
+    command: tyro.conf.OmitSubcommandPrefixes[
+        Annotated[SysidSimulate, tyro.conf.subcommand("simulate")]
+        | Annotated[SysidResidual, tyro.conf.subcommand("residual")]
     ]
 
 
@@ -373,6 +410,56 @@ def run_view(cmd: ViewCommand) -> None:
         viewer.stop()
 
 
+def run_sysid(cmd: SysidSimulate | SysidResidual) -> None:
+    """Run ``humimic sysid simulate|residual``."""
+    from humimic.real2sim import (
+        LogSettings,
+        fixed_base_spec,
+        kstep_error,
+        parse_injection,
+        read_robot_log,
+        simulate_log,
+        write_robot_log,
+    )
+    from humimic.robots import get_robot
+
+    if isinstance(cmd, SysidSimulate):
+        robot = get_robot(cmd.robot)
+        injections = [parse_injection(text) for text in cmd.inject]
+        if cmd.out.suffix != ".mcap":
+            raise InputError(f"{cmd.out}: the log must be an .mcap file")
+        if not 1.0 <= cmd.duration <= 3600.0:
+            raise InputError(f"--duration {cmd.duration}: choose 1 to 3600 s")
+        check_writable(cmd.out)
+        log = simulate_log(robot, injections, LogSettings(duration=cmd.duration, seed=cmd.seed))
+        write_robot_log(log, cmd.out)
+        print(f"wrote {cmd.out}: {log.q.shape[0]} states, {log.t_cmd.size} commands, "
+              f"{len(log.joint_names)} joints")  # fmt: skip
+        return
+    from humimic.mcap_io import read_mcap
+
+    meta = read_mcap(cmd.log, topics=[]).meta("robot")
+    robot = get_robot(meta.get("name", ""))
+    if meta.get("base") != "fixed":
+        raise InputError(
+            f"{cmd.log}: only fixed-base logs are supported so far (base={meta.get('base')!r})"
+        )
+    if cmd.report is not None:
+        check_writable(cmd.report)
+    base_pose = np.array([float(x) for x in meta.get("base_pose", "0 0 1 1 0 0 0").split()])
+    model = fixed_base_spec(robot, base_pose).compile()
+    names = tuple(model.joint(j).name for j in range(model.njnt))
+    log = read_robot_log(cmd.log, names)
+    err = kstep_error(model, log, horizon=cmd.horizon)
+    result = {"robot": robot.name, "log": str(cmd.log), "error_nominal": err.as_report(names)}
+    worst = sorted(result["error_nominal"]["per_joint"].items(), key=lambda kv: -kv[1])[:5]
+    print(f"{cmd.log.name}: nominal k-step RMSE {err.kstep_rmse_rad * 1e3:.2f} mrad over "
+          f"{err.horizon_s} s windows; worst joints: "
+          + ", ".join(f"{n} {v * 1e3:.2f}" for n, v in worst))  # fmt: skip
+    if cmd.report is not None:
+        atomic_write_text(cmd.report, json.dumps(_json_ready(result), indent=2) + "\n")
+
+
 def run_robots(cmd: RobotsList | RobotsExport) -> None:
     from humimic.robots import export_nominal, get_robot, robot_names
 
@@ -397,6 +484,7 @@ Commands = (
     | Annotated[ViewCommand, tyro.conf.subcommand("view")]
     | Annotated[ConvertCommand, tyro.conf.subcommand("convert")]
     | Annotated[RobotsCommand, tyro.conf.subcommand("robots")]
+    | Annotated[SysidCommand, tyro.conf.subcommand("sysid")]
     | Annotated[FetchCommand, tyro.conf.subcommand("fetch")]
 )
 
@@ -421,6 +509,8 @@ def main(argv: list[str] | None = None) -> int:
             run_view(cmd)
         elif isinstance(cmd, ConvertCommand):
             run_convert(cmd)
+        elif isinstance(cmd, SysidCommand):
+            run_sysid(cmd.command)
         elif isinstance(cmd, RobotsCommand):
             run_robots(cmd.command)
         elif isinstance(cmd, FetchCommand):
