@@ -83,6 +83,31 @@ def kstep_error(
     act_joint = model.actuator_trnid[:, 0]
     data = mujoco.MjData(model)
     residual = np.zeros((starts.size, samples, model.njnt))
+    saved = model.actuator_gainprm.copy(), model.actuator_biasprm.copy()
+    try:
+        _predict(model, data, log, starts, samples, sub, act_joint, residual)
+    finally:  # The logged gains are set on the model while predicting; give it back as it was.
+        model.actuator_gainprm[:], model.actuator_biasprm[:] = saved
+    rmse_joint = np.sqrt(np.mean(residual**2, axis=(0, 1)))
+    return KStepError(
+        horizon_s=horizon,
+        kstep_rmse_rad=float(np.sqrt(np.mean(residual**2))),
+        per_joint=rmse_joint,
+        residual=residual,
+        starts=starts,
+    )
+
+
+def _predict(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    log: RobotLog,
+    starts: np.ndarray,
+    samples: int,
+    sub: int,
+    act_joint: np.ndarray,
+    residual: np.ndarray,
+) -> None:
     for w, s in enumerate(starts):
         mujoco.mj_resetData(model, data)
         data.qpos[:] = log.q[s]
@@ -104,11 +129,3 @@ def kstep_error(
             if (k + 1) % sub == 0:
                 i = (k + 1) // sub - 1
                 residual[w, i] = data.qpos - log.q[s + i + 1]
-    rmse_joint = np.sqrt(np.mean(residual**2, axis=(0, 1)))
-    return KStepError(
-        horizon_s=horizon,
-        kstep_rmse_rad=float(np.sqrt(np.mean(residual**2))),
-        per_joint=rmse_joint,
-        residual=residual,
-        starts=starts,
-    )
