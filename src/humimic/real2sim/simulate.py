@@ -118,7 +118,7 @@ def excitation(
     sines = np.einsum(
         "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
     )
-    sines -= np.einsum("jk,jk->j", weights, np.sin(phases))[None]  # Start at the centre.
+    # |sines| <= 1 (convex weights), and the ramp starts the motion from the centre.
     data = mujoco.MjData(model)
     saved = model.geom_margin.copy()
     model.geom_margin[:] = 0.01  # Pairs closer than 2 cm count as touching.
@@ -150,7 +150,7 @@ def excitation(
                 break
             centre[hit] += 0.25 * (middle[hit] - centre[hit])
         for _ in range(12):
-            targets = centre + ramp[:, None] * amp * sines
+            targets = np.clip(centre + ramp[:, None] * amp * sines, lo, hi)
             hit = touching(targets[:: max(1, int(settings.command_rate // 10))])
             if not hit.any():
                 return t, targets
