@@ -161,12 +161,26 @@ class SysidResidual:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SysidDiagnose:
+    """Find the joint-level effects the nominal model lacks in a robot log, size them, write
+    the corrected model and a report (fit on the first 70%, scored on the last 30%)."""
+
+    log: Annotated[Path, tyro.conf.Positional]
+    """Robot log (.mcap)."""
+    out_dir: Path
+    """Folder for model.xml, report.json, report.md."""
+    horizon: float = 0.5
+    """Prediction window [s]."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class SysidCommand:
     """Real2sim: simulate robot logs with injected effects; measure the simulator's residual."""
 
     command: tyro.conf.OmitSubcommandPrefixes[
         Annotated[SysidSimulate, tyro.conf.subcommand("simulate")]
         | Annotated[SysidResidual, tyro.conf.subcommand("residual")]
+        | Annotated[SysidDiagnose, tyro.conf.subcommand("diagnose")]
     ]
 
 
@@ -410,14 +424,128 @@ def run_view(cmd: ViewCommand) -> None:
         viewer.stop()
 
 
-def run_sysid(cmd: SysidSimulate | SysidResidual) -> None:
-    """Run ``humimic sysid simulate|residual``."""
+def _fixed_base_log(path: Path):
+    """Robot, compiled fixed-base model and log of a robot log file."""
+    from humimic.mcap_io import read_mcap
+    from humimic.real2sim import fixed_base_spec, read_robot_log
+    from humimic.robots import get_robot
+
+    meta = read_mcap(path, topics=[]).meta("robot")
+    robot = get_robot(meta.get("name", ""))
+    if meta.get("base") != "fixed":
+        raise InputError(
+            f"{path}: only fixed-base logs are supported so far (base={meta.get('base')!r})"
+        )
+    try:
+        base_pose = np.array([float(x) for x in meta.get("base_pose", "").split()])
+    except ValueError:
+        base_pose = np.zeros(0)
+    if base_pose.shape != (7,):
+        raise InputError(f"{path}: metadata robot.base_pose must hold 7 numbers")
+    model = fixed_base_spec(robot, base_pose).compile()
+    names = tuple(model.joint(j).name for j in range(model.njnt))
+    return robot, model, read_robot_log(path, names)
+
+
+def run_diagnose(cmd: SysidDiagnose) -> dict:
+    """Run ``humimic sysid diagnose``."""
+    import time
+
+    from humimic.real2sim import kstep_error
+    from humimic.real2sim.diagnose import FIT_END, diagnose_log
+    from humimic.real2sim.effects import Injection, apply_to_spec
+    from humimic.robots import export_nominal
+
+    t0 = time.perf_counter()
+    robot, model, log = _fixed_base_log(cmd.log)
+    out = cmd.out_dir
+    for name in ("model.xml", "report.json", "report.md"):
+        check_writable(out / name)
+    held = (FIT_END, 1.0)
+    before = kstep_error(model, log, horizon=cmd.horizon, span=held)
+    diagnosis = diagnose_log(model, log, horizon=cmd.horizon)  # Corrects the model in place.
+    after = kstep_error(model, log, horizon=cmd.horizon, span=held, gain_scale=diagnosis.gain_scale)
+    names = log.joint_names
+    # Unexplained: more than half of the error above the noise floor (the median joint's error:
+    # most joints lack nothing) is still there after the correction.
+    floor = 2.0 * float(np.median(before.per_joint))
+
+    def excess(e: np.ndarray) -> float:
+        return float(np.sum(np.maximum(e**2 - floor**2, 0.0)))
+
+    share_left = (
+        excess(after.per_joint) / excess(before.per_joint) if excess(before.per_joint) > 0 else 0.0
+    )
+    standout = (after.per_joint > 1.5 * floor) & (after.per_joint > 0.5 * before.per_joint)
+    injections = [
+        Injection(effect=f.effect, targets=(f.joint,), value=f.value) for f in diagnosis.claimed
+    ]
+    export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
+    report = {
+        "robot": robot.name,
+        "log": str(cmd.log),
+        "error_before": before.as_report(names),
+        "error_after": after.as_report(names),
+        "effects": [
+            {
+                "effect": f.effect,
+                "joints": [f.joint],
+                "params": {"value": f.value},
+                "confidence": f.confidence,
+                "error_reduction": f.error_reduction,
+            }
+            for f in diagnosis.findings
+        ],
+        "unexplained": bool(share_left > 0.5),
+        "unexplained_share": share_left,
+        "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
+        "residual_model": None,
+        "searched_effects": ["coulomb_friction", "viscous_damping", "armature", "gain_mismatch"],
+        "seconds": time.perf_counter() - t0,
+    }
+    atomic_write_text(out / "report.json", json.dumps(_json_ready(report), indent=2) + "\n")
+    lines = [
+        f"# Diagnosis of {cmd.log.name} ({robot.name})",
+        "",
+        f"Held-out k-step error ({cmd.horizon} s windows, last 30% of the log): "
+        f"{before.kstep_rmse_rad * 1e3:.2f} mrad before, {after.kstep_rmse_rad * 1e3:.2f} mrad "
+        "after.",
+        "",
+        "| effect | joint | value | confidence | error removed (fit data) |",
+        "|---|---|---|---|---|",
+        *[
+            f"| {f.effect} | {f.joint} | {f.value:.4g} | {f.confidence:.2f} | "
+            f"{100 * f.error_reduction:.0f}% |"
+            for f in diagnosis.findings[:12]
+        ],
+        "",
+        "Claimed: confidence >= 0.5. "
+        + (
+            "Joints still standing out: " + ", ".join(report["unexplained_joints"]) + "."
+            if report["unexplained_joints"]
+            else "No joint stands out after the correction."
+        ),
+        "",
+        "Per-joint error (mrad), before -> after:",
+        "",
+        *[
+            f"- {n}: {b * 1e3:.2f} -> {a * 1e3:.2f}"
+            for n, b, a in zip(names, before.per_joint, after.per_joint, strict=True)
+        ],
+    ]
+    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
+    print("\n".join(lines[:4]))
+    for f in diagnosis.claimed:
+        print(f"claimed: {f.effect} on {f.joint} = {f.value:.4g} (confidence {f.confidence:.2f})")
+    return report
+
+
+def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
+    """Run ``humimic sysid simulate|residual|diagnose``."""
     from humimic.real2sim import (
         LogSettings,
-        fixed_base_spec,
         kstep_error,
         parse_injection,
-        read_robot_log,
         simulate_log,
         write_robot_log,
     )
@@ -436,20 +564,13 @@ def run_sysid(cmd: SysidSimulate | SysidResidual) -> None:
         print(f"wrote {cmd.out}: {log.q.shape[0]} states, {log.t_cmd.size} commands, "
               f"{len(log.joint_names)} joints")  # fmt: skip
         return
-    from humimic.mcap_io import read_mcap
-
-    meta = read_mcap(cmd.log, topics=[]).meta("robot")
-    robot = get_robot(meta.get("name", ""))
-    if meta.get("base") != "fixed":
-        raise InputError(
-            f"{cmd.log}: only fixed-base logs are supported so far (base={meta.get('base')!r})"
-        )
+    if isinstance(cmd, SysidDiagnose):
+        run_diagnose(cmd)
+        return
     if cmd.report is not None:
         check_writable(cmd.report)
-    base_pose = np.array([float(x) for x in meta.get("base_pose", "0 0 1 1 0 0 0").split()])
-    model = fixed_base_spec(robot, base_pose).compile()
-    names = tuple(model.joint(j).name for j in range(model.njnt))
-    log = read_robot_log(cmd.log, names)
+    robot, model, log = _fixed_base_log(cmd.log)
+    names = log.joint_names
     err = kstep_error(model, log, horizon=cmd.horizon)
     result = {"robot": robot.name, "log": str(cmd.log), "error_nominal": err.as_report(names)}
     worst = sorted(result["error_nominal"]["per_joint"].items(), key=lambda kv: -kv[1])[:5]

@@ -51,6 +51,7 @@ def kstep_error(
     horizon: float = 0.5,
     stride: float | None = None,
     span: tuple[float, float] = (0.0, 1.0),
+    gain_scale: np.ndarray | None = None,
 ) -> KStepError:
     """Open-loop k-step predictions of ``model`` against ``log``.
 
@@ -61,6 +62,8 @@ def kstep_error(
         horizon: Window length [s].
         stride: Time between window starts [s] (default: the horizon).
         span: The fraction of the log to use, e.g. (0.7, 1.0) for the held-out last 30%.
+        gain_scale: Per actuator, the ratio of the applied to the commanded gains (a model of
+            ``gain_mismatch``; default 1).
     """
     names = tuple(model.joint(j).name for j in range(model.njnt))
     if names != log.joint_names:
@@ -85,7 +88,8 @@ def kstep_error(
     residual = np.zeros((starts.size, samples, model.njnt))
     saved = model.actuator_gainprm.copy(), model.actuator_biasprm.copy()
     try:
-        _predict(model, data, log, starts, samples, sub, act_joint, residual)
+        scale = np.ones(model.nu) if gain_scale is None else np.asarray(gain_scale)
+        _predict(model, data, log, starts, samples, sub, act_joint, residual, scale)
     finally:  # The logged gains are set on the model while predicting; give it back as it was.
         model.actuator_gainprm[:], model.actuator_biasprm[:] = saved
     rmse_joint = np.sqrt(np.mean(residual**2, axis=(0, 1)))
@@ -107,6 +111,7 @@ def _predict(
     sub: int,
     act_joint: np.ndarray,
     residual: np.ndarray,
+    scale: np.ndarray,
 ) -> None:
     for w, s in enumerate(starts):
         mujoco.mj_resetData(model, data)
@@ -118,7 +123,7 @@ def _predict(
             c = int(log.command_index(np.array([t]))[0])
             if c != current:
                 current = c
-                kp, kd = log.kp[c][act_joint], log.kd[c][act_joint]
+                kp, kd = log.kp[c][act_joint] * scale, log.kd[c][act_joint] * scale
                 model.actuator_gainprm[:, 0] = kp
                 model.actuator_biasprm[:, 1] = -kp
                 model.actuator_biasprm[:, 2] = -kd

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
@@ -98,16 +99,20 @@ def export_nominal(
     out: str | os.PathLike[str],
     *,
     menagerie_root: str | os.PathLike[str] | None = None,
+    edit: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> Path:
     """Write the exact nominal MJCF humimic simulates with, self-contained.
 
     The meshes are copied into ``<out stem>_assets/`` beside the file and referenced relative
     to it, so the file loads from any working directory. The XML is written atomically.
+    ``edit`` changes the spec before it is written (e.g. to add identified effects).
     """
     if Path(out).suffix.lower() != ".xml":
         raise InputError(f"{out}: the exported model must be an .xml file")
     out_path = check_writable(out)
     spec, _ = nominal_spec(cfg, menagerie_root=menagerie_root)
+    if edit is not None:
+        edit(spec)
     src_meshdir = Path(spec.meshdir)
     asset_dir_name = f"{out_path.stem}_assets"
     asset_dir = out_path.parent / asset_dir_name
