@@ -144,14 +144,14 @@ def test_diagnosis_claims_nothing_on_a_clean_log() -> None:
     assert diagnose_log(model, log).claimed == []
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_diagnosis_names_and_sizes_an_undeclared_effect(seed: int) -> None:
     """An effect at a random leg joint with a random size: diagnose sees only the log."""
     from humimic.real2sim.diagnose import FIT_END, diagnose_log
 
     rng = np.random.default_rng(200 + seed)
     effect, low, high = [("coulomb_friction", 1.5, 3.0), ("viscous_damping", 1.0, 2.5),
-                         ("gain_mismatch", 0.65, 0.8)][seed]  # fmt: skip
+                         ("gain_mismatch", 0.65, 0.8), ("delay", 0.012, 0.035)][seed]  # fmt: skip
     joint = str(rng.choice(["left_knee_joint", "right_knee_joint", "left_hip_pitch_joint",
                             "right_hip_pitch_joint"]))  # fmt: skip
     value = float(rng.uniform(low, high))

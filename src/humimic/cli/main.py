@@ -452,7 +452,7 @@ def run_diagnose(cmd: SysidDiagnose) -> dict:
     import time
 
     from humimic.real2sim import kstep_error
-    from humimic.real2sim.diagnose import FIT_END, diagnose_log
+    from humimic.real2sim.diagnose import FIT_END, SEARCHED, diagnose_log
     from humimic.real2sim.effects import Injection, apply_to_spec
     from humimic.robots import export_nominal
 
@@ -500,7 +500,7 @@ def run_diagnose(cmd: SysidDiagnose) -> dict:
         "unexplained_share": share_left,
         "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
         "residual_model": None,
-        "searched_effects": ["coulomb_friction", "viscous_damping", "armature", "gain_mismatch"],
+        "searched_effects": list(SEARCHED),
         "seconds": time.perf_counter() - t0,
     }
     atomic_write_text(out / "report.json", json.dumps(_json_ready(report), indent=2) + "\n")

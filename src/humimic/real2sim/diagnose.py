@@ -6,16 +6,18 @@ Output-error search (issue 4, second slice). The log is cut in three: A (first 3
 1. The joints whose k-step prediction error on A stands out (more than twice the median joint)
    are the candidates.
 2. For each candidate joint and each effect this slice handles (``coulomb_friction``,
-   ``viscous_damping``, ``armature``, ``gain_mismatch``: all expressible by changing the
-   compiled model in place), the effect's value is fitted on A (bounded scalar search of that
+   ``viscous_damping``, ``armature``, ``gain_mismatch``, ``delay``: all expressible by changing
+   the compiled model in place; delay needs the control history that
+   :func:`~humimic.real2sim.simulate.fixed_base_spec` compiles in), the effect's value is fitted on A (bounded scalar search of that
    joint's k-step error) and scored on B: the share of the joint's error it removes there.
 3. The best candidate is kept if it removes at least :data:`MIN_REDUCTION` of the error on B;
    its confidence grows with that share and with its margin over the runner-up effect on the
    same joint (two effects that explain a joint equally well share the credit). It is added to
    the model and the next round starts.
 
-The corrected model is scored on H. Delay, lag, torque limits, encoder offsets, payloads and
-backlash are not searched yet.
+The corrected model is scored on H. Lag, torque limits, encoder offsets, payloads and backlash
+are not searched yet; an effect outside the search can be absorbed by one inside it that mimics
+it, which is why effects are claimed only on their cross-validated error reduction.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ MIN_REDUCTION = 0.4
 CLAIM = 0.5
 """Confidence at or above which an effect is claimed."""
 
-SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch")
+SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch", "delay")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -90,7 +92,7 @@ class _Knob:
         m = self.model
         self.saved = (
             m.dof_frictionloss.copy(), m.dof_damping.copy(), m.dof_armature.copy(),
-            self.gains.copy(),
+            self.gains.copy(), m.actuator_delay.copy(),
         )  # fmt: skip
 
     def set(self, value: float) -> None:
@@ -104,12 +106,15 @@ class _Knob:
             m.dof_armature[j] += value
         elif self.effect == "gain_mismatch":
             self.gains[self.actuator] *= value
+        elif self.effect == "delay":
+            m.actuator_delay[self.actuator] = value
 
     def restore(self) -> None:
         m = self.model
-        fl, dp, ar, g = self.saved
+        fl, dp, ar, g, dl = self.saved
         m.dof_frictionloss[:], m.dof_damping[:], m.dof_armature[:] = fl, dp, ar
         self.gains[:] = g
+        m.actuator_delay[:] = dl
 
 
 BOUNDS: dict[str, Callable[[mujoco.MjModel, int], tuple[float, float]]] = {
@@ -117,6 +122,7 @@ BOUNDS: dict[str, Callable[[mujoco.MjModel, int], tuple[float, float]]] = {
     "viscous_damping": lambda m, j: (0.0, 10.0),
     "armature": lambda m, j: (0.0, 0.5),
     "gain_mismatch": lambda m, j: (0.3, 3.0),
+    "delay": lambda m, j: (0.0, 0.05),
 }
 """Search intervals per effect (friction N m, damping N m s/rad, armature kg m^2, gain ratio)."""
 
@@ -160,8 +166,10 @@ def diagnose_log(
             before_b = joint_error(b_span, j, horizon)
             per_joint: list[tuple[float, Finding, _Knob]] = []
             for effect in SEARCHED:
-                if effect == "gain_mismatch" and j not in act_of:
+                if effect in ("gain_mismatch", "delay") and j not in act_of:
                     continue
+                if effect == "delay" and model.actuator_history[act_of[j], 0] < 2:
+                    continue  # No control history compiled in: cannot be searched.
                 knob = _Knob(model, gains, effect, j, act_of.get(j, -1))
                 lo, hi = BOUNDS[effect](model, j)
 

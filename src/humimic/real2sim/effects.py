@@ -137,7 +137,7 @@ def _armature(spec: mujoco.MjSpec, joint: str, v: float) -> None:
 def _delay(spec: mujoco.MjSpec, joint: str, v: float) -> None:
     a = _actuator(spec, joint)
     a.delay = v
-    a.nsample = max(2, int(np.ceil(v / spec.option.timestep)) + 2)
+    a.nsample = max(a.nsample, 2, int(np.ceil(v / spec.option.timestep)) + 2)
 
 
 def _lag(spec: mujoco.MjSpec, joint: str, v: float) -> None:

@@ -113,11 +113,20 @@ def _predict(
     residual: np.ndarray,
     scale: np.ndarray,
 ) -> None:
+    hist = [(a, int(model.actuator_history[a, 0])) for a in range(model.nu)]
+    hist = [(a, n) for a, n in hist if n > 0]
     for w, s in enumerate(starts):
         mujoco.mj_resetData(model, data)
         data.qpos[:] = log.q[s]
         data.qvel[:] = log.qd[s]
         t = log.t[s]
+        data.time = t
+        for a, n in hist:  # Drives with a control history remember the commands before t.
+            times = t - PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64)
+            values = log.cmd_q[log.command_index(times), act_joint[a]]
+            mujoco.mj_initCtrlHistory(
+                model, data, a, times.reshape(n, 1), np.ascontiguousarray(values.reshape(n, 1))
+            )
         current = -1
         for k in range(samples * sub):
             c = int(log.command_index(np.array([t]))[0])

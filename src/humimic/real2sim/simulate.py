@@ -22,6 +22,9 @@ from humimic.robots.registry import RobotConfig
 PHYSICS_DT = 0.001
 """Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
 
+HISTORY_SAMPLES = 60
+"""Control history kept per actuator: delays up to 59 ms at 1 kHz."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class LogSettings:
@@ -73,6 +76,11 @@ def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
     for a, b in sorted(pairs):
         spec.add_exclude(bodyname1=a, bodyname2=b)
     spec.option.timestep = PHYSICS_DT
+    # Every actuator keeps a 60 ms control history (delay 0: no change in behaviour), so that a
+    # transport delay can be set on the compiled model without recompiling (the diagnosis
+    # searches it).
+    for act in spec.actuators:
+        act.nsample = HISTORY_SAMPLES
     # Semi-implicit Euler at 1 kHz is stable with these servos (kd / armature ~ 250 1/s) and
     # keeps inverse dynamics (mj_inverse) exactly consistent with the forward simulation.
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
@@ -187,6 +195,12 @@ def simulate_log(
 
     data = mujoco.MjData(model)
     data.qpos[:] = cmd_q[0]
+    for a in range(model.nu):  # The drives have been holding the first command.
+        n = int(model.actuator_history[a, 0])
+        if n > 0:
+            values = np.full((n, 1), cmd_q[0][act_joint[a]] - offset[act_joint[a]])
+            times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
+            mujoco.mj_initCtrlHistory(model, data, a, times, values)
     mujoco.mj_forward(model, data)
     n_steps = round(settings.duration / PHYSICS_DT)
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
