@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import shutil
 import subprocess
 import sys
@@ -54,20 +55,31 @@ def test_browser_draws_the_robot(tmp_path: Path, shared_data: Path) -> None:
     port = free_port()
     proc = _start_viewer(motion, port)
     try:
-        png = screenshot(f"http://127.0.0.1:{port}/", tmp_path / "shot.png", wait=8.0)
+        png = screenshot(
+            f"http://127.0.0.1:{port}/", tmp_path / "shot.png", wait=6.0,
+            ready=lambda data: _dark_middle(_pixels(data)) > 200, timeout=60.0,
+        )  # fmt: skip
     finally:
         proc.kill()
         proc.wait()
-    img = np.asarray(Image.open(png).convert("RGB")).astype(float)
-    h, w, _ = img.shape
+    img = _pixels(png.read_bytes())
     # Not blank: a rendered scene has structure.
     assert img.std() > 10.0
-    # The robot: the camera looks at the pelvis, so the robot fills the middle of the canvas
-    # (left of the control panel). Its dark parts (black links and joints, RGB ~ 0.2) are the
-    # only near-black pixels there: the floor grid and the background are light.
-    middle = img[int(0.25 * h) : int(0.75 * h), int(0.25 * w) : int(0.6 * w)]
-    dark = (middle.max(axis=2) < 80).sum()
+    dark = _dark_middle(img)
     assert dark > 200, f"only {dark} dark pixels where the robot should be"
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(float)
+
+
+def _dark_middle(img: np.ndarray) -> int:
+    """The robot: the camera looks at the pelvis, so the robot fills the middle of the canvas
+    (left of the control panel). Its dark parts (black links and joints, RGB ~ 0.2) are the
+    only near-black pixels there: the floor grid and the background are light."""
+    h, w, _ = img.shape
+    middle = img[int(0.25 * h) : int(0.75 * h), int(0.25 * w) : int(0.6 * w)]
+    return int((middle.max(axis=2) < 80).sum())
 
 
 def test_view_screenshot_option(tmp_path: Path, shared_data: Path) -> None:

@@ -17,6 +17,7 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 from humimic.errors import MissingDependencyError
@@ -52,9 +53,20 @@ def free_port() -> int:
 
 
 def screenshot(
-    url: str, out: str | Path, *, wait: float = 6.0, size: tuple[int, int] = (1200, 800)
+    url: str,
+    out: str | Path,
+    *,
+    wait: float = 6.0,
+    size: tuple[int, int] = (1200, 800),
+    ready: Callable[[bytes], bool] | None = None,
+    timeout: float = 60.0,
 ) -> Path:
-    """Open ``url`` in headless Chromium, wait ``wait`` seconds, save a PNG to ``out``."""
+    """Open ``url`` in headless Chromium, wait ``wait`` seconds, save a PNG to ``out``.
+
+    With ``ready``, keep capturing every 2 s until ``ready(png)`` holds or ``timeout`` seconds
+    have passed (software WebGL on a loaded machine can take a while to draw), and save the
+    last capture.
+    """
     from websockets.sync.client import connect
 
     port = free_port()
@@ -89,7 +101,12 @@ def screenshot(
                 call("Page.enable")
                 call("Page.navigate", url=url)
                 time.sleep(wait)
-                data = call("Page.captureScreenshot", format="png")["data"]
+                end = time.monotonic() + timeout
+                while True:
+                    data = call("Page.captureScreenshot", format="png")["data"]
+                    if ready is None or ready(base64.b64decode(data)) or time.monotonic() > end:
+                        break
+                    time.sleep(2.0)
         finally:
             with contextlib.suppress(ProcessLookupError):
                 os.killpg(proc.pid, signal.SIGKILL)
