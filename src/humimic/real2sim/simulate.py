@@ -8,7 +8,7 @@ states and the commands sent. Nothing in the log names the effects.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -48,7 +48,6 @@ class LogSettings:
     effort_noise: float = 0.05
     base_height: float = 1.0
     seed: int = 0
-    extra: dict[str, float] = field(default_factory=dict)
 
 
 def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
