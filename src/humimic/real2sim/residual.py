@@ -127,9 +127,14 @@ def _predict(
             mujoco.mj_initCtrlHistory(
                 model, data, a, times.reshape(n, 1), np.ascontiguousarray(values.reshape(n, 1))
             )
+        # The command in force at each step, found once per window (times accumulate exactly
+        # as the loop's clock would).
+        steps = samples * sub
+        clock = np.add.accumulate(np.concatenate([[t], np.full(steps - 1, PHYSICS_DT)]))
+        in_force = log.command_index(clock)
         current = -1
-        for k in range(samples * sub):
-            c = int(log.command_index(np.array([t]))[0])
+        for k in range(steps):
+            c = int(in_force[k])
             if c != current:
                 current = c
                 kp, kd = log.kp[c][act_joint] * scale, log.kd[c][act_joint] * scale
@@ -139,7 +144,6 @@ def _predict(
                 data.ctrl[:] = log.cmd_q[c][act_joint]
                 data.qfrc_applied[:] = log.cmd_tau[c] + log.kd[c] * log.cmd_qd[c]
             mujoco.mj_step(model, data)
-            t += PHYSICS_DT
             if (k + 1) % sub == 0:
                 i = (k + 1) // sub - 1
                 residual[w, i] = data.qpos - log.q[s + i + 1]
