@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
 from humimic.errors import HumimicError, InputError
-from humimic.io import atomic_write_text, check_writable
+from humimic.io import atomic_write_text, check_writable, json_ready
 
 RETARGET_CONFIGS = {"default": retarget_default, "fast": retarget_fast}
 """Named retargeting configurations (factories); see :mod:`humimic.configs`."""
@@ -139,8 +138,9 @@ class SysidSimulate:
     """Write a realistic fixed-base robot log (MCAP) from the nominal model plus injected effects."""
 
     robot: str = "g1"
-    inject: tuple[str, ...] = ()
-    """Effects as EFFECT:JOINT[,JOINT...]=VALUE, e.g. coulomb_friction:left_knee_joint=2.0."""
+    inject: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
+    """An effect as EFFECT:JOINT[,JOINT...]=VALUE, e.g. coulomb_friction:left_knee_joint=2.0;
+    repeat the flag for more."""
     duration: float = 40.0
     """Seconds."""
     seed: int = 0
@@ -168,9 +168,11 @@ class SysidDiagnose:
     log: Annotated[Path, tyro.conf.Positional]
     """Robot log (.mcap)."""
     out_dir: Path
-    """Folder for model.xml, report.json, report.md."""
+    """Folder for model.xml, report.json, report.md (with plots), residual_net.pt."""
     horizon: float = 0.5
     """Prediction window [s]."""
+    residual_net: Literal["auto", "always", "never"] = "auto"
+    """Fit a residual actuator network: when the effects leave the log unexplained (auto)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -221,17 +223,6 @@ def _clip_files(inputs: tuple[Path, ...], out: Path) -> list[tuple[Path, Path]]:
             raise InputError(f"{f} and {seen[name]} would both be written as {name}.npz")
         seen[name] = f
     return files
-
-
-def _json_ready(value: Any) -> Any:
-    """NaN and infinities become null: reports are strict JSON."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_ready(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_ready(v) for v in value]
-    return value
 
 
 def run_retarget(cmd: RetargetCommand) -> list[dict]:
@@ -296,7 +287,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         total = clip.num_frames_at(cmd.ik.fps)
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
             result = retargeters[clip.skeleton].run(clip, progress=bar.update)
-        report = _json_ready({**result.report, "start_frame": int(clip.meta["start_frame"])})
+        report = json_ready({**result.report, "start_frame": int(clip.meta["start_frame"])})
         save_motion(result.motion, motion_path)
         if report_path is not None:
             try:
@@ -377,8 +368,6 @@ def run_view(cmd: ViewCommand) -> None:
     """Run ``humimic view``."""
     import time
 
-    import numpy as np
-
     from humimic.datasets import load_clip
     from humimic.mcap_io import qpos_from_log, read_mcap, sample_at
     from humimic.robots import get_robot, nominal_model
@@ -424,119 +413,29 @@ def run_view(cmd: ViewCommand) -> None:
         viewer.stop()
 
 
-def _fixed_base_log(path: Path):
-    """Robot, compiled fixed-base model and log of a robot log file."""
-    from humimic.mcap_io import read_mcap
-    from humimic.real2sim import fixed_base_spec, read_robot_log
-    from humimic.robots import get_robot
-
-    meta = read_mcap(path, topics=[]).meta("robot")
-    robot = get_robot(meta.get("name", ""))
-    if meta.get("base") != "fixed":
-        raise InputError(
-            f"{path}: only fixed-base logs are supported so far (base={meta.get('base')!r})"
-        )
-    try:
-        base_pose = np.array([float(x) for x in meta.get("base_pose", "").split()])
-    except ValueError:
-        base_pose = np.zeros(0)
-    if base_pose.shape != (7,):
-        raise InputError(f"{path}: metadata robot.base_pose must hold 7 numbers")
-    model = fixed_base_spec(robot, base_pose).compile()
-    names = tuple(model.joint(j).name for j in range(model.njnt))
-    return robot, model, read_robot_log(path, names)
-
-
 def run_diagnose(cmd: SysidDiagnose) -> dict:
     """Run ``humimic sysid diagnose``."""
-    import time
+    from humimic.real2sim.report import run_diagnosis
 
-    from humimic.real2sim import kstep_error
-    from humimic.real2sim.diagnose import FIT_END, SEARCHED, diagnose_log
-    from humimic.real2sim.effects import Injection, apply_to_spec
-    from humimic.robots import export_nominal
-
-    t0 = time.perf_counter()
-    robot, model, log = _fixed_base_log(cmd.log)
-    out = cmd.out_dir
-    for name in ("model.xml", "report.json", "report.md"):
-        check_writable(out / name)
-    held = (FIT_END, 1.0)
-    before = kstep_error(model, log, horizon=cmd.horizon, span=held)
-    diagnosis = diagnose_log(model, log, horizon=cmd.horizon)  # Corrects the model in place.
-    after = kstep_error(model, log, horizon=cmd.horizon, span=held, gain_scale=diagnosis.gain_scale)
-    names = log.joint_names
-    # Unexplained: more than half of the error above the noise floor (the median joint's error:
-    # most joints lack nothing) is still there after the correction.
-    floor = 2.0 * float(np.median(before.per_joint))
-
-    def excess(e: np.ndarray) -> float:
-        return float(np.sum(np.maximum(e**2 - floor**2, 0.0)))
-
-    share_left = (
-        excess(after.per_joint) / excess(before.per_joint) if excess(before.per_joint) > 0 else 0.0
-    )
-    standout = (after.per_joint > 1.5 * floor) & (after.per_joint > 0.5 * before.per_joint)
-    injections = [
-        Injection(effect=f.effect, targets=(f.joint,), value=f.value) for f in diagnosis.claimed
-    ]
-    export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
-    report = {
-        "robot": robot.name,
-        "log": str(cmd.log),
-        "error_before": before.as_report(names),
-        "error_after": after.as_report(names),
-        "effects": [
-            {
-                "effect": f.effect,
-                "joints": [f.joint],
-                "params": {"value": f.value},
-                "confidence": f.confidence,
-                "error_reduction": f.error_reduction,
-            }
-            for f in diagnosis.findings
-        ],
-        "unexplained": bool(share_left > 0.5),
-        "unexplained_share": share_left,
-        "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
-        "residual_model": None,
-        "searched_effects": list(SEARCHED),
-        "seconds": time.perf_counter() - t0,
-    }
-    atomic_write_text(out / "report.json", json.dumps(_json_ready(report), indent=2) + "\n")
-    lines = [
-        f"# Diagnosis of {cmd.log.name} ({robot.name})",
-        "",
-        f"Held-out k-step error ({cmd.horizon} s windows, last 30% of the log): "
-        f"{before.kstep_rmse_rad * 1e3:.2f} mrad before, {after.kstep_rmse_rad * 1e3:.2f} mrad "
-        "after.",
-        "",
-        "| effect | joint | value | confidence | error removed (fit data) |",
-        "|---|---|---|---|---|",
-        *[
-            f"| {f.effect} | {f.joint} | {f.value:.4g} | {f.confidence:.2f} | "
-            f"{100 * f.error_reduction:.0f}% |"
-            for f in diagnosis.findings[:12]
-        ],
-        "",
-        "Claimed: confidence >= 0.5. "
-        + (
-            "Joints still standing out: " + ", ".join(report["unexplained_joints"]) + "."
-            if report["unexplained_joints"]
-            else "No joint stands out after the correction."
-        ),
-        "",
-        "Per-joint error (mrad), before -> after:",
-        "",
-        *[
-            f"- {n}: {b * 1e3:.2f} -> {a * 1e3:.2f}"
-            for n, b, a in zip(names, before.per_joint, after.per_joint, strict=True)
-        ],
-    ]
-    atomic_write_text(out / "report.md", "\n".join(lines) + "\n")
-    print("\n".join(lines[:4]))
-    for f in diagnosis.claimed:
-        print(f"claimed: {f.effect} on {f.joint} = {f.value:.4g} (confidence {f.confidence:.2f})")
+    report = run_diagnosis(cmd.log, cmd.out_dir, horizon=cmd.horizon, residual_net=cmd.residual_net)
+    before, after = report["error_before"], report["error_after"]
+    print(f"{cmd.log.name}: held-out k-step error {before['kstep_rmse_rad'] * 1e3:.2f} mrad "
+          f"nominal -> {after['kstep_rmse_rad'] * 1e3:.2f} mrad corrected "
+          f"({report['seconds']:.0f} s)")  # fmt: skip
+    for e in report["effects"]:
+        if e["confidence"] >= 0.5:
+            where = e.get("body") or ", ".join(e["joints"])
+            print(f"claimed: {e['effect']} on {where} = {e['params']['value']:.4g} "
+                  f"{e['params']['unit']} (confidence {e['confidence']:.2f})")  # fmt: skip
+    for s in report["not_identifiable"]:
+        print(f"not identifiable from this log: {s['effect']} on {len(s['joints'])} joints")
+    if report["unexplained"]:
+        print("unexplained: " + ", ".join(report["unexplained_joints"]))
+    if report["residual_model"] is not None:
+        net = report["residual_model"]
+        print(f"residual actuator network: {net['error_after']['kstep_rmse_rad'] * 1e3:.2f} mrad "
+              f"held out -> {net['path']}")  # fmt: skip
+    print(f"wrote {cmd.out_dir / 'report.md'}, report.json, model.xml")
     return report
 
 
@@ -569,7 +468,9 @@ def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
         return
     if cmd.report is not None:
         check_writable(cmd.report)
-    robot, model, log = _fixed_base_log(cmd.log)
+    from humimic.real2sim.report import load_fixed_base_log
+
+    robot, model, log = load_fixed_base_log(cmd.log)
     names = log.joint_names
     err = kstep_error(model, log, horizon=cmd.horizon)
     result = {"robot": robot.name, "log": str(cmd.log), "error_nominal": err.as_report(names)}
@@ -578,7 +479,7 @@ def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
           f"{err.horizon_s} s windows; worst joints: "
           + ", ".join(f"{n} {v * 1e3:.2f}" for n, v in worst))  # fmt: skip
     if cmd.report is not None:
-        atomic_write_text(cmd.report, json.dumps(_json_ready(result), indent=2) + "\n")
+        atomic_write_text(cmd.report, json.dumps(json_ready(result), indent=2) + "\n")
 
 
 def run_robots(cmd: RobotsList | RobotsExport) -> None:

@@ -1,213 +1,676 @@
-"""Diagnose a robot log: which joint-level effect does the simulator lack, and how large is it.
+"""Diagnose a robot log: which effects does the simulator lack, where, and how large are they.
 
-Output-error search (issue 4, second slice). The log is cut in three: A (first 35%) and B
-(35-70%) to fit, H (last 30%) held out. Each round:
+Cross-validated output-error search. The first 70% of the log is for fitting, its k-step
+windows alternating between A (fit) and B (score); the last 30% (H) is held out for the
+report. Each round:
 
-1. The joints whose k-step prediction error on A stands out (more than twice the median joint)
-   are the candidates.
-2. For each candidate joint and each effect this slice handles (``coulomb_friction``,
-   ``viscous_damping``, ``armature``, ``gain_mismatch``, ``delay``: all expressible by changing
-   the compiled model in place; delay needs the control history that
-   :func:`~humimic.real2sim.simulate.fixed_base_spec` compiles in), the effect's value is fitted on A (bounded scalar search of that
-   joint's k-step error) and scored on B: the share of the joint's error it removes there.
-3. The best candidate is kept if it removes at least :data:`MIN_REDUCTION` of the error on B;
-   its confidence grows with that share and with its margin over the runner-up effect on the
-   same joint (two effects that explain a joint equally well share the credit). It is added to
-   the model and the next round starts.
+1. The joints whose k-step prediction error on A stands out (more than twice the median joint:
+   most joints lack nothing, so the median is the noise floor) are the candidates.
+2. Each candidate joint is paired with every effect that can act on it: the joint effects of
+   :data:`SEARCHED`, and ``payload_mass`` on the body the joint moves and on the end of its
+   limb. Every pair's parameter is fitted on A by a bounded secant (Gauss-Newton) search on
+   the residual of the joints the effect can reach; all pairs of a round are evaluated
+   together, as one batched rollout per iteration.
+3. Each pair's fit is scored on B: the share of the error of its joints that it removes
+   (``error_reduction``), and the error it removes from the whole robot. The pair removing the
+   most is kept if it removes at least :data:`MIN_REDUCTION` of its joints' error; its
+   confidence grows with that share and with the evidence against the best rival explanation
+   of the same joints (the log-likelihood ratio of the two on B under the noise floor): two
+   effects that explain a joint equally well are both left unclaimed. A claimed effect joins
+   the correction and the next round starts.
 
-The corrected model is scored on H. Lag, torque limits, encoder offsets, payloads and backlash
-are not searched yet; an effect outside the search can be absorbed by one inside it that mimics
-it, which is why effects are claimed only on their cross-validated error reduction.
+Encoder offsets are searched only on joints where an offset would show in the log: a hanging
+robot tracks its (offset) encoder, so an offset moves the joint only through the change in
+gravity torque. Where a large offset changes the predictions less than the noise does, the
+diagnosis says the offset is not identifiable from this log, and does not guess.
+
+Backlash changes the model's structure (a second hinge per joint: the link side, free within
+the play), so its candidates run on their own model (given by ``backlash_model``), with the
+play joint starting each window at the end the drive pushes against. Torque limits and
+backlash are fitted on refined grids (their error is flat, then kinked), the rest by secant
+search; effects that share joints are refitted together (Gauss-Newton).
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
-from scipy.optimize import minimize_scalar
 
-from humimic.real2sim.residual import kstep_error
+from humimic.real2sim.joints import PLAY_SUFFIX, JointMap
+from humimic.real2sim.residual import Correction, Predictor
 from humimic.real2sim.robotlog import RobotLog
+from humimic.robots.registry import RobotConfig
 
 FIT_END = 0.7
 """The first 70% of a log is used to fit; the rest is held out."""
 
 MIN_REDUCTION = 0.4
-"""An effect must remove at least this share of its joint's error on unseen data (B)."""
+"""An effect must remove at least this share of its joints' error on unseen data (B)."""
 
 CLAIM = 0.5
 """Confidence at or above which an effect is claimed."""
 
-SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch", "delay")
+SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch", "delay", "lag",
+            "torque_limit", "encoder_offset", "payload_mass", "backlash")  # fmt: skip
+NOT_SEARCHED: tuple[str, ...] = ()
+
+OFFSET_PROBE = 0.05
+"""Encoder offset [rad] used to test whether offsets show in a log at all."""
+
+_SECANT_STEPS = 6
 
 
 @dataclass(frozen=True, kw_only=True)
 class Finding:
-    """An effect on one joint.
+    """An effect on one joint or body.
 
     Attributes:
-        effect: Vocabulary name. joint: Joint name.
+        effect: Vocabulary name.
+        target: Joint name, or body name for ``payload_mass``.
+        joints: The joints whose error it was scored on.
         value: Identified parameter: the amount added to the nominal model (friction N m,
-            damping N m s/rad, armature kg m^2) or, for ``gain_mismatch``, the gain ratio.
+            damping N m s/rad, armature kg m^2, payload kg), the delay or filter time constant
+            [s], the torque limit [N m], the encoder offset [rad], or the applied / commanded
+            gain ratio.
         confidence: In [0, 1]; >= 0.5 is a claim.
-        error_reduction: Share of the joint's k-step error removed on unseen fit data (B).
+        error_reduction: Share of its joints' k-step error removed on unseen fit data (B).
     """
 
     effect: str
-    joint: str
+    target: str
+    joints: tuple[str, ...]
     value: float
     confidence: float
     error_reduction: float
 
+    @property
+    def on_body(self) -> bool:
+        return self.effect == "payload_mass"
+
 
 @dataclass(frozen=True, kw_only=True)
+class Statement:
+    """An effect the log cannot decide, and why."""
+
+    effect: str
+    joints: tuple[str, ...]
+    reason: str
+
+
+@dataclass(kw_only=True)
 class Diagnosis:
-    """The outcome: findings in the order they were found, rejected candidates after."""
+    """The outcome: findings in the order they were found, rejected candidates after.
+
+    Attributes:
+        findings: Claimed effects first (in the order found), then rejected candidates.
+        correction: The nominal prediction model with the claimed effects added.
+        not_identifiable: Effects the log's excitation cannot reveal.
+    """
 
     findings: list[Finding] = field(default_factory=list)
-    gain_scale: np.ndarray | None = None
-    """Applied / commanded gains per actuator in the corrected model."""
+    correction: Correction | None = None
+    not_identifiable: list[Statement] = field(default_factory=list)
 
     @property
     def claimed(self) -> list[Finding]:
         return [f for f in self.findings if f.confidence >= CLAIM]
 
 
-@dataclass
-class _Knob:
-    """Changes one effect on one joint of a compiled model (or of the gain scales) in place,
-    and undoes it."""
+@dataclass(frozen=True, kw_only=True)
+class _Pair:
+    """A candidate: one effect on one joint (or body), fitted on some joints' residual."""
 
-    model: mujoco.MjModel
-    gains: np.ndarray
     effect: str
-    joint: int
-    actuator: int
-    saved: tuple[np.ndarray, ...] = ()
-
-    def __post_init__(self) -> None:
-        m = self.model
-        self.saved = (
-            m.dof_frictionloss.copy(), m.dof_damping.copy(), m.dof_armature.copy(),
-            self.gains.copy(), m.actuator_delay.copy(),
-        )  # fmt: skip
-
-    def set(self, value: float) -> None:
-        m, j = self.model, self.joint
-        self.restore()
-        if self.effect == "coulomb_friction":
-            m.dof_frictionloss[j] += value
-        elif self.effect == "viscous_damping":
-            m.dof_damping[j] += value
-        elif self.effect == "armature":
-            m.dof_armature[j] += value
-        elif self.effect == "gain_mismatch":
-            self.gains[self.actuator] *= value
-        elif self.effect == "delay":
-            m.actuator_delay[self.actuator] = value
-
-    def restore(self) -> None:
-        m = self.model
-        fl, dp, ar, g, dl = self.saved
-        m.dof_frictionloss[:], m.dof_damping[:], m.dof_armature[:] = fl, dp, ar
-        self.gains[:] = g
-        m.actuator_delay[:] = dl
+    index: int  # Joint index, or body id for a payload.
+    joints: np.ndarray  # Joint indices its residual is fitted and scored on.
+    lo: float
+    hi: float
+    none: float  # The value that adds nothing.
+    probe: float  # A first, typical value.
 
 
-BOUNDS: dict[str, Callable[[mujoco.MjModel, int], tuple[float, float]]] = {
-    "coulomb_friction": lambda m, j: (0.0, 20.0),
-    "viscous_damping": lambda m, j: (0.0, 10.0),
-    "armature": lambda m, j: (0.0, 0.5),
-    "gain_mismatch": lambda m, j: (0.3, 3.0),
-    "delay": lambda m, j: (0.0, 0.05),
-}
-"""Search intervals per effect (friction N m, damping N m s/rad, armature kg m^2, gain ratio)."""
+def apply_effect(c: Correction, effect: str, index: int, value: float) -> None:
+    """Add one effect to a correction in place (``index``: a joint of the log, or a body for a
+    payload). Backlash needs a model with the joint's play joint (:func:`backlash_models`)."""
+    m = c.model
+    if effect == "payload_mass":
+        m.body_mass[index] += value
+        mujoco.mj_setConst(m, mujoco.MjData(m))  # Constraint scaling depends on the inertia.
+        return
+    jm = JointMap.of(m)
+    jid = int(jm.jid[index])
+    dof = int(m.jnt_dofadr[jid])
+    act = int(np.flatnonzero(jm.act_log == index)[0])
+    if effect == "coulomb_friction":
+        m.dof_frictionloss[dof] += value
+    elif effect == "viscous_damping":
+        m.dof_damping[dof] += value
+    elif effect == "armature":
+        m.dof_armature[dof] += value
+        mujoco.mj_setConst(m, mujoco.MjData(m))
+    elif effect == "gain_mismatch":
+        c.gain_scale[act] *= value
+    elif effect == "delay":
+        c.delay[act] = value
+    elif effect == "lag":
+        m.actuator_dynprm[act, 0] = value
+    elif effect == "torque_limit":
+        m.actuator_forcelimited[act] = 1
+        m.actuator_forcerange[act] = (-value, value)
+    elif effect == "encoder_offset":
+        c.offset[index] = value
+    elif effect == "backlash":
+        play = m.joint(jm.names[index] + PLAY_SUFFIX).id
+        m.jnt_range[play] = (-value / 2, value / 2)
+    else:
+        raise ValueError(f"effect {effect!r} is not searched")
+
+
+def _chain(model: mujoco.MjModel, body: int) -> np.ndarray:
+    """The log's joints between the fixed base and a body (those a load on it acts on)."""
+    where = {int(j): i for i, j in enumerate(JointMap.of(model).jid)}
+    out = []
+    while body > 0:
+        j0, n = model.body_jntadr[body], model.body_jntnum[body]
+        out += [where[j] for j in range(j0, j0 + n) if j in where]
+        body = int(model.body_parentid[body])
+    return np.array(sorted(out), dtype=int)
+
+
+def _limb_end(model: mujoco.MjModel, body: int) -> int:
+    """The last body of the limb below ``body`` (the first child at every branch)."""
+    while True:
+        children = np.flatnonzero(model.body_parentid == body)
+        children = children[children != body]
+        if children.size == 0:
+            return body
+        body = int(children[0])
+
+
+def _peak_torque(log: RobotLog) -> np.ndarray:
+    """Largest commanded PD torque per joint over the log (from the logged state)."""
+    idx = log.command_index(log.t)
+    tau = log.kp[idx] * (log.cmd_q[idx] - log.q) + log.kd[idx] * (log.cmd_qd[idx] - log.qd)
+    return np.abs(tau + log.cmd_tau[idx]).max(axis=0)
+
+
+def _pairs(
+    model: mujoco.MjModel, joints: list[int], peak: np.ndarray, reach: np.ndarray
+) -> list[_Pair]:
+    """Candidate pairs for the standing-out joints. ``reach[i, j]``: an offset of joint i's
+    encoder shows in joint j's predictions."""
+    out: list[_Pair] = []
+    bodies: set[int] = set()
+    offsets: set[int] = set()
+    for j in joints:
+        one = np.array([j])
+        spec = {
+            "coulomb_friction": (0.0, 20.0, 0.0, 1.0),
+            "viscous_damping": (0.0, 10.0, 0.0, 0.5),
+            "armature": (0.0, 0.5, 0.0, 0.02),
+            "gain_mismatch": (0.3, 3.0, 1.0, 0.85),
+            "delay": (0.0, 0.05, 0.0, 0.01),
+            "lag": (0.0, 0.1, 0.0, 0.01),
+            "torque_limit": (0.05 * peak[j], peak[j], peak[j], 0.8 * peak[j]),
+        }
+        for effect, (lo, hi, none, probe) in spec.items():
+            out.append(_Pair(effect=effect, index=j, joints=one, lo=lo, hi=hi, none=none,
+                             probe=probe))  # fmt: skip
+        # An encoder offset anywhere that shows at this joint (through gravity, often on
+        # another joint of the limb than its own).
+        for i in np.flatnonzero(reach[:, j]):
+            if int(i) not in offsets:
+                offsets.add(int(i))
+                out.append(_Pair(effect="encoder_offset", index=int(i),
+                                 joints=np.flatnonzero(reach[i]), lo=-0.2, hi=0.2, none=0.0,
+                                 probe=0.02))  # fmt: skip
+        body = int(model.jnt_bodyid[JointMap.of(model).jid[j]])
+        for b in (body, _limb_end(model, body)):
+            if b not in bodies:
+                bodies.add(b)
+                out.append(_Pair(effect="payload_mass", index=b, joints=_chain(model, b),
+                                 lo=0.0, hi=5.0, none=0.0, probe=0.5))  # fmt: skip
+    return out
+
+
+def _fit(
+    predictor: _Scorer,
+    bases: list[Correction],
+    pairs: list[_Pair],
+    first: list[float] | None = None,
+) -> list[float]:
+    """Fit every pair's parameter on the predictor's span: batched secant search on the
+    residual of the pair's joints, each pair on its own base correction, starting from "no
+    effect" and ``first`` (default: each pair's probe). Returns the best value per pair.
+
+    A torque limit acts only above it, so its error is flat down to the largest torque and
+    kinked there: it gets a refined grid instead."""
+    grid = [i for i, p in enumerate(pairs) if p.effect in _GRID_EFFECTS]
+    if grid:
+        smooth = [i for i in range(len(pairs)) if i not in grid]
+        out = [0.0] * len(pairs)
+        for i, v in zip(grid, _grid_fit(predictor, [bases[i] for i in grid],
+                                        [pairs[i] for i in grid]), strict=True):  # fmt: skip
+            out[i] = v
+        if smooth:
+            firsts = None if first is None else [first[i] for i in smooth]
+            for i, v in zip(smooth, _fit(predictor, [bases[i] for i in smooth],
+                                         [pairs[i] for i in smooth], firsts), strict=True):  # fmt: skip
+                out[i] = v
+        return out
+
+    def run(values: list[float]) -> list[np.ndarray]:
+        cs = []
+        for b, p, v in zip(bases, pairs, values, strict=True):
+            c = b.copy()
+            apply_effect(c, p.effect, p.index, v)
+            cs.append(c)
+        res = predictor.run(cs)
+        return [res[i][..., p.joints, :].ravel() for i, p in enumerate(pairs)]
+
+    unique = {id(b): b for b in bases}
+    r_none = dict(zip(unique, predictor.run(list(unique.values())), strict=True))
+    prev = [
+        (p.none, r_none[id(b)][..., p.joints, :].ravel()) for b, p in zip(bases, pairs, strict=True)
+    ]
+    x = [p.probe for p in pairs] if first is None else list(first)
+    best = [(float(r @ r), v) for v, r in prev]
+    for _ in range(_SECANT_STEPS):
+        rs = run(x)
+        nxt = []
+        for i, p in enumerate(pairs):
+            r, v = rs[i], x[i]
+            sse = float(r @ r)
+            if sse < best[i][0]:
+                best[i] = (sse, v)
+            v0, r0 = prev[i]
+            prev[i] = (v, r)
+            jac = (r - r0) / (v - v0) if v != v0 else np.zeros_like(r)
+            jj = float(jac @ jac)
+            if jj * (p.hi - p.lo) ** 2 < 1e-9 * (sse + 1e-30):
+                step = v + (v - p.none)  # No sensitivity yet: go further from "no effect".
+            else:
+                step = v - float(jac @ r) / jj
+            step = float(np.clip(step, p.lo, p.hi))
+            if step == v:  # Stuck on a bound: try half-way back to the best so far.
+                step = 0.5 * (v + best[i][1])
+            nxt.append(step)
+        x = nxt
+    return [v for _, v in best]
+
+
+class _Scorer:
+    """Residuals of corrections on a predictor's windows, in units of the noise floor: joint
+    positions and, when the log has them, drive torques (its effort), each divided by its
+    floor (the median joint's error with the nominal model: most joints lack nothing).
+    Shape of :meth:`run`: (C, W, S, J, channels)."""
+
+    def __init__(self, predictor: Predictor, effort: bool) -> None:
+        self.predictor = predictor
+        self.effort = effort
+        self.sigma = np.ones(2 if effort else 1)
+
+    @property
+    def samples(self) -> int:
+        return self.predictor.samples
+
+    def calibrate(self, nominal: Correction) -> np.ndarray:
+        """Set the floors from the nominal model; returns its per-joint position RMSE."""
+        raw = self._raw([nominal])[0]
+        per_joint = np.sqrt(np.mean(raw**2, axis=(0, 1)))  # (J, ch)
+        self.sigma = np.maximum(np.median(per_joint, axis=0), 1e-12)
+        return per_joint[:, 0]
+
+    def _raw(self, cs: list[Correction]) -> np.ndarray:
+        res = self.predictor.run(cs, effort=self.effort)
+        return res if self.effort else res[..., None]
+
+    def run(self, cs: list[Correction]) -> np.ndarray:
+        return self._raw(cs) / self.sigma
+
+    def per_joint(self, c: Correction) -> np.ndarray:
+        """Normalized RMS error per joint over both channels."""
+        return np.sqrt(np.mean(self.run([c])[0] ** 2, axis=(0, 1, 3)))
+
+
+def offset_reach(predictor: Predictor, base: Correction) -> np.ndarray:
+    """RMS change of every joint's prediction when one encoder reads :data:`OFFSET_PROBE`
+    off. Shape: (J offset, J affected).
+
+    A hanging robot's drives track the encoder, so an offset moves the limb only through
+    gravity: where every change is below the noise, the log cannot reveal that offset.
+    """
+    J = base.model.njnt
+    cs = []
+    for j in range(J):
+        c = base.copy()
+        c.offset[j] = OFFSET_PROBE
+        cs.append(c)
+    res = predictor.run([base, *cs])
+    return np.sqrt(np.mean((res[1:] - res[0][None]) ** 2, axis=(1, 2)))
+
+
+_GRID_EFFECTS = ("torque_limit", "backlash")
+
+
+def _grid_fit(
+    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], levels: int = 5, n: int = 6
+) -> list[float]:
+    """Batched grid search, refined ``levels`` times around the best value; geometric where the
+    interval spans decades (backlash), linear otherwise."""
+    geometric = np.array([p.lo > 0 and p.hi / p.lo > 20 for p in pairs])
+    lo = np.array([np.log(p.lo) if g else p.lo for p, g in zip(pairs, geometric, strict=True)])
+    hi = np.array([np.log(p.hi) if g else p.hi for p, g in zip(pairs, geometric, strict=True)])
+    bound = lo.copy(), hi.copy()
+    best = [(np.inf, p.none) for p in pairs]
+    for _ in range(levels):
+        grids = np.linspace(lo, hi, n, axis=1)  # (P, n)
+        grids = np.where(geometric[:, None], np.exp(grids), grids)
+        cs = []
+        for b, p, g in zip(bases, pairs, grids, strict=True):
+            for v in g:
+                c = b.copy()
+                apply_effect(c, p.effect, p.index, float(v))
+                cs.append(c)
+        res = predictor.run(cs)
+        for i, p in enumerate(pairs):
+            sse = [float(np.sum(res[i * n + k][..., p.joints, :] ** 2)) for k in range(n)]
+            k = int(np.argmin(sse))
+            if sse[k] < best[i][0]:
+                best[i] = (sse[k], float(grids[i, k]))
+            step = (hi[i] - lo[i]) / (n - 1)
+            centre = lo[i] + k * step
+            lo[i], hi[i] = max(bound[0][i], centre - step), min(bound[1][i], centre + step)
+    return [v for _, v in best]
+
+
+def _refit(
+    predictor: _Scorer, start: Correction, kept: list[tuple[_Pair, float]], iters: int = 5
+) -> list[float]:
+    """Refit the kept effects together (Gauss-Newton on the residual of all their joints,
+    finite-difference Jacobian): effects on the same joint share its error, and the first one
+    found took more than its part."""
+    values = np.array([v for _, v in kept])
+    if len(kept) < 2:
+        return list(values)
+    joints = np.unique(np.concatenate([p.joints for p, _ in kept]))
+    lo = np.array([p.lo for p, _ in kept])
+    hi = np.array([p.hi for p, _ in kept])
+    none = np.array([p.none for p, _ in kept])
+
+    def correction(v: np.ndarray) -> Correction:
+        c = start.copy()
+        for (p, _), x in zip(kept, v, strict=True):
+            apply_effect(c, p.effect, p.index, float(x))
+        return c
+
+    step = np.maximum(0.1 * np.abs(values - none), 0.01 * (hi - lo))
+    for _ in range(iters):
+        probes = [values.copy()]
+        for i in range(len(kept)):
+            v = values.copy()
+            v[i] = v[i] + step[i] if v[i] + step[i] <= hi[i] else v[i] - step[i]
+            probes.append(v)
+        res = predictor.run([correction(v) for v in probes])
+        r0 = res[0][..., joints, :].ravel()
+        jac = np.stack([(res[1 + i][..., joints, :].ravel() - r0) / (probes[1 + i][i] - values[i])
+                        for i in range(len(kept))], axis=1)  # fmt: skip
+        jtj = jac.T @ jac
+        delta = np.linalg.solve(jtj + 1e-6 * np.trace(jtj) * np.eye(len(kept)), -jac.T @ r0)
+        trial = np.clip(values + delta, lo, hi)
+        r1 = predictor.run([correction(trial)])[0][..., joints, :].ravel()
+        if r1 @ r1 < r0 @ r0:
+            values = trial
+            step = np.maximum(0.1 * np.abs(delta), 0.002 * (hi - lo))
+        else:
+            break
+    return list(values)
+
+
+def _polish(predictor: _Scorer, start: Correction, kept: list[tuple[_Pair, float]]) -> list[float]:
+    """Refit the kept effects: alone from where they are, or together (:func:`_refit`)."""
+    if len(kept) > 1:
+        return _refit(predictor, start, kept)
+    ((p, v),) = kept
+    return _fit(predictor, [start], [p], first=[v])
+
+
+def backlash_models(
+    robot: RobotConfig, base_pose: np.ndarray
+) -> Callable[[tuple[str, ...]], mujoco.MjModel]:
+    """Builds the prediction model with a play joint on each given joint."""
+    from humimic.real2sim.effects import Injection, apply_to_spec
+    from humimic.real2sim.residual import prediction_spec
+
+    built: dict[tuple[str, ...], mujoco.MjModel] = {}
+    nominal: list[mujoco.MjSpec] = []
+
+    def build(joints: tuple[str, ...]) -> mujoco.MjModel:
+        if joints not in built:
+            if not nominal:
+                nominal.append(prediction_spec(robot, base_pose))
+            spec = nominal[0].copy()
+            apply_to_spec(spec, [Injection(effect="backlash", targets=joints, value=0.02)])
+            built[joints] = spec.compile()
+        return copy.copy(built[joints])
+
+    return build
 
 
 def diagnose_log(
-    model: mujoco.MjModel,
+    correction: Correction | mujoco.MjModel,
     log: RobotLog,
     *,
     horizon: float = 0.5,
-    max_effects: int = 3,
+    max_effects: int = 4,
     candidates_per_round: int = 3,
+    backlash_model: Callable[[tuple[str, ...]], mujoco.MjModel] | None = None,
 ) -> Diagnosis:
-    """Find and size the joint-level effects the model lacks. ``model`` is changed in place to
-    carry the claimed effects (the corrected model); gain mismatches are returned as
-    ``Diagnosis.gain_scale`` (the logged gains are applied at prediction time)."""
+    """Find and size the effects the model lacks.
+
+    Args:
+        correction: The nominal fixed-base prediction model (see
+            :func:`~humimic.real2sim.residual.prediction_spec`); it is not changed.
+        log: The log (its joints in the model's order).
+        horizon: k-step window [s].
+        max_effects: Most effects claimed.
+        candidates_per_round: Most joints examined per round.
+        backlash_model: The prediction model with play joints on the given joints (see
+            :func:`backlash_models`); without it backlash is not searched.
+    """
+    base = (correction if isinstance(correction, Correction) else Correction.of(correction)).copy()
+    model = base.model
     names = log.joint_names
-    act_of = {int(model.actuator_trnid[a, 0]): a for a in range(model.nu)}
-    a_span, b_span = (0.0, FIT_END / 2), (FIT_END / 2, FIT_END)
-    gains = np.ones(model.nu)  # Applied / commanded gain per actuator.
+    # A and B interleave (alternate windows of the fit span), so that both see every kind of
+    # motion the log has; the secant fits use every other window of A.
+    fit = (0.0, FIT_END)
+    effort = log.effort is not None
+    # Fits use joint positions only: a logged drive torque jumps with every command step, so
+    # its error is discontinuous in a delay (a sample falls before or after the delayed step)
+    # and would trap the search. Scoring on B uses both.
+    fit_a = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=4, phase=0), False)
+    score_a = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=2, phase=0), effort)
+    score_b = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=2, phase=1), effort)
+    floor_q = float(np.median(score_a.calibrate(base)))  # The position noise floor [rad].
+    score_b.sigma = score_a.sigma
+    fit_a.sigma = score_a.sigma[:1]
+    peak = _peak_torque(log)
 
-    def errors(span: tuple[float, float]) -> np.ndarray:
-        return kstep_error(
-            model, log, horizon=horizon, span=span, stride=horizon, gain_scale=gains
-        ).per_joint
-
-    def joint_error(span: tuple[float, float], j: int, stride: float) -> float:
-        del stride
-        return float(errors(span)[j])
+    reach = offset_reach(fit_a.predictor, base) > 2.0 * floor_q
+    diagnosis = Diagnosis(correction=base)
+    hidden = np.flatnonzero(~reach.any(axis=1))
+    if hidden.size:
+        diagnosis.not_identifiable.append(
+            Statement(
+                effect="encoder_offset",
+                joints=tuple(names[j] for j in hidden),
+                reason=(
+                    f"an encoder offset of {OFFSET_PROBE} rad on any of these joints changes "
+                    f"no joint's predicted position by more than twice the noise floor "
+                    f"({floor_q * 1e3:.2f} mrad): the drives track the encoder, and this log's "
+                    "gravity loads do not reveal where it reads zero. Calibrate these offsets "
+                    "against a mechanical reference (or excite them under load)."
+                ),
+            )
+        )
 
     findings: list[Finding] = []
     rejected: list[Finding] = []
+    kept: list[tuple[_Pair, float]] = []
+    nominal = base
+    plays: tuple[str, ...] = ()  # Joints whose claimed backlash the model carries.
+
+    def start_for(joints: tuple[str, ...]) -> Correction:
+        """The nominal correction, on a model with play joints on ``joints``."""
+        if not joints:
+            return nominal
+        assert backlash_model is not None
+        c = Correction.of(backlash_model(joints))
+        c.delay[:], c.offset[:], c.gain_scale[:] = nominal.delay, nominal.offset, nominal.gain_scale
+        return c
+
+    def with_kept(c0: Correction, values: list[float] | None = None) -> Correction:
+        c = c0.copy()
+        for (q, v0), v in zip(kept, values or [v for _, v in kept], strict=True):
+            del v0
+            apply_effect(c, q.effect, q.index, v)
+        return c
+
+    start = base
     for _ in range(max_effects):
-        base_a = errors(a_span)
-        typical = float(np.median(base_a))
-        order = np.argsort(-base_a)
-        joints = [int(j) for j in order[:candidates_per_round] if base_a[j] > 2 * typical]
+        if kept:  # The effects so far at their best together, before crediting a new one.
+            values_now = _polish(fit_a, start, kept)
+            kept = [(q, v) for (q, _), v in zip(kept, values_now, strict=True)]
+            findings = [replace(f, value=v) for f, v in zip(findings, values_now, strict=True)]
+            base = start.copy()
+            for q, v in kept:
+                apply_effect(base, q.effect, q.index, v)
+            model = base.model
+        err_a = score_a.per_joint(base)
+        order = np.argsort(-err_a)
+        joints = [int(j) for j in order[:candidates_per_round] if err_a[j] > 2.0]
         if not joints:
             break
-        scored: list[tuple[float, Finding, _Knob]] = []
-        for j in joints:
-            before_b = joint_error(b_span, j, horizon)
-            per_joint: list[tuple[float, Finding, _Knob]] = []
-            for effect in SEARCHED:
-                if effect in ("gain_mismatch", "delay") and j not in act_of:
-                    continue
-                if effect == "delay" and model.actuator_history[act_of[j], 0] < 2:
-                    continue  # No control history compiled in: cannot be searched.
-                knob = _Knob(model, gains, effect, j, act_of.get(j, -1))
-                lo, hi = BOUNDS[effect](model, j)
+        pairs = _pairs(model, joints, peak, reach)
+        bases = [base] * len(pairs)
+        if backlash_model is not None:  # Play in a joint: a model with one more hinge.
+            for j in joints:
+                if names[j] not in plays:
+                    bases.append(with_kept(start_for((*plays, names[j]))))
+                    pairs.append(_Pair(effect="backlash", index=j, joints=np.array([j]),
+                                       lo=0.002, hi=0.2, none=0.0, probe=0.02))  # fmt: skip
+        values = _fit(fit_a, bases, pairs)
+        # A pair on joints that already carry an effect is refitted together with it: the
+        # effect found first took more than its share of their error.
+        revised = [[v for _, v in kept] for _ in pairs]
+        cs = []
+        for i, p in enumerate(pairs):
+            if p.effect == "backlash":
+                c = bases[i].copy()
+                apply_effect(c, p.effect, p.index, values[i])
+                cs.append(c)
+                continue
+            shared = [k for k, (q, _) in enumerate(kept) if np.intersect1d(q.joints, p.joints).size]
+            if shared:
+                others = start.copy()
+                for k, (q, v) in enumerate(kept):
+                    if k not in shared:
+                        apply_effect(others, q.effect, q.index, v)
+                group = [kept[k] for k in shared] + [(p, values[i])]
+                fitted = _refit(fit_a, others, group)
+                for k, v in zip(shared, fitted[:-1], strict=True):
+                    revised[i][k] = v
+                values[i] = fitted[-1]
+            c = start.copy()
+            for (q, _), v in zip(kept, revised[i], strict=True):
+                apply_effect(c, q.effect, q.index, v)
+            apply_effect(c, p.effect, p.index, values[i])
+            cs.append(c)
+        res_b = score_b.run([base, *cs])
+        sse0 = np.sum(res_b[0] ** 2, axis=(0, 1, 3))  # Per joint, before.
+        gains, reds = [], []
+        for i, p in enumerate(pairs):
+            sse = np.sum(res_b[1 + i] ** 2, axis=(0, 1, 3))
+            gains.append(float(np.sum(sse0 - sse)))
+            reds.append(1.0 - float(np.sum(sse[p.joints]) / max(np.sum(sse0[p.joints]), 1e-30)))
+        order_p = np.argsort(-np.array(gains))
+        k = int(order_p[0])
+        best, red = pairs[k], reds[k]
+        rival = max([gains[i] for i in order_p[1:]
+                     if np.intersect1d(pairs[i].joints, best.joints).size], default=0.0)  # fmt: skip
+        # How much better the best explains B than its best rival, as a log-likelihood ratio
+        # under the noise floors, counting each window and channel once (samples inside a
+        # window are not independent: a k-step error accumulates).
+        evidence = (gains[k] - max(rival, 0.0)) / (2 * score_b.samples * res_b.shape[-1])
+        conf = float(np.clip(red / (2 * MIN_REDUCTION), 0.0, 1.0)
+                     * (0.4 + 0.6 * (1.0 - np.exp(-evidence))))  # fmt: skip
 
-                def cost(v: float, knob: _Knob = knob, j: int = j) -> float:
-                    knob.set(v)
-                    return joint_error(a_span, j, horizon)
+        def finding(
+            i: int, confidence: float, pairs=pairs, values=values, reds=reds, model=model
+        ) -> Finding:
+            p = pairs[i]
+            target = model.body(p.index).name if p.effect == "payload_mass" else names[p.index]
+            return Finding(effect=p.effect, target=target,
+                           joints=tuple(names[j] for j in p.joints), value=values[i],
+                           confidence=confidence, error_reduction=reds[i])  # fmt: skip
 
-                res = minimize_scalar(cost, bounds=(lo, hi), method="bounded",
-                                      options={"xatol": 1e-3 * (hi - lo), "maxiter": 14})  # fmt: skip
-                knob.set(float(res.x))
-                after_b = joint_error(b_span, j, horizon)
-                knob.restore()
-                reduction = 1.0 - after_b / max(before_b, 1e-12)
-                per_joint.append(
-                    (reduction, Finding(effect=effect, joint=names[j], value=float(res.x),
-                                        confidence=0.0, error_reduction=reduction), knob)
-                )  # fmt: skip
-            per_joint.sort(key=lambda x: -x[0])
-            best_red, best, knob = per_joint[0]
-            runner = per_joint[1][0] if len(per_joint) > 1 else 0.0
-            margin = (best_red - max(runner, 0.0)) / max(best_red, 1e-12)
-            conf = float(np.clip(best_red / (2 * MIN_REDUCTION), 0.0, 1.0) * np.clip(
-                0.5 + margin, 0.0, 1.0))  # fmt: skip
-            best = Finding(effect=best.effect, joint=best.joint, value=best.value,
-                           confidence=conf, error_reduction=best_red)  # fmt: skip
-            scored.append((best_red, best, knob))
-            rejected += [
-                Finding(effect=f.effect, joint=f.joint, value=f.value,
-                        confidence=float(min(conf, np.clip(r / (2 * MIN_REDUCTION), 0, 1)) * 0.5),
-                        error_reduction=r)
-                for r, f, _ in per_joint[1:]
-            ]  # fmt: skip
-        scored.sort(key=lambda x: -x[0])
-        red, best, knob = scored[0]
-        if red < MIN_REDUCTION or best.confidence < CLAIM:
-            rejected.append(best)
+        for i in order_p[1:4]:  # The best rivals, for the record.
+            rival_conf = min(conf, float(np.clip(reds[i] / (2 * MIN_REDUCTION), 0, 1)))
+            rival_conf *= 0.49  # A rival is never claimed.
+            rejected.append(finding(int(i), rival_conf))
+        if red < MIN_REDUCTION or conf < CLAIM or gains[k] <= 0:
+            rejected.append(finding(k, min(conf, CLAIM - 0.01)))
             break
-        knob.set(best.value)  # Keep it: the corrected model carries the effect.
-        findings.append(best)
+        base = cs[k]  # Keep it: the correction carries the effect.
+        model = base.model
+        if best.effect == "backlash":
+            plays = (*plays, names[best.index])
+            start = start_for(plays)
+        kept = [(q, v) for (q, _), v in zip(kept, revised[k], strict=True)]
+        findings = [replace(f, value=v) for f, v in zip(findings, revised[k], strict=True)]
+        findings.append(finding(k, conf))
+        kept.append((pairs[k], values[k]))
+    # An effect is claimed only if, with all the others, it leaves little of its joints' error:
+    # one that removes half of a joint's error and leaves the rest is a proxy for something
+    # else (an effect outside the vocabulary), not a finding.
+    if findings:
+        values = _refit(fit_a, start, kept)
+        kept = [(p, v) for (p, _), v in zip(kept, values, strict=True)]
+        findings = [replace(f, value=v) for f, v in zip(findings, values, strict=True)]
+        base = start.copy()
+        for p, v in kept:
+            apply_effect(base, p.effect, p.index, v)
+        final = score_b.run([start, base])
+        claimed, unclaimed = [], []
+        for f, (p, v) in zip(findings, kept, strict=True):
+            sse0 = float(np.sum(final[0][..., p.joints, :] ** 2))
+            sse1 = float(np.sum(final[1][..., p.joints, :] ** 2))
+            noise = float(final[0][..., p.joints, :].size)  # One floor squared per sample.
+            left = max(sse1 - noise, 0.0) / max(sse0 - noise, 1e-30)
+            conf = f.confidence * float(np.clip(1.0 - 1.5 * left, 0.0, 1.0))
+            g = replace(f, confidence=conf)
+            (claimed if conf >= CLAIM else unclaimed).append((g, p, v))
+        if unclaimed:  # Rebuild the correction from the claimed effects only.
+            base = start_for(tuple(names[p.index] for _, p, _ in claimed if p.effect == "backlash"))
+            base = base.copy()
+            for _, p, v in claimed:
+                apply_effect(base, p.effect, p.index, v)
+        findings = [g for g, _, _ in claimed]
+        rejected += [
+            replace(g, confidence=min(g.confidence, CLAIM - 0.01)) for g, _, _ in unclaimed
+        ]
+    # Each rejected candidate once (its best showing), and none that was claimed.
     rejected.sort(key=lambda f: -f.confidence)
-    return Diagnosis(findings=findings + rejected, gain_scale=gains)
+    seen = {(f.effect, f.target) for f in findings}
+    unique = []
+    for f in rejected:
+        if (f.effect, f.target) not in seen:
+            seen.add((f.effect, f.target))
+            unique.append(f)
+    diagnosis.findings = findings + unique
+    diagnosis.correction = base
+    return diagnosis

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
+from humimic.real2sim.joints import PLAY_SUFFIX
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -62,7 +63,7 @@ EFFECTS: dict[str, Effect] = {
         Effect(name="payload_mass", unit="kg", target="body",
                expresses="body mass (and inertia)", signature="residual ~ gravity torque of the body"),
         Effect(name="backlash", unit="rad", target="joint",
-               expresses="play in the transmission (dead zone)",
+               expresses="a second hinge on the joint's axis (the link side), limited to the play",
                signature="dead zone after velocity reversals"),
     )
 }  # fmt: skip
@@ -147,6 +148,7 @@ def _lag(spec: mujoco.MjSpec, joint: str, v: float) -> None:
     prm[0] = v
     a.dynprm = prm
     a.actdim = 1
+    a.actearly = True  # The filtered command drives the joint in the same step.
 
 
 def _torque_limit(spec: mujoco.MjSpec, joint: str, v: float) -> None:
@@ -159,6 +161,29 @@ def _gain(spec: mujoco.MjSpec, joint: str, v: float) -> None:
     a = _actuator(spec, joint)
     a.gainprm = np.asarray(a.gainprm) * v
     a.biasprm = np.asarray(a.biasprm) * v
+
+
+def _encoder_offset(spec: mujoco.MjSpec, joint: str, v: float) -> None:
+    """The encoder reads ``v`` more than the true angle: in MuJoCo, a joint whose reference
+    (the coordinate of the body's modelled pose) is ``v``; its range moves with it."""
+    j = _joint(spec, joint)
+    j.ref = j.ref + v
+    j.range = np.asarray(j.range) + v
+
+
+def _backlash(spec: mujoco.MjSpec, joint: str, v: float) -> None:
+    """Play of ``v`` rad in the transmission: a second hinge on the same axis (the link side),
+    free within +-v/2 and stopped stiffly at the ends; the drive turns the first (the motor
+    side, with the rotor's armature) and the log reports the link, the sum of both."""
+    if v <= 0:
+        raise InputError(f"backlash on {joint!r} must be positive (total play in rad)")
+    j = _joint(spec, joint)
+    play = j.parent.add_joint(name=joint + PLAY_SUFFIX, type=mujoco.mjtJoint.mjJNT_HINGE)
+    play.axis, play.pos = j.axis, j.pos
+    play.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+    play.range = np.array([-v / 2, v / 2])
+    play.armature = 1e-4  # The gear train's own inertia between the two sides.
+    play.solref_limit = np.array([0.002, 1.0])  # A stiff stop (two physics steps).
 
 
 def _payload(spec: mujoco.MjSpec, body: str, v: float) -> None:
@@ -177,9 +202,10 @@ APPLY: dict[str, Callable[[mujoco.MjSpec, str, float], None]] = {
     "torque_limit": _torque_limit,
     "gain_mismatch": _gain,
     "payload_mass": _payload,
+    "encoder_offset": _encoder_offset,
+    "backlash": _backlash,
 }
-"""Effects added to the model itself. ``encoder_offset`` acts on the measurement (applied by
-the log writer) and ``backlash`` is not yet expressible here."""
+"""How each effect is added to a model."""
 
 
 def apply_to_spec(spec: mujoco.MjSpec, injections: list[Injection]) -> None:
@@ -187,8 +213,6 @@ def apply_to_spec(spec: mujoco.MjSpec, injections: list[Injection]) -> None:
     for inj in injections:
         fn = APPLY.get(inj.effect)
         if fn is None:
-            if inj.effect == "encoder_offset":
-                continue  # A measurement effect: see simulate.
             raise InputError(f"effect {inj.effect!r} cannot be injected yet")
         for target in inj.targets:
             fn(spec, target, inj.value)

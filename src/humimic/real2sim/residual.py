@@ -2,19 +2,94 @@
 
 Windows start from logged states and are driven, open loop, by the logged commands (held
 between command messages, as the drives do); the prediction is compared with the logged joint
-positions over the window. Issue 4, step 1 (the before/after numbers of the report).
+positions over the window. All windows of a span, and several candidate models at once, run as
+one threaded :func:`mujoco.rollout.rollout` call: the diagnosis evaluates hundreds of
+candidate corrections per round this way.
+
+A :class:`Correction` is what a prediction adds to the nominal model: the compiled model's own
+parameters (friction, damping, armature, force limits, actuator filter time constants, body
+masses) plus three effects that act around it: a transport delay of the commands, an encoder
+offset (the drive and the log see ``q + offset``) and a gain scale (applied / commanded kp, kd).
 """
 
 from __future__ import annotations
 
+import copy
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from mujoco import rollout
 
 from humimic.errors import InputError
+from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
-from humimic.real2sim.simulate import PHYSICS_DT
+from humimic.real2sim.simulate import PHYSICS_DT, fixed_base_spec
+from humimic.robots.registry import RobotConfig
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
+_MAX_BATCH_BYTES = 96 * 2**20
+"""Rollout outputs are produced in chunks of at most this size."""
+_EPS = 1e-7
+"""Clock tolerance [s] when finding the command in force (step times are sums of floats)."""
+
+
+def prediction_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
+    """The fixed-base robot as the predictions simulate it.
+
+    Geometry is removed (masses and inertias are explicit in the robot files; a hanging robot's
+    excitation is free of contact by design), so a copy of the compiled model costs under a
+    millisecond and a step a third less. Every actuator gets a first-order filter
+    (``filterexact``, applied in the same step) with time constant 0, which behaves exactly as
+    no filter: the diagnosis sets a time constant (``lag``) on the compiled model.
+    """
+    spec = fixed_base_spec(robot, base_pose)
+    for m in list(spec.meshes):  # Meshes first: deleting a geom is slow while meshes exist.
+        spec.delete(m)
+    for g in list(spec.geoms):
+        spec.delete(g)
+    for a in spec.actuators:
+        a.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        a.dynprm = np.zeros(10)
+        a.actearly = True
+        a.actdim = 1
+    return spec
+
+
+@dataclass(kw_only=True)
+class Correction:
+    """A model and the effects that act around it (see the module docstring).
+
+    Attributes:
+        model: Compiled fixed-base model; its joints are the log's joints, in order.
+        delay: Transport delay of the commands per actuator [s]. Shape: (nu,).
+        offset: Encoder offset per joint [rad]. Shape: (J,).
+        gain_scale: Applied / commanded gains per actuator. Shape: (nu,).
+    """
+
+    model: mujoco.MjModel
+    delay: np.ndarray
+    offset: np.ndarray
+    gain_scale: np.ndarray
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> Correction:
+        """The model as it is. Transport delays the model carries natively (actuator
+        ``delay``, as in a written model.xml) move to the correction, on a copy of the model:
+        predictions start from logged states, which hold no control history."""
+        delay = np.asarray(model.actuator_delay, dtype=np.float64).copy()
+        if delay.any():
+            model = copy.copy(model)
+            model.actuator_delay[:] = 0.0
+        return cls(model=model, delay=delay, offset=np.zeros(len(JointMap.of(model).names)),
+                   gain_scale=np.ones(model.nu))  # fmt: skip
+
+    def copy(self) -> Correction:
+        return Correction(model=copy.copy(self.model), delay=self.delay.copy(),
+                          offset=self.offset.copy(), gain_scale=self.gain_scale.copy())  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,106 +119,344 @@ class KStepError:
         }
 
 
+class Predictor:
+    """k-step open-loop predictions over the windows of one span of a log.
+
+    Args:
+        model: Any compiled model with the log's joints (used for sizes and checks).
+        log: The log. Its gains must be constant per joint (drives are rarely re-tuned inside
+            an identification run; a log that does is refused rather than mispredicted).
+        horizon: Window length [s].
+        stride: Time between window starts [s] (default: the horizon).
+        span: The fraction of the log to use, e.g. (0.7, 1.0) for the held-out last 30%.
+        every, phase: Keep every ``every``-th window of the span, starting at ``phase``
+            (interleaved subsets for cross-validation).
+        nthread: Rollout threads (default: the CPU count).
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        log: RobotLog,
+        *,
+        horizon: float = 0.5,
+        stride: float | None = None,
+        span: tuple[float, float] = (0.0, 1.0),
+        every: int = 1,
+        phase: int = 0,
+        nthread: int | None = None,
+    ) -> None:
+        if JointMap.of(model).names != log.joint_names:
+            raise InputError("the model's joints are not the log's joints (order matters)")
+        if model.nv != model.njnt or model.nq != model.njnt:
+            raise InputError("predictions need a fixed-base model of hinge and slide joints")
+        if abs(model.opt.timestep - PHYSICS_DT) > 1e-12:
+            raise InputError(
+                f"predictions step at {PHYSICS_DT} s; the model steps at {model.opt.timestep}"
+            )
+        for gains, what in ((log.kp, "kp"), (log.kd, "kd")):
+            changed = np.flatnonzero(np.ptp(gains, axis=0) > 1e-9 * (1 + np.abs(gains).max()))
+            if changed.size:
+                raise InputError(
+                    f"the log changes {what} of {log.joint_names[changed[0]]!r} while it runs; "
+                    "the diagnosis needs constant gains per joint"
+                )
+        self.log = log
+        self.horizon = horizon
+        stride = horizon if stride is None else stride
+        dt_state = float(np.median(np.diff(log.t)))
+        self.samples = round(horizon / dt_state)
+        self.sub = round(dt_state / PHYSICS_DT)
+        if self.samples < 1 or abs(self.sub * PHYSICS_DT - dt_state) > 0.05 * dt_state:
+            raise InputError(
+                f"states every {dt_state * 1e3:.3g} ms: need a multiple of {PHYSICS_DT * 1e3} ms"
+            )
+        first = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
+        last = (
+            int(np.searchsorted(log.t, log.t[0] + span[1] * log.duration, side="right"))
+            - self.samples
+            - 1
+        )
+        starts = np.arange(first, max(last, first), max(1, round(stride / dt_state)))
+        self.starts = starts[phase::every]
+        if self.starts.size == 0:
+            raise InputError(f"the log is shorter than one {horizon} s window in the span {span}")
+        steps = self.samples * self.sub
+        # Time at the start of every physics step of every window, and of the step after the
+        # window (its command is the one in force at the last sample).
+        self.clock = log.t[self.starts][:, None] + PHYSICS_DT * np.arange(steps + 1)[None, :]
+        self._act_log = JointMap.of(model).act_log
+        self.nthread = nthread or os.cpu_count() or 1
+        self._datas: dict[tuple[int, ...], list[mujoco.MjData]] = {}
+        self._index_cache: dict[float, np.ndarray] = {}
+
+    def _threads(self, model: mujoco.MjModel) -> list[mujoco.MjData]:
+        key = (model.nq, model.nv, model.na, model.nu)
+        if key not in self._datas:
+            self._datas[key] = [mujoco.MjData(model) for _ in range(self.nthread)]
+        return self._datas[key]
+
+    @property
+    def num_windows(self) -> int:
+        return int(self.starts.size)
+
+    def _in_force(self, delay: float, times: np.ndarray) -> np.ndarray:
+        """Index of the command the drive acts on at ``times`` given a transport delay."""
+        key = round(delay, 9)
+        if times is self.clock and key in self._index_cache:
+            return self._index_cache[key]
+        idx = self.log.command_index(times - delay + _EPS)
+        if times is self.clock:
+            self._index_cache[key] = idx
+        return idx
+
+    def controls(self, c: Correction) -> np.ndarray:
+        """Rollout controls: ctrl (nu) then qfrc_applied (nv), per window and physics step."""
+        log, W, K = self.log, self.num_windows, self.clock.shape[1]
+        m, jm = c.model, JointMap.of(c.model)
+        out = np.zeros((W, K, m.nu + m.nv))
+        for d in np.unique(c.delay):
+            acts = np.flatnonzero(c.delay == d)
+            idx = self._in_force(float(d), self.clock)
+            joints = jm.act_log[acts]
+            out[:, :, acts] = log.cmd_q[idx][:, :, joints] - c.offset[joints]
+            # Feed-forward torque and the velocity target's share of the PD law.
+            ff = log.cmd_tau[idx][:, :, joints] + c.gain_scale[acts] * (
+                log.kd[0][joints] * log.cmd_qd[idx][:, :, joints]
+            )
+            out[:, :, m.nu + jm.dadr[joints]] = ff
+        return out
+
+    def initial_states(self, c: Correction, ctrl: np.ndarray) -> np.ndarray:
+        """Logged state at each window's start (the true one, under an encoder offset) and the
+        drive filters' state after the commands before it."""
+        log, m, jm = self.log, c.model, JointMap.of(c.model)
+        s = np.zeros((self.num_windows, mujoco.mj_stateSize(m, _STATE)))
+        lay = _state_layout(m)
+        s[:, lay["time"].start] = log.t[self.starts]
+        q = log.q[self.starts] - c.offset
+        qpos, qvel = s[:, lay["qpos"]], s[:, lay["qvel"]]
+        qpos[:, jm.qadr] = q
+        qvel[:, jm.dadr] = log.qd[self.starts]
+        for j in np.flatnonzero(jm.play_q >= 0):
+            # The play sits at the end the drive pushes against: the motor leads the link.
+            a = int(np.flatnonzero(jm.act_log == j)[0])
+            torque = self.kp[a] * c.gain_scale[a] * (ctrl[:, 0, a] - q[:, j])
+            half = float(m.jnt_range[m.dof_jntid[jm.play_d[j]], 1])
+            play = -np.sign(torque) * half
+            qpos[:, jm.play_q[j]] = play
+            qpos[:, jm.qadr[j]] = q[:, j] - play
+        if m.na:
+            act = ctrl[:, 0, : m.nu].copy()  # Settled on the current command...
+            tau = m.actuator_dynprm[:, 0]
+            for a in np.flatnonzero(tau > 0):  # ... unless it filters: run its filter.
+                j = jm.act_log[a]
+                n = min(int(np.ceil(16 * tau[a] / PHYSICS_DT)), 4000)
+                back = log.t[self.starts][:, None] - PHYSICS_DT * np.arange(n, 0, -1)[None, :]
+                u = log.cmd_q[self._in_force(float(c.delay[a]), back), j] - c.offset[j]
+                alpha = 1.0 - np.exp(-PHYSICS_DT / tau[a])
+                x = u[:, 0].copy()
+                for k in range(1, n):
+                    x += alpha * (u[:, k] - x)
+                act[:, a] = x
+            for a in np.flatnonzero(m.actuator_actadr >= 0):
+                s[:, lay["act"].start + m.actuator_actadr[a]] = act[:, a]
+        return s
+
+    def _set_gains(self, c: Correction) -> None:
+        set_gains(c, self.kp, self.kd)
+
+    @property
+    def kp(self) -> np.ndarray:
+        """Commanded kp of the joint each actuator drives (the log's, constant)."""
+        return self.log.kp[0][self._act_log]
+
+    @property
+    def kd(self) -> np.ndarray:
+        return self.log.kd[0][self._act_log]
+
+    def run(self, corrections: list[Correction], effort: bool = False) -> np.ndarray:
+        """Residual (prediction minus log) of each correction. Shape: (C, W, S, J), or with
+        ``effort`` (C, W, S, J, 2): joint positions [rad] and drive torques [N m] (the log's
+        effort against the modelled actuator force).
+
+        The logged gains (times each correction's gain scale) are set on the models while
+        predicting and put back afterwards.
+        """
+        W, S = self.num_windows, self.samples
+        if effort and self.log.effort is None:
+            raise InputError("the log has no effort (drive torque) to compare with")
+        J = self.log.q.shape[1]
+        out = np.empty((len(corrections), W, S, J, 2) if effort else (len(corrections), W, S, J))
+        # Models of one structure run together (a backlash joint adds a degree of freedom).
+        groups: dict[tuple[int, ...], list[int]] = {}
+        for i, c in enumerate(corrections):
+            groups.setdefault((c.model.nq, c.model.nv, c.model.na), []).append(i)
+        for members in groups.values():
+            self._run_group([corrections[i] for i in members], effort, out, members)
+        return out
+
+    def _run_group(
+        self, corrections: list[Correction], effort: bool, out: np.ndarray, where: list[int]
+    ) -> None:
+        W, S, sub = self.num_windows, self.samples, self.sub
+        K = S * sub
+        m0 = corrections[0].model
+        jm, lay = JointMap.of(m0), _state_layout(m0)
+        nstate = mujoco.mj_stateSize(m0, _STATE)
+        per = max(1, _MAX_BATCH_BYTES // (W * K * nstate * 8))
+        for lo in range(0, len(corrections), per):
+            chunk = corrections[lo : lo + per]
+            models, states, ctrls = [], [], []
+            saved = [(c.model.actuator_gainprm.copy(), c.model.actuator_biasprm.copy())
+                     for c in chunk]  # fmt: skip
+            try:
+                for c in chunk:
+                    self._set_gains(c)
+                    ctrl = self.controls(c)
+                    ctrls.append(ctrl)
+                    states.append(self.initial_states(c, ctrl))
+                    models += [c.model] * W
+                result = np.asarray(rollout.rollout(
+                    models, self._threads(m0), np.concatenate(states),
+                    np.concatenate(ctrls)[:, :K], control_spec=_CONTROL, nstep=K,
+                )[0])  # fmt: skip
+            finally:
+                for c, (g, b) in zip(chunk, saved, strict=True):
+                    c.model.actuator_gainprm[:], c.model.actuator_biasprm[:] = g, b
+            at = result[:, sub - 1 :: sub].reshape(len(chunk), W, S, -1)
+            link = jm.link(at[..., lay["qpos"]], jm.play_q, jm.qadr)
+            samples = self.starts[:, None] + np.arange(1, S + 1)[None, :]
+            offsets = np.stack([c.offset for c in chunk])[:, None, None, :]
+            res_q = link + offsets - self.log.q[samples][None]
+            rows = where[lo : lo + len(chunk)]
+            if not effort:
+                out[rows] = res_q
+                continue
+            assert self.log.effort is not None
+            out[rows, ..., 0] = res_q
+            for n, (c, ctrl) in enumerate(zip(chunk, ctrls, strict=True)):
+                force = self._actuator_force(c, at[n], ctrl[:, sub::sub, : c.model.nu])
+                out[rows[n], ..., 1] = force - self.log.effort[samples]
+
+    def _actuator_force(self, c: Correction, state: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
+        """Drive torque per joint at the state samples (W, S, J) from the states (W, S, n)
+        and the commands the drives act on next (W, S, nu), as MuJoCo computes it."""
+        m, lay, jm = c.model, _state_layout(c.model), JointMap.of(c.model)
+        q = state[..., lay["qpos"]][..., jm.qadr]  # The motor side: what the drive acts on.
+        qd = state[..., lay["qvel"]][..., jm.dadr]
+        u = ctrl.copy()
+        tau = m.actuator_dynprm[:, 0]
+        for a in np.flatnonzero((tau > 0) & (m.actuator_actadr >= 0)):
+            act = state[..., lay["act"].start + m.actuator_actadr[a]]
+            u[..., a] = act + (u[..., a] - act) * (1.0 - np.exp(-PHYSICS_DT / tau[a]))
+        j = jm.act_log
+        kp, kd = self.kp * c.gain_scale, self.kd * c.gain_scale
+        f = kp * (u - q[..., j]) - kd * qd[..., j]
+        lim = m.actuator_forcelimited.astype(bool)
+        f[..., lim] = np.clip(
+            f[..., lim], m.actuator_forcerange[lim, 0], m.actuator_forcerange[lim, 1]
+        )
+        out = np.zeros_like(q)
+        out[..., j] = f
+        return out
+
+    def run_with_torque(
+        self,
+        c: Correction,
+        torque: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray],
+        history: int,
+    ) -> np.ndarray:
+        """Residual (W, S, J) of a correction plus an extra joint torque, closed loop.
+
+        At every state sample, ``torque(errors, velocities, positions)`` maps the last
+        ``history`` measured position errors (command in force minus measured position),
+        velocities and positions, each (W, history, J) oldest first, to a torque (W, J) held
+        until the next sample (a residual actuator model running at the state rate).
+        """
+        log, W, S, sub = self.log, self.num_windows, self.samples, self.sub
+        m, jm = c.model, JointMap.of(c.model)
+        saved = m.actuator_gainprm.copy(), m.actuator_biasprm.copy()
+        try:
+            self._set_gains(c)
+            ctrl = self.controls(c)
+            state = self.initial_states(c, ctrl)
+            idx = np.maximum(self.starts[:, None] + np.arange(1 - history, 1)[None, :], 0)
+            cmd = log.cmd_q[log.command_index(log.t[idx] + _EPS)]
+            errs, vels, poss = cmd - log.q[idx], log.qd[idx].copy(), log.q[idx].copy()
+            lay = _state_layout(m)
+            out = np.empty((W, S, len(jm.names)))
+            for i in range(S):
+                chunk = ctrl[:, i * sub : (i + 1) * sub].copy()
+                chunk[:, :, m.nu + jm.dadr] += torque(errs, vels, poss)[:, None, :]
+                state = np.asarray(rollout.rollout(
+                    [m] * W, self._threads(m), state, chunk, control_spec=_CONTROL, nstep=sub
+                )[0])[:, -1]  # fmt: skip
+                q = jm.link(state[:, lay["qpos"]], jm.play_q, jm.qadr) + c.offset
+                k = self.starts + i + 1
+                out[:, i] = q - log.q[k]
+                now = log.cmd_q[log.command_index(log.t[k] + _EPS)]
+                errs = np.concatenate([errs[:, 1:], (now - q)[:, None]], axis=1)
+                qd = jm.link(state[:, lay["qvel"]], jm.play_d, jm.dadr)
+                vels = np.concatenate([vels[:, 1:], qd[:, None]], axis=1)
+                poss = np.concatenate([poss[:, 1:], q[:, None]], axis=1)
+        finally:
+            m.actuator_gainprm[:], m.actuator_biasprm[:] = saved
+        return out
+
+    def error(self, c: Correction) -> KStepError:
+        return self.report(self.run([c])[0])
+
+    def report(self, residual: np.ndarray) -> KStepError:
+        """Summarize a residual (W, S, J) of this predictor's windows."""
+        return KStepError(
+            horizon_s=self.horizon,
+            kstep_rmse_rad=float(np.sqrt(np.mean(residual**2))),
+            per_joint=np.sqrt(np.mean(residual**2, axis=(0, 1))),
+            residual=residual,
+            starts=self.starts,
+        )
+
+
+def set_gains(c: Correction, kp: np.ndarray, kd: np.ndarray) -> None:
+    """Set commanded PD gains (per actuator) on a correction's model, times its gain scale."""
+    m = c.model
+    kp, kd = kp * c.gain_scale, kd * c.gain_scale
+    m.actuator_gainprm[:, 0] = kp
+    m.actuator_biasprm[:, 0] = 0.0
+    m.actuator_biasprm[:, 1] = -kp
+    m.actuator_biasprm[:, 2] = -kd
+
+
+def _state_layout(model: mujoco.MjModel) -> dict[str, slice]:
+    """Where time, qpos, qvel and act sit in a full-physics state vector."""
+    parts = [("time", mujoco.mjtState.mjSTATE_TIME), ("qpos", mujoco.mjtState.mjSTATE_QPOS),
+             ("qvel", mujoco.mjtState.mjSTATE_QVEL), ("act", mujoco.mjtState.mjSTATE_ACT)]  # fmt: skip
+    out, at = {}, 0
+    for name, flag in parts:
+        n = mujoco.mj_stateSize(model, flag)
+        out[name] = slice(at, at + n)
+        at += n
+    return out
+
+
 def kstep_error(
-    model: mujoco.MjModel,
+    model: mujoco.MjModel | Correction,
     log: RobotLog,
     *,
     horizon: float = 0.5,
     stride: float | None = None,
     span: tuple[float, float] = (0.0, 1.0),
-    gain_scale: np.ndarray | None = None,
 ) -> KStepError:
-    """Open-loop k-step predictions of ``model`` against ``log``.
+    """Open-loop k-step predictions of a model (or a :class:`Correction`) against ``log``.
 
     Args:
         model: A fixed-base model whose joints are the log's joints, in order, one position
-            actuator per joint (gains are set from the logged kp/kd).
+            actuator per joint (gains are set from the logged kp/kd), or a correction.
         log: The log.
         horizon: Window length [s].
         stride: Time between window starts [s] (default: the horizon).
         span: The fraction of the log to use, e.g. (0.7, 1.0) for the held-out last 30%.
-        gain_scale: Per actuator, the ratio of the applied to the commanded gains (a model of
-            ``gain_mismatch``; default 1).
     """
-    names = tuple(model.joint(j).name for j in range(model.njnt))
-    if names != log.joint_names:
-        raise InputError("the model's joints are not the log's joints (order matters)")
-    if abs(model.opt.timestep - PHYSICS_DT) > 1e-12:
-        raise InputError(
-            f"predictions step at {PHYSICS_DT} s; the model steps at {model.opt.timestep}"
-        )
-    stride = horizon if stride is None else stride
-    dt_state = float(np.median(np.diff(log.t)))
-    samples = round(horizon / dt_state)
-    sub = round(dt_state / PHYSICS_DT)
-    first = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
-    last = (
-        int(np.searchsorted(log.t, log.t[0] + span[1] * log.duration, side="right")) - samples - 1
-    )
-    starts = np.arange(first, max(last, first), max(1, round(stride / dt_state)))
-    if starts.size == 0:
-        raise InputError(f"the log is shorter than one {horizon} s window in the span {span}")
-    act_joint = model.actuator_trnid[:, 0]
-    data = mujoco.MjData(model)
-    residual = np.zeros((starts.size, samples, model.njnt))
-    saved = model.actuator_gainprm.copy(), model.actuator_biasprm.copy()
-    try:
-        scale = np.ones(model.nu) if gain_scale is None else np.asarray(gain_scale)
-        _predict(model, data, log, starts, samples, sub, act_joint, residual, scale)
-    finally:  # The logged gains are set on the model while predicting; give it back as it was.
-        model.actuator_gainprm[:], model.actuator_biasprm[:] = saved
-    rmse_joint = np.sqrt(np.mean(residual**2, axis=(0, 1)))
-    return KStepError(
-        horizon_s=horizon,
-        kstep_rmse_rad=float(np.sqrt(np.mean(residual**2))),
-        per_joint=rmse_joint,
-        residual=residual,
-        starts=starts,
-    )
-
-
-def _predict(
-    model: mujoco.MjModel,
-    data: mujoco.MjData,
-    log: RobotLog,
-    starts: np.ndarray,
-    samples: int,
-    sub: int,
-    act_joint: np.ndarray,
-    residual: np.ndarray,
-    scale: np.ndarray,
-) -> None:
-    hist = [(a, int(model.actuator_history[a, 0])) for a in range(model.nu)]
-    hist = [(a, n) for a, n in hist if n > 0]
-    for w, s in enumerate(starts):
-        mujoco.mj_resetData(model, data)
-        data.qpos[:] = log.q[s]
-        data.qvel[:] = log.qd[s]
-        t = log.t[s]
-        data.time = t
-        for a, n in hist:  # Drives with a control history remember the commands before t.
-            times = t - PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64)
-            values = log.cmd_q[log.command_index(times), act_joint[a]]
-            mujoco.mj_initCtrlHistory(
-                model, data, a, times.reshape(n, 1), np.ascontiguousarray(values.reshape(n, 1))
-            )
-        # The command in force at each step, found once per window (times accumulate exactly
-        # as the loop's clock would).
-        steps = samples * sub
-        clock = np.add.accumulate(np.concatenate([[t], np.full(steps - 1, PHYSICS_DT)]))
-        in_force = log.command_index(clock)
-        current = -1
-        for k in range(steps):
-            c = int(in_force[k])
-            if c != current:
-                current = c
-                kp, kd = log.kp[c][act_joint] * scale, log.kd[c][act_joint] * scale
-                model.actuator_gainprm[:, 0] = kp
-                model.actuator_biasprm[:, 1] = -kp
-                model.actuator_biasprm[:, 2] = -kd
-                data.ctrl[:] = log.cmd_q[c][act_joint]
-                data.qfrc_applied[:] = log.cmd_tau[c] + log.kd[c] * log.cmd_qd[c]
-            mujoco.mj_step(model, data)
-            if (k + 1) % sub == 0:
-                i = (k + 1) // sub - 1
-                residual[w, i] = data.qpos - log.q[s + i + 1]
+    c = model if isinstance(model, Correction) else Correction.of(model)
+    return Predictor(c.model, log, horizon=horizon, stride=stride, span=span).error(c)

@@ -8,6 +8,7 @@ states and the commands sent. Nothing in the log names the effects.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -15,15 +16,13 @@ import numpy as np
 
 from humimic.errors import InputError
 from humimic.real2sim.effects import Injection, apply_to_spec
+from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
 
 PHYSICS_DT = 0.001
 """Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
-
-HISTORY_SAMPLES = 60
-"""Control history kept per actuator: delays up to 59 ms at 1 kHz."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,11 +74,11 @@ def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
     for a, b in sorted(pairs):
         spec.add_exclude(bodyname1=a, bodyname2=b)
     spec.option.timestep = PHYSICS_DT
-    # Every actuator keeps a 60 ms control history (delay 0: no change in behaviour), so that a
-    # transport delay can be set on the compiled model without recompiling (the diagnosis
-    # searches it).
-    for act in spec.actuators:
-        act.nsample = HISTORY_SAMPLES
+    # A hanging robot's excitation is chosen free of self-contact (see :func:`excitation`);
+    # what remains are neighbouring links' convex hulls grazing each other, an artefact of the
+    # collision geometry. The fixed-base robot ignores contact, so logs and predictions agree on
+    # that (the excitation check switches it back on).
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     # Semi-implicit Euler at 1 kHz is stable with these servos (kd / armature ~ 250 1/s) and
     # keeps inverse dynamics (mj_inverse) exactly consistent with the forward simulation.
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
@@ -127,8 +126,9 @@ def excitation(
     )
     # |sines| <= 1 (convex weights), and the ramp starts the motion from the centre.
     data = mujoco.MjData(model)
-    saved = model.geom_margin.copy()
+    saved = model.geom_margin.copy(), model.opt.disableflags
     model.geom_margin[:] = 0.01  # Pairs closer than 2 cm count as touching.
+    model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
 
     def touching(poses: np.ndarray) -> np.ndarray:
         """Joints that moved a geom into contact, over a path of poses."""
@@ -163,63 +163,83 @@ def excitation(
                 return t, targets
             amp[hit] *= 0.7
     finally:
-        model.geom_margin[:] = saved
+        model.geom_margin[:], model.opt.disableflags = saved
     raise InputError("could not find a self-contact-free excitation for this robot")
 
 
 def simulate_log(
-    robot: RobotConfig, injections: list[Injection], settings: LogSettings
+    robot: RobotConfig,
+    injections: list[Injection],
+    settings: LogSettings,
+    *,
+    edit: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> RobotLog:
-    """Simulate a fixed-base robot log with the given (undeclared) effects."""
+    """Simulate a fixed-base robot log with the given (undeclared) effects.
+
+    Args:
+        robot: The robot.
+        injections: Effects of the vocabulary added to the simulated robot.
+        settings: How the log is recorded.
+        edit: Any further change to the simulated robot's spec (tests use it for effects
+            outside the vocabulary).
+    """
     rng = np.random.default_rng(settings.seed)
     base_pose = np.array([0.0, 0.0, settings.base_height, 1.0, 0.0, 0.0, 0.0])
     spec = fixed_base_spec(robot, base_pose)
-    apply_to_spec(spec, injections)
+    # Encoder offsets act on what the drives and the log read, applied below; the rest on the
+    # robot itself.
+    apply_to_spec(spec, [inj for inj in injections if inj.effect != "encoder_offset"])
+    if edit is not None:
+        edit(spec)
     model = spec.compile()
-    names = tuple(model.joint(j).name for j in range(model.njnt))
-    offset = np.zeros(model.njnt)
+    jm = JointMap.of(model)  # Backlash adds a hidden joint per affected joint.
+    names = jm.names
+    offset = np.zeros(len(names))
     for inj in injections:
         if inj.effect == "encoder_offset":
             for j in inj.targets:
                 if j not in names:
                     raise InputError(f"no joint {j!r} in the robot")
                 offset[names.index(j)] += inj.value
-    if model.nu != model.njnt:
+    if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")
-    act_joint = model.actuator_trnid[:, 0]
+    act = jm.act_log
     nominal = nominal_spec(robot)[1]
     kp = np.array([nominal[n].kp for n in names])
     kd = np.array([nominal[n].kd for n in names])
-    t_cmd, cmd_q = excitation(model, settings, rng)
+    # The experiment is designed on the nominal robot (its designer does not know the effects).
+    t_cmd, cmd_q = excitation(fixed_base_spec(robot, base_pose).compile(), settings, rng)
 
     data = mujoco.MjData(model)
-    data.qpos[:] = cmd_q[0]
+    data.qpos[jm.qadr] = cmd_q[0]
     for a in range(model.nu):  # The drives have been holding the first command.
         n = int(model.actuator_history[a, 0])
         if n > 0:
-            values = np.full((n, 1), cmd_q[0][act_joint[a]] - offset[act_joint[a]])
+            values = np.full((n, 1), cmd_q[0][act[a]] - offset[act[a]])
             times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
             mujoco.mj_initCtrlHistory(model, data, a, times, values)
+    for a in np.flatnonzero(model.actuator_actadr >= 0):  # ... and their filters settled on it.
+        data.act[model.actuator_actadr[a]] = cmd_q[0][act[a]] - offset[act[a]]
     mujoco.mj_forward(model, data)
     n_steps = round(settings.duration / PHYSICS_DT)
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
     cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
     n_states = n_steps // state_every
-    q = np.zeros((n_states, model.njnt))
+    q = np.zeros((n_states, len(names)))
     qd = np.zeros_like(q)
     effort = np.zeros_like(q)
     for step in range(n_steps):
         if step % cmd_every == 0:
             # The drive tracks its (offset) encoder: the true joint settles at target - offset.
             target = cmd_q[min(step // cmd_every, len(t_cmd) - 1)] - offset
-            data.ctrl[:] = target[act_joint]
+            data.ctrl[:] = target[act]
         if step % state_every == 0 and step // state_every < n_states:
             # The drive's torque estimate belongs to this instant's state and command.
             mujoco.mj_forward(model, data)
             i = step // state_every
-            q[i] = data.qpos
-            qd[i] = data.qvel
-            effort[i, act_joint] = data.actuator_force
+            q[i] = jm.link(data.qpos, jm.play_q, jm.qadr)  # The link side.
+            qd[i] = jm.link(data.qvel, jm.play_d, jm.dadr)
+            effort[i, act] = data.actuator_force
         mujoco.mj_step(model, data)
     t = np.arange(n_states) * state_every * PHYSICS_DT
     M = len(t_cmd)
@@ -234,8 +254,8 @@ def simulate_log(
         effort=effort + rng.normal(0, settings.effort_noise, effort.shape),
         t_cmd=t_cmd,
         cmd_q=cmd_q,
-        cmd_qd=np.zeros((M, model.njnt)),
-        cmd_tau=np.zeros((M, model.njnt)),
+        cmd_qd=np.zeros((M, len(names))),
+        cmd_tau=np.zeros((M, len(names))),
         kp=np.tile(kp, (M, 1)),
         kd=np.tile(kd, (M, 1)),
     )

@@ -1,0 +1,347 @@
+"""``humimic sysid diagnose``: diagnose a log file, write the corrected model and the report.
+
+``DIR/model.xml`` (the full robot, floating base like the nominal, with the claimed effects),
+``DIR/report.json`` (the issue's format, plus what was searched and what cannot be decided),
+``DIR/report.md`` with plots (``DIR/*.png``), and ``DIR/residual_net.pt`` when a large share of
+the error is left unexplained.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Literal
+
+import mujoco
+import numpy as np
+
+from humimic.errors import InputError
+from humimic.io import atomic_write, atomic_write_text, check_writable, json_ready
+from humimic.real2sim.diagnose import (
+    CLAIM,
+    FIT_END,
+    NOT_SEARCHED,
+    SEARCHED,
+    Diagnosis,
+    Finding,
+    backlash_models,
+    diagnose_log,
+)
+from humimic.real2sim.effects import EFFECTS, Injection, apply_to_spec
+from humimic.real2sim.residual import Correction, KStepError, Predictor, prediction_spec
+from humimic.real2sim.robotlog import RobotLog, read_robot_log
+from humimic.robots.registry import RobotConfig
+
+UNEXPLAINED = 0.5
+"""Share of the held-out error above the noise floor that, when left, makes a log unexplained."""
+
+
+def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotLog]:
+    """Robot, compiled fixed-base prediction model and log of a robot log file."""
+    from humimic.mcap_io import read_mcap
+    from humimic.robots import get_robot
+
+    meta = read_mcap(path, topics=[]).meta("robot")
+    robot = get_robot(meta.get("name", ""))
+    if meta.get("base") != "fixed":
+        raise InputError(
+            f"{path}: only fixed-base logs (a robot hanging in a gantry) can be diagnosed so "
+            f"far (base={meta.get('base')!r}); floating-base logs are on the plan"
+        )
+    try:
+        base_pose = np.array([float(x) for x in meta.get("base_pose", "").split()])
+    except ValueError:
+        base_pose = np.zeros(0)
+    if base_pose.shape != (7,):
+        raise InputError(f"{path}: metadata robot.base_pose must hold 7 numbers")
+    model = prediction_spec(robot, base_pose).compile()
+    names = tuple(model.joint(j).name for j in range(model.njnt))
+    return robot, model, read_robot_log(path, names)
+
+
+def _effect_entry(f: Finding) -> dict:
+    where = {"body": f.target} if f.on_body else {"joints": [f.target]}
+    return {
+        "effect": f.effect,
+        **where,
+        "params": {"value": f.value, "unit": EFFECTS[f.effect].unit},
+        "confidence": f.confidence,
+        "error_reduction": f.error_reduction,
+        "scored_on": list(f.joints),
+    }
+
+
+def _unexplained(before: KStepError, after: KStepError) -> tuple[float, np.ndarray]:
+    """Share of the error above the noise floor (twice the median joint: most joints lack
+    nothing) left after the correction, and the joints that still stand out."""
+    floor = 2.0 * float(np.median(before.per_joint))
+
+    def excess(e: np.ndarray) -> float:
+        return float(np.sum(np.maximum(e**2 - floor**2, 0.0)))
+
+    share = excess(after.per_joint) / excess(before.per_joint) if excess(before.per_joint) else 0.0
+    standout = (after.per_joint > 1.5 * floor) & (after.per_joint > 0.5 * before.per_joint)
+    return share, standout
+
+
+def run_diagnosis(
+    log_path: Path,
+    out_dir: Path,
+    *,
+    horizon: float = 0.5,
+    residual_net: Literal["auto", "always", "never"] = "auto",
+) -> dict:
+    """Diagnose ``log_path``; write model, report and plots into ``out_dir``."""
+    from humimic.robots import export_nominal
+
+    t0 = time.perf_counter()
+    robot, model, log = load_fixed_base_log(log_path)
+    out = out_dir
+    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+        check_writable(out / name)
+    held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
+    nominal = Correction.of(model)
+    before = held.error(nominal)
+    diagnosis = diagnose_log(nominal, log, horizon=horizon,
+                             backlash_model=backlash_models(robot, log.base_pose))  # fmt: skip
+    corrected = diagnosis.correction or nominal
+    after = held.error(corrected)
+    names = log.joint_names
+    share, standout = _unexplained(before, after)
+    unexplained = share > UNEXPLAINED
+
+    net_entry, net_error = None, None
+    if residual_net == "always" or (residual_net == "auto" and unexplained):
+        from humimic.real2sim.actuator_net import fit_residual_net
+
+        net, info = fit_residual_net(corrected, log, (0.0, FIT_END))
+        net_error = held.report(held.run_with_torque(corrected, net.torque, net.config.history))
+        net.save(out / "residual_net.pt")
+        net_entry = {
+            "path": str(out / "residual_net.pt"),
+            "error_after": net_error.as_report(names),
+            "training": info,
+            "inputs": f"per joint: the last {net.config.history} position errors, velocities "
+            "and positions at the state rate",
+        }
+    injections = [
+        Injection(effect=f.effect, targets=(f.target,), value=f.value) for f in diagnosis.claimed
+    ]
+    export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
+    plots = _plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
+    report = {
+        "robot": robot.name,
+        "log": str(log_path),
+        "error_before": before.as_report(names),
+        "error_after": after.as_report(names),
+        "effects": [_effect_entry(f) for f in diagnosis.findings],
+        "unexplained": unexplained,
+        "unexplained_share": share,
+        "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
+        "residual_model": net_entry,
+        "not_identifiable": [
+            {"effect": s.effect, "joints": list(s.joints), "reason": s.reason}
+            for s in diagnosis.not_identifiable
+        ],
+        "searched_effects": list(SEARCHED),
+        "not_searched_effects": list(NOT_SEARCHED),
+        "plots": [p.name for p in plots],
+        "seconds": time.perf_counter() - t0,
+    }
+    atomic_write_text(out / "report.json", json.dumps(json_ready(report), indent=2) + "\n")
+    atomic_write_text(out / "report.md", _markdown(log_path, robot, report, diagnosis, plots))
+    return report
+
+
+def _markdown(
+    log_path: Path, robot: RobotConfig, report: dict, diagnosis: Diagnosis, plots: list[Path]
+) -> str:
+    before, after = report["error_before"], report["error_after"]
+    lines = [
+        f"# Diagnosis of {log_path.name} ({robot.name})",
+        "",
+        f"Held-out k-step error ({before['horizon_s']} s windows, last 30% of the log): "
+        f"{before['kstep_rmse_rad'] * 1e3:.2f} mrad with the nominal model, "
+        f"{after['kstep_rmse_rad'] * 1e3:.2f} mrad with the effects below.",
+        "",
+    ]
+    claimed = diagnosis.claimed
+    if claimed:
+        lines += ["Claimed (confidence >= 0.5):", ""]
+        lines += [
+            f"- **{f.effect}** on {f.target}: {f.value:.4g} {EFFECTS[f.effect].unit} "
+            f"(confidence {f.confidence:.2f}; removes {100 * f.error_reduction:.0f}% of the "
+            "error of " + ", ".join(f.joints) + " on unseen fit data)"
+            for f in claimed
+        ]
+    else:
+        lines.append("No effect claimed.")
+    lines.append("")
+    if report["unexplained"]:
+        lines += [
+            f"**Unexplained**: {100 * report['unexplained_share']:.0f}% of the error above the "
+            "noise floor is left (joints: " + ", ".join(report["unexplained_joints"]) + "). "
+            "No effect of the searched vocabulary accounts for it.",
+            "",
+        ]
+    net = report["residual_model"]
+    if net is not None:
+        lines += [
+            f"Residual actuator network ({Path(net['path']).name}): held-out error "
+            f"{net['error_after']['kstep_rmse_rad'] * 1e3:.2f} mrad with it "
+            f"(trained on {net['training']['samples']} samples of the fit part).",
+            "",
+        ]
+    for s in diagnosis.not_identifiable:
+        lines += [f"Not identifiable from this log: **{s.effect}** on "
+                  f"{len(s.joints)} joints ({', '.join(s.joints)}): {s.reason}", ""]  # fmt: skip
+    lines += [f"![{p.stem}]({p.name})" for p in plots]
+    lines += [
+        "",
+        "| effect | on | value | confidence | error removed (fit data) |",
+        "|---|---|---|---|---|",
+        *[
+            f"| {f.effect} | {f.target} | {f.value:.4g} | {f.confidence:.2f} | "
+            f"{100 * f.error_reduction:.0f}% |"
+            for f in diagnosis.findings[:16]
+        ],
+        "",
+        f"Searched: {', '.join(SEARCHED)}. Not searched: {', '.join(NOT_SEARCHED)}. "
+        f"Claimed: confidence >= {CLAIM}.",
+        "",
+        "Per-joint held-out error (mrad), before -> after:",
+        "",
+        *[
+            f"- {n}: {b * 1e3:.2f} -> {after['per_joint'][n] * 1e3:.2f}"
+            for n, b in before["per_joint"].items()
+        ],
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _signature(
+    f: Finding, log: RobotLog, nominal: Correction, corrected: Correction
+) -> tuple[str, np.ndarray, np.ndarray, np.ndarray, str]:
+    """The signature plot of a claimed effect: the residual torque of its joint (nominal and
+    corrected model, inverse dynamics on the fit part) against the variable the effect acts
+    through."""
+    from humimic.real2sim.actuator_net import residual_torque
+
+    names = log.joint_names
+    idx = _fit_samples(log)
+    cols = [names.index(n) for n in f.joints]
+    nom_all = residual_torque(nominal, log, idx)[:, cols]
+    cor_all = residual_torque(corrected, log, idx)[:, cols]
+    # The joint where the correction changes the residual most.
+    k = int(np.argmax(np.median(np.abs(nom_all), axis=0) - np.median(np.abs(cor_all), axis=0)))
+    j, res_nom, res_cor = cols[k], nom_all[:, k], cor_all[:, k]
+    c = log.command_index(log.t[idx] + 1e-7)
+    err = log.cmd_q[c, j] - log.q[idx, j]
+    if f.effect in ("coulomb_friction", "viscous_damping"):
+        x, label = log.qd[idx, j], f"{names[j]} velocity [rad/s]"
+    elif f.effect == "armature":
+        dt = float(np.median(np.diff(log.t)))
+        x, label = np.gradient(log.qd[:, j], dt)[idx], f"{names[j]} acceleration [rad/s^2]"
+    elif f.effect in ("gain_mismatch", "torque_limit"):
+        x = log.kp[c, j] * err - log.kd[c, j] * log.qd[idx, j]
+        label = f"{names[j]} commanded PD torque [N m]"
+    elif f.effect in ("delay", "lag"):
+        rate = np.gradient(log.cmd_q[:, j], log.t_cmd)
+        x, label = log.kp[c, j] * rate[c], f"kp x command rate at {names[j]} [N m/s]"
+    else:  # Payload, encoder offset: through gravity.
+        m, d = nominal.model, mujoco.MjData(nominal.model)
+        x = np.empty(idx.size)
+        for n, i in enumerate(idx):
+            d.qpos[:] = log.q[i]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_rne(m, d, 0, d.qfrc_bias)
+            x[n] = d.qfrc_bias[j]
+        label = f"gravity torque at {names[j]} [N m]"
+    return label, x, res_nom, res_cor, names[j]
+
+
+def _fit_samples(log: RobotLog) -> np.ndarray:
+    """Every other state sample of the fit part, after the first second (filters settle)."""
+    lo = int(np.searchsorted(log.t, log.t[0] + 1.0))
+    hi = int(np.searchsorted(log.t, log.t[0] + FIT_END * log.duration))
+    return np.arange(lo, hi, 2)
+
+
+def _plots(
+    out: Path,
+    log: RobotLog,
+    nominal: Correction,
+    corrected: Correction,
+    diagnosis: Diagnosis,
+    before: KStepError,
+    after: KStepError,
+    net_error: KStepError | None,
+    held: Predictor,
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = log.joint_names
+    paths: list[Path] = []
+
+    def save(fig, name: str) -> None:
+        path = out / name
+        with atomic_write(path) as fh:
+            fig.savefig(fh, format="png", dpi=90, bbox_inches="tight")
+        plt.close(fig)
+        paths.append(path)
+
+    # 1. Held-out error per joint.
+    fig, ax = plt.subplots(figsize=(8, 0.22 * len(names) + 1.2))
+    y = np.arange(len(names))
+    rows = [("nominal", before), ("corrected", after)]
+    if net_error is not None:
+        rows.append(("corrected + residual net", net_error))
+    h = 0.8 / len(rows)
+    for k, (label, e) in enumerate(rows):
+        ax.barh(y + k * h, e.per_joint * 1e3, height=h, label=label)
+    ax.set_yticks(y + 0.4 - h / 2, names, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("held-out k-step RMSE [mrad]")
+    ax.legend(fontsize=8)
+    ax.set_title("Prediction error per joint, last 30% of the log")
+    save(fig, "residual_per_joint.png")
+
+    # 2. The worst joint over one held-out window: log, nominal, corrected.
+    j = int(np.argmax(before.per_joint))
+    w = int(np.argmax(np.abs(before.residual[:, :, j]).max(axis=1)))
+    s = held.starts[w]
+    t = log.t[s + 1 : s + 1 + held.samples] - log.t[s]
+    measured = log.q[s + 1 : s + 1 + held.samples, j]
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    ax.plot(t, measured, "k.", ms=3, label="log")
+    ax.plot(t, measured + before.residual[w, :, j], label="nominal")
+    ax.plot(t, measured + after.residual[w, :, j], label="corrected")
+    if net_error is not None:
+        ax.plot(t, measured + net_error.residual[w, :, j], label="corrected + residual net")
+    ax.set_xlabel("time in the window [s]")
+    ax.set_ylabel(f"{names[j]} [rad]")
+    ax.legend(fontsize=8)
+    ax.set_title("Open-loop prediction from a logged state (held-out window)")
+    save(fig, "prediction_window.png")
+
+    # 3. The signature that convinced the tool, per claimed effect.
+    for f in diagnosis.claimed:
+        label, x, r0, r1, joint = _signature(f, log, nominal, corrected)
+        fig, ax = plt.subplots(figsize=(5.5, 3.6))
+        ax.plot(x, r0, ".", ms=2, alpha=0.5, label="nominal model")
+        ax.plot(x, r1, ".", ms=2, alpha=0.5, label=f"with {f.effect}")
+        lo, hi = np.percentile(np.concatenate([r0, r1]), [0.5, 99.5])
+        pad = 0.1 * (hi - lo) + 1e-3
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_xlabel(label)
+        ax.set_ylabel(f"residual torque at {joint} [N m]")
+        ax.legend(fontsize=8, markerscale=4)
+        ax.set_title(f"{f.effect} on {f.target}: {f.value:.3g} {EFFECTS[f.effect].unit}")
+        save(fig, f"signature_{f.effect}_{f.target}.png")
+    return paths
