@@ -39,6 +39,7 @@ CASES: dict[str, tuple[list[str], object]] = {
     "torque_limit": (["torque_limit:left_knee_joint=3.5"], None),
     "encoder_offset": (["encoder_offset:right_hip_roll_joint=0.05"], None),
     "payload_mass": (["payload_mass:right_wrist_yaw_link=0.8"], None),
+    "backlash": (["backlash:left_knee_joint=0.04"], None),
     "friction+damping (one joint)": (
         ["coulomb_friction:left_knee_joint=2.0", "viscous_damping:left_knee_joint=1.5"], None),
     "delay+payload": (["delay:right_knee_joint=0.0187", "payload_mass:left_wrist_yaw_link=0.8"], None),

@@ -230,7 +230,7 @@ def test_an_effect_outside_the_vocabulary_is_unexplained_and_learned(tmp_path: P
     assert r["unexplained"] or after < 0.5 * before
     assert "left_knee_joint" in r["unexplained_joints"]
     net = r["residual_model"]
-    assert net is not None and Path(net["path"]).exists()
+    assert net is not None and Path(net["path"]).exists() and net["improves"]
     assert (
         net["error_after"]["per_joint"]["left_knee_joint"]
         < 0.5 * (r["error_after"]["per_joint"]["left_knee_joint"])

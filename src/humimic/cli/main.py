@@ -12,6 +12,7 @@ import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
+from humimic.configs.runs import EvalSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
@@ -500,6 +501,31 @@ def run_fetch(cmd: FetchCommand) -> None:
     print(fetch_holosoma_climb())
 
 
+def run_train(cmd: TrainSettings) -> None:
+    """Run ``humimic train``."""
+    from humimic.tracking.train import train
+
+    last = train(cmd)
+    if last:
+        print(f"{cmd.out}: {int(last['iteration'])} iterations, mean reward "
+              f"{last.get('mean_reward', float('nan')):.4g}, mean episode length "
+              f"{last.get('mean_episode_length', float('nan')):.1f} steps")  # fmt: skip
+
+
+def run_eval(cmd: EvalSettings) -> None:
+    """Run ``humimic eval``."""
+    from humimic.tracking.evaluate import evaluate
+
+    result = evaluate(cmd)
+    for name in ("policy", "open_loop"):
+        m = result[name]
+        print(f"{name:9s}: success {100 * m['success_rate']:.0f}%, global MPJPE "
+              f"{m['mpjpe_global_mm']:.1f} mm, root-relative {m['mpjpe_root_mm']:.1f} mm, "
+              f"joint error {m['joint_error_rad']:.3f} rad")  # fmt: skip
+    if cmd.out is not None:
+        print(f"wrote {cmd.out}")
+
+
 Commands = (
     Annotated[RetargetCommand, tyro.conf.subcommand("retarget")]
     | Annotated[DemoCommand, tyro.conf.subcommand("demo")]
@@ -508,6 +534,8 @@ Commands = (
     | Annotated[RobotsCommand, tyro.conf.subcommand("robots")]
     | Annotated[SysidCommand, tyro.conf.subcommand("sysid")]
     | Annotated[FetchCommand, tyro.conf.subcommand("fetch")]
+    | Annotated[TrainSettings, tyro.conf.subcommand("train")]
+    | Annotated[EvalSettings, tyro.conf.subcommand("eval")]
 )
 
 
@@ -537,6 +565,10 @@ def main(argv: list[str] | None = None) -> int:
             run_robots(cmd.command)
         elif isinstance(cmd, FetchCommand):
             run_fetch(cmd)
+        elif isinstance(cmd, TrainSettings):
+            run_train(cmd)
+        elif isinstance(cmd, EvalSettings):
+            run_eval(cmd)
     except InputError as e:
         print(f"humimic: error: {e}", file=sys.stderr)
         return 2

@@ -358,7 +358,7 @@ _GRID_EFFECTS = ("torque_limit", "backlash")
 
 
 def _grid_fit(
-    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], levels: int = 5, n: int = 6
+    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], levels: int = 7, n: int = 6
 ) -> list[float]:
     """Batched grid search, refined ``levels`` times around the best value; geometric where the
     interval spans decades (backlash), linear otherwise."""
@@ -552,7 +552,11 @@ def diagnose_log(
             model = base.model
         err_a = score_a.per_joint(base)
         order = np.argsort(-err_a)
-        joints = [int(j) for j in order[:candidates_per_round] if err_a[j] > 2.0]
+        # A joint that carries an effect already must stand out more: what an imperfect fit
+        # leaves is more likely than a second effect there.
+        busy = {int(j) for q, _ in kept for j in q.joints}
+        joints = [int(j) for j in order[:candidates_per_round]
+                  if err_a[j] > (3.0 if j in busy else 2.0)]  # fmt: skip
         if not joints:
             break
         pairs = _pairs(model, joints, peak, reach)

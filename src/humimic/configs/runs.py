@@ -1,0 +1,67 @@
+"""Settings of tracking runs (``humimic train``, ``humimic eval``): light to import."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import tyro
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainSettings:
+    """What ``humimic train`` runs.
+
+    Attributes:
+        motion: Reference motion file (``.npz`` from ``humimic retarget``).
+        out: Run folder.
+        robot: Registry name; must match the motion's.
+        num_envs: Parallel environments.
+        max_iterations: Total PPO iterations of the run (a resumed run continues up to it).
+        device: Torch device of the learner (``cpu`` or ``cuda``).
+        dr: Domain randomization: a profile name (``none``, ``default``) or a YAML file.
+        resume: Continue the run in ``out`` from its newest checkpoint.
+        seed: Seed of torch and of the environment.
+        checkpoint_every: Iterations between checkpoints (the last one is always written).
+        num_steps_per_env: Rollout length per env and iteration (default: the PPO config's).
+        quiet: No progress bar.
+    """
+
+    motion: Path
+    out: Path
+    robot: str = "g1"
+    num_envs: int = 4096
+    max_iterations: int = 1000
+    device: str = "cpu"
+    dr: str = "default"
+    resume: bool = False
+    seed: int = 0
+    checkpoint_every: int = 50
+    num_steps_per_env: int | None = None
+    quiet: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvalSettings:
+    """What ``humimic eval`` runs.
+
+    Attributes:
+        run: Run folder of ``humimic train``.
+        episodes: Episodes to run (each plays the whole clip from its first frame).
+        dr: Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file.
+        out: Write the metrics as JSON here.
+        checkpoint: A checkpoint file (default: the run's newest).
+        num_envs: Episodes run in parallel (default: all of them, at most 64).
+        device: Torch device of the policy.
+        seed: Seed of the evaluation's randomness.
+    """
+
+    run: Annotated[Path, tyro.conf.Positional]
+    episodes: int = 16
+    dr: str = "none"
+    out: Path | None = None
+    checkpoint: Path | None = None
+    num_envs: int | None = None
+    device: str = "cpu"
+    seed: int = 1

@@ -1,0 +1,510 @@
+"""Physics backends for the tracking environment, behind one small :class:`PhysicsBackend` protocol.
+
+The environment never touches MuJoCo itself: it sets joint targets, steps, and reads batched
+arrays. :class:`MujocoCpuBackend` runs ``num_envs`` MuJoCo CPU simulations, either through
+``mujoco.rollout`` (C++ thread pool, one call for all envs) or through a Python thread pool over
+``mj_step`` (the GIL is released inside ``mj_step``). A MuJoCo-Warp backend can later implement
+the same protocol.
+
+Everything the environment reads about bodies comes from MuJoCo *sensors* compiled into the
+training model (``framepos``/``framequat``/``framelinvel``/``frameangvel`` on the body frames, and
+``contact`` sensors between bodies and the floor), so that both stepping methods (and a GPU
+backend) return the same quantities from ``sensordata`` without per-env Python work.
+
+Contact model (:func:`training_model`). Stepping with mesh colliders is slow and a per-env
+``MjModel`` copy with meshes is large, so the training model has no meshes at all:
+
+* visual mesh geoms are removed;
+* each collision mesh geom becomes a box: the mesh's axis-aligned bounding box in the geom
+  frame (MuJoCo's ``geom_aabb``), at the same pose;
+* primitive colliders of the robot (the G1's foot spheres) are kept as they are;
+* robot geoms collide with the floor only (``contype=0, conaffinity=1``): no self-collision.
+  Self-collision is left to a later slice (mjlab's G1 tracking only *penalizes* it).
+
+Quaternions are wxyz. Suffixes: ``_w`` world frame, ``_b`` body frame.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import os
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from humimic.errors import InputError, UnknownNameError
+from humimic.robots.model import nominal_spec
+from humimic.robots.registry import RobotConfig
+
+StepMethod = Literal["rollout", "threads"]
+
+_CONTACT_FOUND = 1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND)
+_CONTACT_FORCE = 1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)
+_REDUCE_NETFORCE = 3
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsParams:
+    """Per-env physics parameters (domain randomization). Every array has a leading env axis n.
+
+    Attributes:
+        friction: Sliding friction of the floor and of every robot collider. Shape: (n,).
+        mass_scale: Multiplier of each robot body's mass and inertia. Shape: (n, num_bodies).
+        com_offset: Added to the CoM of the backend's ``com_body`` [m]. Shape: (n, 3).
+        kp_scale: Multiplier of each actuator's stiffness. Shape: (n, num_actuators).
+        kd_scale: Multiplier of each actuator's damping. Shape: (n, num_actuators).
+        armature_scale: Multiplier of each actuated joint's armature. Shape: (n, num_actuators).
+    """
+
+    friction: np.ndarray
+    mass_scale: np.ndarray
+    com_offset: np.ndarray
+    kp_scale: np.ndarray
+    kd_scale: np.ndarray
+    armature_scale: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsReadout:
+    """Batched simulator state after a step or a reset (views of backend buffers; read-only).
+
+    Attributes:
+        qpos: Shape: (num_envs, nq). qvel: Shape: (num_envs, nv) (free joint: world linear,
+            body angular velocity, as MuJoCo stores them).
+        body_pos_w: Frame origins of the read bodies. Shape: (num_envs, B, 3).
+        body_quat_w: wxyz. Shape: (num_envs, B, 4).
+        body_lin_vel_w: Linear velocity of the frame origins. Shape: (num_envs, B, 3).
+        body_ang_vel_w: Angular velocity. Shape: (num_envs, B, 3).
+        contact_found: Number of floor contacts of each contact body. Shape: (num_envs, C).
+        foot_force: Net floor contact force magnitude on each foot [N]. Shape: (num_envs, F).
+    """
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    body_pos_w: np.ndarray
+    body_quat_w: np.ndarray
+    body_lin_vel_w: np.ndarray
+    body_ang_vel_w: np.ndarray
+    contact_found: np.ndarray
+    foot_force: np.ndarray
+
+
+class PhysicsBackend(Protocol):
+    """What the tracking environment needs from a simulator. Arrays are float64 numpy.
+
+    ``body_names`` (kinematics read), ``contact_body_names`` (contact counts) and
+    ``foot_body_names`` (contact forces) fix the layout of :class:`PhysicsReadout`;
+    ``joint_names`` fixes the actuator/joint order (MuJoCo order of the actuated joints).
+    """
+
+    num_envs: int
+    nq: int
+    nv: int
+    num_bodies_total: int
+    joint_names: tuple[str, ...]
+    body_names: tuple[str, ...]
+    contact_body_names: tuple[str, ...]
+    foot_body_names: tuple[str, ...]
+    joint_range: np.ndarray
+    """Joint position limits of the actuated joints. Shape: (J, 2)."""
+    default_joint_pos: np.ndarray
+    """The robot's home pose (first keyframe, else ``qpos0``) of the actuated joints. Shape: (J,)."""
+    kp: np.ndarray
+    """Nominal PD stiffness of each actuator. Shape: (J,)."""
+    effort_limit: np.ndarray
+    """Torque limit of each actuator. Shape: (J,)."""
+
+    def reset_to(self, env_ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        """Set the state of some envs (and recompute what ``read`` returns for them).
+
+        Args:
+            env_ids: Shape: (n,). qpos: Shape: (n, nq). qvel: Shape: (n, nv).
+        """
+        ...
+
+    def set_ctrl(self, ctrl: np.ndarray) -> None:
+        """Set the PD position targets of all envs. Shape: (num_envs, J)."""
+        ...
+
+    def step(self, n_substeps: int) -> None:
+        """Advance every env by ``n_substeps`` physics steps with the current targets."""
+        ...
+
+    def read(self) -> PhysicsReadout:
+        """The current state of every env."""
+        ...
+
+    def set_params(self, env_ids: np.ndarray, params: PhysicsParams) -> None:
+        """Apply per-env physics parameters (leading axis of ``params`` matches ``env_ids``)."""
+        ...
+
+
+def _robot_bodies(model: mujoco.MjModel) -> list[int]:
+    return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
+
+
+def training_model(
+    robot: RobotConfig,
+    *,
+    body_names: Sequence[str],
+    contact_body_names: Sequence[str] = (),
+    foot_body_names: Sequence[str] = (),
+    timestep: float = 0.005,
+    menagerie_root: str | os.PathLike[str] | None = None,
+) -> mujoco.MjModel:
+    """The mesh-free training model of a robot, with the read-out sensors compiled in.
+
+    Solver settings follow mjlab's tracking task: implicitfast, pyramidal cone, 10 solver and
+    20 line-search iterations.
+
+    Args:
+        robot: The robot.
+        body_names: Bodies whose pose and velocity are read (frame sensors).
+        contact_body_names: Bodies whose floor contacts are counted.
+        foot_body_names: Bodies whose net floor contact force is read.
+        timestep: Physics step [s].
+        menagerie_root: Where the robot files are (see :func:`humimic.robots.nominal_spec`).
+
+    Raises:
+        UnknownNameError: If a body name is not in the model.
+    """
+    spec, _ = nominal_spec(robot, menagerie_root=menagerie_root)
+    full = spec.compile()
+    known = {full.body(b).name for b in range(full.nbody)}
+    for name in (*body_names, *contact_body_names, *foot_body_names):
+        if name not in known:
+            raise UnknownNameError(f"body {name!r} is not in robot {robot.name!r}")
+    floor_id = mujoco.mj_name2id(full, mujoco.mjtObj.mjOBJ_GEOM, robot.floor_geom)
+    if floor_id < 0:
+        raise UnknownNameError(f"robot {robot.name!r}: no floor geom {robot.floor_geom!r}")
+
+    for i, geom in reversed(list(enumerate(spec.geoms))):
+        gid = geom.id if geom.id >= 0 else i
+        if gid == floor_id:
+            geom.contype, geom.conaffinity = 1, 1
+            continue
+        collides = full.geom_contype[gid] != 0 or full.geom_conaffinity[gid] != 0
+        if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
+            if not collides:
+                spec.delete(geom)
+                continue
+            # Box of the mesh's bounding box, in the mesh geom's (compiled) frame.
+            center, half = full.geom_aabb[gid, :3], full.geom_aabb[gid, 3:]
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, full.geom_quat[gid])
+            geom.type = mujoco.mjtGeom.mjGEOM_BOX
+            geom.meshname = ""
+            geom.size = half.copy()
+            geom.pos = full.geom_pos[gid] + rot.reshape(3, 3) @ center
+            geom.quat = full.geom_quat[gid].copy()
+        elif not collides:
+            continue
+        geom.contype, geom.conaffinity = 0, 1
+    for mesh in list(spec.meshes):
+        spec.delete(mesh)
+
+    spec.option.timestep = timestep
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    spec.option.iterations = 10
+    spec.option.ls_iterations = 20
+
+    for sensor in list(spec.sensors):  # The robot's own sensors (IMU...) are not read here.
+        spec.delete(sensor)
+    xbody = mujoco.mjtObj.mjOBJ_XBODY
+    for kind in (
+        mujoco.mjtSensor.mjSENS_FRAMEPOS,
+        mujoco.mjtSensor.mjSENS_FRAMEQUAT,
+        mujoco.mjtSensor.mjSENS_FRAMELINVEL,
+        mujoco.mjtSensor.mjSENS_FRAMEANGVEL,
+    ):
+        for name in body_names:
+            spec.add_sensor(type=kind, objtype=xbody, objname=name)
+    for data_bits, names in (
+        (_CONTACT_FOUND, contact_body_names),
+        (_CONTACT_FORCE, foot_body_names),
+    ):
+        for name in names:
+            spec.add_sensor(
+                type=mujoco.mjtSensor.mjSENS_CONTACT,
+                objtype=mujoco.mjtObj.mjOBJ_BODY,
+                objname=name,
+                reftype=mujoco.mjtObj.mjOBJ_GEOM,
+                refname=robot.floor_geom,
+                intprm=[data_bits, _REDUCE_NETFORCE, 1],
+            )
+    model = spec.compile()
+    mass_full = float(np.sum(full.body_mass))
+    mass = float(np.sum(model.body_mass))
+    if not np.isclose(mass, mass_full, rtol=1e-6):
+        raise InputError(
+            f"robot {robot.name!r}: removing meshes changed the mass ({mass_full} -> {mass} kg); "
+            "the MJCF must give explicit <inertial> elements"
+        )
+    return model
+
+
+class MujocoCpuBackend:
+    """``num_envs`` MuJoCo CPU simulations of one training model.
+
+    Args:
+        model: A model from :func:`training_model` (its sensors define the read-out).
+        num_envs: Number of envs.
+        body_names: The ``body_names`` the model was built with (same order).
+        contact_body_names: The ``contact_body_names`` the model was built with.
+        foot_body_names: The ``foot_body_names`` the model was built with.
+        com_body: Body whose CoM ``PhysicsParams.com_offset`` moves.
+        per_env_models: Give every env its own ``MjModel`` copy, needed for
+            :meth:`set_params`. Without it all envs share ``model``.
+        method: ``"rollout"`` (``mujoco.rollout``) or ``"threads"`` (Python thread pool).
+        nthread: Worker threads (default ``os.cpu_count()``).
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        num_envs: int,
+        *,
+        body_names: Sequence[str],
+        contact_body_names: Sequence[str] = (),
+        foot_body_names: Sequence[str] = (),
+        com_body: str | None = None,
+        per_env_models: bool = False,
+        method: StepMethod = "rollout",
+        nthread: int | None = None,
+    ) -> None:
+        if num_envs < 1:
+            raise InputError(f"num_envs: must be at least 1, got {num_envs}")
+        if method not in ("rollout", "threads"):
+            raise InputError(f"method: expected 'rollout' or 'threads', got {method!r}")
+        self.num_envs = num_envs
+        self.method: StepMethod = method
+        self.nthread = max(1, min(nthread or os.cpu_count() or 1, num_envs))
+        self._model = model
+        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
+        self.body_names = tuple(body_names)
+        self.contact_body_names = tuple(contact_body_names)
+        self.foot_body_names = tuple(foot_body_names)
+        self.joint_names = tuple(
+            model.joint(model.actuator_trnid[a, 0]).name for a in range(model.nu)
+        )
+        self._dof = np.array(
+            [model.jnt_dofadr[model.actuator_trnid[a, 0]] for a in range(model.nu)]
+        )
+        self.joint_range = np.array(
+            [model.jnt_range[model.actuator_trnid[a, 0]] for a in range(model.nu)]
+        )
+        home = model.key_qpos[0] if model.nkey else model.qpos0
+        qadr = [model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in range(model.nu)]
+        if qadr != list(range(model.nq - model.nu, model.nq)):
+            raise InputError(
+                "the actuators must drive the joints after the free joint, in qpos order"
+            )
+        self.default_joint_pos = np.array(home[qadr])
+        self.kp = model.actuator_gainprm[:, 0].copy()
+        self.effort_limit = model.actuator_forcerange[:, 1].copy()
+        self._robot_bodies = np.array(_robot_bodies(model))
+        self.num_bodies_total = len(self._robot_bodies)
+        self._com_body = -1
+        if com_body is not None:
+            self._com_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, com_body)
+            if self._com_body < 0:
+                raise UnknownNameError(f"com_body {com_body!r} is not in the model")
+        self._collider_geoms = np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0)
+        nb, nc, nf = len(self.body_names), len(self.contact_body_names), len(self.foot_body_names)
+        expected = 13 * nb + nc + 3 * nf
+        if model.nsensordata != expected:
+            raise InputError(
+                f"the model has {model.nsensordata} sensor values, expected {expected} for "
+                f"{nb} bodies, {nc} contact bodies and {nf} feet: build it with training_model()"
+            )
+        self._sl = {
+            "pos": slice(0, 3 * nb),
+            "quat": slice(3 * nb, 7 * nb),
+            "lin": slice(7 * nb, 10 * nb),
+            "ang": slice(10 * nb, 13 * nb),
+            "found": slice(13 * nb, 13 * nb + nc),
+            "force": slice(13 * nb + nc, expected),
+        }
+        self._per_env = per_env_models
+        self._models = [copy.copy(model) for _ in range(num_envs)] if per_env_models else []
+        self._nominal = {
+            "geom_friction": model.geom_friction.copy(),
+            "body_mass": model.body_mass.copy(),
+            "body_inertia": model.body_inertia.copy(),
+            "body_ipos": model.body_ipos.copy(),
+            "actuator_gainprm": model.actuator_gainprm.copy(),
+            "actuator_biasprm": model.actuator_biasprm.copy(),
+            "dof_armature": model.dof_armature.copy(),
+        }
+        self._ctrl = np.zeros((num_envs, self.nu))
+        self._qpos = np.tile(model.qpos0, (num_envs, 1))
+        self._qvel = np.zeros((num_envs, self.nv))
+        self._sens = np.zeros((num_envs, model.nsensordata))
+        # Rollout state layout (mjSTATE_FULLPHYSICS): time, qpos, qvel, act, ...
+        self._spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._nstate = mujoco.mj_stateSize(model, self._spec)
+        self._state = np.zeros((num_envs, self._nstate))
+        self._scratch = [mujoco.MjData(model) for _ in range(self.nthread)]
+        if method == "threads":
+            self._datas = [mujoco.MjData(self.model_of(i)) for i in range(num_envs)]
+            self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(self.nthread)
+            self._rollout: mj_rollout.Rollout | None = None
+        else:
+            self._datas = []
+            self._pool = None
+            self._rollout = mj_rollout.Rollout(nthread=self.nthread)
+        self._out_state = np.zeros((num_envs, 1, self._nstate))
+        self._out_sens = np.zeros((num_envs, 1, model.nsensordata))
+        self._ctrl_seq = np.zeros((num_envs, 1, self.nu))
+        self.reset_to(np.arange(num_envs), self._qpos.copy(), self._qvel.copy())
+
+    def model_of(self, env_id: int) -> mujoco.MjModel:
+        """The model env ``env_id`` simulates."""
+        return self._models[env_id] if self._per_env else self._model
+
+    # ----------------------------------------------------------------------------- state
+
+    def reset_to(self, env_ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
+        env_ids = np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        qpos = np.asarray(qpos, dtype=np.float64).reshape(len(env_ids), self.nq)
+        qvel = np.asarray(qvel, dtype=np.float64).reshape(len(env_ids), self.nv)
+        for k, i in enumerate(env_ids):
+            m = self.model_of(int(i))
+            d = self._datas[i] if self._datas else self._scratch[0]
+            if not self._datas:
+                mujoco.mj_resetData(m, d)
+            d.qpos[:] = qpos[k]
+            d.qvel[:] = qvel[k]
+            d.qacc_warmstart[:] = 0.0
+            d.ctrl[:] = self._ctrl[i]
+            mujoco.mj_forward(m, d)
+            self._qpos[i] = d.qpos
+            self._qvel[i] = d.qvel
+            self._sens[i] = d.sensordata
+        self._state[env_ids, 1 : 1 + self.nq] = self._qpos[env_ids]
+        self._state[env_ids, 1 + self.nq : 1 + self.nq + self.nv] = self._qvel[env_ids]
+
+    def set_ctrl(self, ctrl: np.ndarray) -> None:
+        self._ctrl[:] = ctrl
+
+    def step(self, n_substeps: int) -> None:
+        if self.method == "rollout":
+            self._step_rollout(n_substeps)
+        else:
+            self._step_threads(n_substeps)
+
+    def _step_rollout(self, n_substeps: int) -> None:
+        assert self._rollout is not None
+        if self._out_state.shape[1] != n_substeps:
+            self._out_state = np.zeros((self.num_envs, n_substeps, self._nstate))
+            self._out_sens = np.zeros((self.num_envs, n_substeps, self._model.nsensordata))
+            self._ctrl_seq = np.zeros((self.num_envs, n_substeps, self.nu))
+        self._ctrl_seq[:] = self._ctrl[:, None, :]
+        self._rollout.rollout(
+            self._models if self._per_env else [self._model] * self.num_envs,
+            self._scratch,
+            self._state,
+            self._ctrl_seq,
+            control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+            skip_checks=True,
+            nstep=n_substeps,
+            state=self._out_state,
+            sensordata=self._out_sens,
+        )
+        self._state[:] = self._out_state[:, -1]
+        self._qpos[:] = self._state[:, 1 : 1 + self.nq]
+        self._qvel[:] = self._state[:, 1 + self.nq : 1 + self.nq + self.nv]
+        self._sens[:] = self._out_sens[:, -1]
+
+    def _step_threads(self, n_substeps: int) -> None:
+        assert self._pool is not None
+        chunks = np.array_split(np.arange(self.num_envs), self.nthread)
+
+        def work(ids: np.ndarray) -> None:
+            for i in ids:
+                m, d = self.model_of(int(i)), self._datas[i]
+                d.ctrl[:] = self._ctrl[i]
+                for _ in range(n_substeps):
+                    mujoco.mj_step(m, d)
+                self._qpos[i] = d.qpos
+                self._qvel[i] = d.qvel
+                self._sens[i] = d.sensordata
+
+        for f in [self._pool.submit(work, c) for c in chunks]:
+            f.result()
+
+    def read(self) -> PhysicsReadout:
+        n, s = self.num_envs, self._sens
+        return PhysicsReadout(
+            qpos=self._qpos,
+            qvel=self._qvel,
+            body_pos_w=s[:, self._sl["pos"]].reshape(n, -1, 3),
+            body_quat_w=s[:, self._sl["quat"]].reshape(n, -1, 4),
+            body_lin_vel_w=s[:, self._sl["lin"]].reshape(n, -1, 3),
+            body_ang_vel_w=s[:, self._sl["ang"]].reshape(n, -1, 3),
+            contact_found=s[:, self._sl["found"]],
+            foot_force=np.linalg.norm(s[:, self._sl["force"]].reshape(n, -1, 3), axis=-1),
+        )
+
+    # ------------------------------------------------------------------------ parameters
+
+    def set_params(self, env_ids: np.ndarray, params: PhysicsParams) -> None:
+        env_ids = np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        if not self._per_env:
+            raise InputError(
+                "set_params needs per-env models: build the backend with per_env_models=True"
+            )
+        nom = self._nominal
+        rb, g = self._robot_bodies, self._collider_geoms
+        for k, i in enumerate(env_ids):
+            m = self._models[i]
+            m.geom_friction[g, 0] = params.friction[k]
+            m.body_mass[rb] = nom["body_mass"][rb] * params.mass_scale[k]
+            m.body_inertia[rb] = nom["body_inertia"][rb] * params.mass_scale[k][:, None]
+            if self._com_body >= 0:
+                m.body_ipos[self._com_body] = (
+                    nom["body_ipos"][self._com_body] + params.com_offset[k]
+                )
+            kp = nom["actuator_gainprm"][:, 0] * params.kp_scale[k]
+            m.actuator_gainprm[:, 0] = kp
+            m.actuator_biasprm[:, 1] = -kp
+            m.actuator_biasprm[:, 2] = nom["actuator_biasprm"][:, 2] * params.kd_scale[k]
+            m.dof_armature[self._dof] = nom["dof_armature"][self._dof] * params.armature_scale[k]
+            d = self._datas[i] if self._datas else self._scratch[0]
+            qpos, qvel = d.qpos.copy(), d.qvel.copy()
+            mujoco.mj_setConst(m, d)
+            d.qpos[:], d.qvel[:] = qpos, qvel
+
+    def nominal_params(self, n: int) -> PhysicsParams:
+        """Parameters that leave the model nominal, for ``n`` envs."""
+        j, b = self.nu, self.num_bodies_total
+        return PhysicsParams(
+            friction=np.full(
+                n, float(self._nominal["geom_friction"][self._collider_geoms, 0].max())
+            ),
+            mass_scale=np.ones((n, b)),
+            com_offset=np.zeros((n, 3)),
+            kp_scale=np.ones((n, j)),
+            kd_scale=np.ones((n, j)),
+            armature_scale=np.ones((n, j)),
+        )
+
+    def close(self) -> None:
+        """Stop the worker threads."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        if self._rollout is not None:
+            self._rollout.close()
+            self._rollout = None
+
+    def __del__(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()

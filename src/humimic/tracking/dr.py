@@ -1,0 +1,101 @@
+"""Domain randomization: sample per-env physics parameters at reset and normalize them.
+
+The normalized vector ``e`` (each parameter mapped to [-1, 1] over its range; log space for
+scales; 0 where a range is a single value) goes to the critic, so that the value function
+knows the physics the actor must cope with (asymmetric actor-critic).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from humimic.tracking.backend import PhysicsParams
+from humimic.tracking.config import DomainRandomization
+
+
+@dataclass(frozen=True, kw_only=True)
+class DrSample:
+    """Sampled parameters of n envs.
+
+    Attributes:
+        physics: What the backend applies.
+        joint_offset: Offset of the default joint positions [rad]. Shape: (n, J).
+        action_delay: Delay in policy steps. Shape: (n,), int.
+    """
+
+    physics: PhysicsParams
+    joint_offset: np.ndarray
+    action_delay: np.ndarray
+
+
+def param_dim(num_bodies: int, num_joints: int) -> int:
+    """Length of the normalized parameter vector ``e``."""
+    return 1 + num_bodies + 3 + 4 * num_joints + 1
+
+
+def _uniform(
+    rng: np.random.Generator, r: tuple[float, float], shape: tuple[int, ...]
+) -> np.ndarray:
+    return rng.uniform(r[0], r[1], size=shape) if r[0] != r[1] else np.full(shape, float(r[0]))
+
+
+def _log_uniform(
+    rng: np.random.Generator, r: tuple[float, float], shape: tuple[int, ...]
+) -> np.ndarray:
+    if r[0] == r[1]:
+        return np.full(shape, float(r[0]))
+    return np.exp(rng.uniform(np.log(r[0]), np.log(r[1]), size=shape))
+
+
+def sample(
+    dr: DomainRandomization,
+    n: int,
+    *,
+    num_bodies: int,
+    num_joints: int,
+    rng: np.random.Generator,
+) -> DrSample:
+    """Sample the parameters of ``n`` envs (uniform; log-uniform for scales)."""
+    physics = PhysicsParams(
+        friction=_uniform(rng, dr.friction, (n,)),
+        mass_scale=_log_uniform(rng, dr.mass_scale, (n, num_bodies)),
+        com_offset=np.stack([_uniform(rng, r, (n,)) for r in dr.com_offset], axis=-1),
+        kp_scale=_log_uniform(rng, dr.kp_scale, (n, num_joints)),
+        kd_scale=_log_uniform(rng, dr.kd_scale, (n, num_joints)),
+        armature_scale=_log_uniform(rng, dr.armature_scale, (n, num_joints)),
+    )
+    lo, hi = int(dr.action_delay[0]), int(dr.action_delay[1])
+    return DrSample(
+        physics=physics,
+        joint_offset=_uniform(rng, dr.joint_offset, (n, num_joints)),
+        action_delay=rng.integers(lo, hi + 1, size=n),
+    )
+
+
+def _norm(x: np.ndarray, r: tuple[float, float], log: bool = False) -> np.ndarray:
+    lo, hi = (np.log(r[0]), np.log(r[1])) if log else (float(r[0]), float(r[1]))
+    if hi == lo:
+        return np.zeros_like(x, dtype=np.float64)
+    v = np.log(x) if log else x
+    return (2.0 * v - (lo + hi)) / (hi - lo)
+
+
+def normalize(dr: DomainRandomization, s: DrSample) -> np.ndarray:
+    """The critic's parameter vector ``e`` in [-1, 1]. Shape: (n, :func:`param_dim`)."""
+    p = s.physics
+    parts = [
+        _norm(p.friction, dr.friction)[:, None],
+        _norm(p.mass_scale, dr.mass_scale, log=True),
+        np.stack([_norm(p.com_offset[:, k], r) for k, r in enumerate(dr.com_offset)], axis=-1),
+        _norm(p.kp_scale, dr.kp_scale, log=True),
+        _norm(p.kd_scale, dr.kd_scale, log=True),
+        _norm(p.armature_scale, dr.armature_scale, log=True),
+        _norm(s.joint_offset, dr.joint_offset),
+        _norm(
+            s.action_delay.astype(np.float64),
+            (float(dr.action_delay[0]), float(dr.action_delay[1])),
+        )[:, None],
+    ]
+    return np.concatenate(parts, axis=-1)

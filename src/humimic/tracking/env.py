@@ -1,0 +1,548 @@
+"""The whole-body motion-tracking environment (BeyondMimic on MuJoCo), an rsl_rl ``VecEnv``.
+
+A policy at 50 Hz sets PD position targets ``default + offset + scale * action`` of every joint
+of a floating-base humanoid simulated at 200 Hz, and is rewarded for following a reference
+motion (Liao et al., "BeyondMimic: From Motion Tracking to Versatile Humanoid Control via
+Guided Diffusion", 2025). Episodes start at a reference frame (reference state
+initialization, with noise) chosen by BeyondMimic's adaptive sampling, and end on a tracking
+failure (see :mod:`.terminations`), at the episode length, or at the end of the clip
+(time-outs).
+
+Observation groups (all float32, Shape: (num_envs, D)):
+
+* ``policy`` (deployable, noisy when the DR profile says so): reference joint positions and
+  velocities of the current frame, the reference anchor pose in the robot anchor frame
+  (position, 6D rotation), projected gravity and angular velocity of the base (base frame),
+  joint positions (relative to the default) and velocities, the last action.
+* ``critic``: the policy content without noise, the normalized physics parameters ``e``
+  (:mod:`.dr`), the base linear velocity (base frame), the tracked bodies' positions and 6D
+  orientations in the robot anchor frame, and the feet's floor contact forces.
+* ``proprio_history``: the last ``history_length`` policy observations, oldest first.
+
+All reward, termination and observation math is torch on batched tensors (the state lives in
+:class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
+:class:`~humimic.tracking.backend.PhysicsBackend`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import mujoco
+import numpy as np
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from humimic.errors import InputError
+from humimic.motion import Motion
+from humimic.robots.registry import get_robot
+from humimic.tracking import dr as dr_mod
+from humimic.tracking.backend import MujocoCpuBackend, PhysicsBackend, training_model
+from humimic.tracking.config import TrackingConfig
+from humimic.tracking.math import (
+    quat_apply_inverse,
+    quat_from_euler_xyz,
+    quat_mul,
+    rot6d_from_quat,
+    subtract_frame_transforms,
+)
+from humimic.tracking.state import TrackingState
+
+
+def build_backend(
+    cfg: TrackingConfig,
+    num_envs: int,
+    *,
+    model: mujoco.MjModel | None = None,
+    menagerie_root: str | os.PathLike[str] | None = None,
+) -> MujocoCpuBackend:
+    """The MuJoCo CPU backend a :class:`TrackingEnv` of ``cfg`` needs.
+
+    Args:
+        cfg: The task.
+        num_envs: Number of envs.
+        model: A model from :func:`tracking_model` (building one takes seconds; reuse it).
+        menagerie_root: Where the robot files are.
+    """
+    robot = get_robot(cfg.robot)
+    if model is None:
+        model = tracking_model(cfg, menagerie_root=menagerie_root)
+    return MujocoCpuBackend(
+        model,
+        num_envs,
+        body_names=cfg.body_names,
+        contact_body_names=cfg.undesired_contact_bodies,
+        foot_body_names=tuple(robot.feet.values()),
+        com_body=cfg.anchor_body,
+        per_env_models=cfg.dr.randomizes_model,
+        method=cfg.step_method,
+        nthread=cfg.num_threads,
+    )
+
+
+def tracking_model(
+    cfg: TrackingConfig, *, menagerie_root: str | os.PathLike[str] | None = None
+) -> mujoco.MjModel:
+    """The training model of ``cfg`` (mesh-free, with the read-out sensors)."""
+    robot = get_robot(cfg.robot)
+    return training_model(
+        robot,
+        body_names=cfg.body_names,
+        contact_body_names=cfg.undesired_contact_bodies,
+        foot_body_names=tuple(robot.feet.values()),
+        timestep=cfg.sim_dt,
+        menagerie_root=menagerie_root,
+    )
+
+
+class TrackingEnv(VecEnv):
+    """Whole-body motion tracking, implementing rsl_rl's ``VecEnv`` (see the module docstring).
+
+    Args:
+        cfg: The task.
+        motion: The reference clip, at the policy rate (``1 / cfg.step_dt`` frames per second).
+        num_envs: Number of parallel envs.
+        device: Torch device of the observations, rewards and buffers.
+        backend: The simulator; default: :func:`build_backend`.
+        model: A prebuilt training model for the default backend.
+
+    Raises:
+        InputError: If the motion does not fit the robot or the policy rate.
+    """
+
+    def __init__(
+        self,
+        cfg: TrackingConfig,
+        motion: Motion,
+        num_envs: int,
+        *,
+        device: str | torch.device = "cpu",
+        backend: PhysicsBackend | None = None,
+        model: mujoco.MjModel | None = None,
+    ) -> None:
+        cfg.validate()
+        self.cfg = cfg
+        self.num_envs = num_envs
+        self.device = torch.device(device)
+        self.step_dt = cfg.step_dt
+        self.max_episode_length = math.ceil(cfg.episode_length_s / cfg.step_dt)
+        if motion.robot != cfg.robot:
+            raise InputError(
+                f"the motion is for robot {motion.robot!r}, the task for {cfg.robot!r}"
+            )
+        if abs(motion.fps * cfg.step_dt - 1.0) > 1e-6:
+            raise InputError(
+                f"the motion has {motion.fps} frames per second; the policy runs at "
+                f"{1.0 / cfg.step_dt:g} Hz: resample the motion to that rate"
+            )
+        if motion.num_frames < 2:
+            raise InputError("the motion needs at least 2 frames")
+        self.backend: PhysicsBackend = backend or build_backend(cfg, num_envs, model=model)
+        be = self.backend
+        if be.num_envs != num_envs:
+            raise InputError(f"the backend has {be.num_envs} envs, the env {num_envs}")
+        self.joint_names = be.joint_names
+        self.num_actions = len(self.joint_names)
+        J = self.num_actions
+        if be.nq != 7 + J or be.nv != 6 + J:
+            raise InputError(
+                f"the robot must be a free-floating base plus its {J} actuated joints "
+                f"(nq = {be.nq}, nv = {be.nv})"
+            )
+        robot = get_robot(cfg.robot)
+
+        # Reference motion tensors, reordered to the backend's joints and tracked bodies.
+        try:
+            jidx = [motion.joint_names.index(j) for j in self.joint_names]
+            bidx = [motion.body_names.index(b) for b in cfg.body_names]
+            root_m = motion.body_names.index(robot.root_body)
+        except ValueError as e:
+            raise InputError(f"the motion lacks a joint or body of the task: {e}") from None
+        dev = self.device
+
+        def t(x: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32, device=dev)
+
+        self._m_joint_pos = t(motion.joint_pos[:, jidx])
+        self._m_joint_vel = t(motion.joint_vel[:, jidx])
+        self._m_body_pos = t(motion.body_pos_w[:, bidx])
+        self._m_body_quat = t(motion.body_quat_w[:, bidx])
+        self._m_body_lin_vel = t(motion.body_lin_vel_w[:, bidx])
+        self._m_body_ang_vel = t(motion.body_ang_vel_w[:, bidx])
+        self._m_root_pos = t(motion.qpos[:, :3])
+        self._m_root_quat = t(motion.qpos[:, 3:7])
+        self._m_root_lin_vel = t(motion.body_lin_vel_w[:, root_m])
+        self._m_root_ang_vel = t(motion.body_ang_vel_w[:, root_m])
+        self.num_frames = motion.num_frames
+
+        # Robot constants.
+        self.default_joint_pos = t(be.default_joint_pos)
+        self.action_scale = t(cfg.action_scale * be.effort_limit / be.kp)
+        rng_ = be.joint_range
+        mid, half = rng_.mean(axis=1), 0.5 * (rng_[:, 1] - rng_[:, 0]) * cfg.soft_limit_factor
+        soft = t(np.stack([mid - half, mid + half], axis=1))
+
+        self.state = TrackingState.zeros(
+            num_envs=num_envs,
+            body_names=cfg.body_names,
+            anchor_body=cfg.anchor_body,
+            root_body=robot.root_body,
+            num_joints=J,
+            num_contact_bodies=len(be.contact_body_names),
+            num_feet=len(be.foot_body_names),
+            num_frames=self.num_frames,
+            device=dev,
+        )
+        self.state.default_joint_pos.copy_(self.default_joint_pos)
+        self.state.soft_joint_limits.copy_(soft)
+
+        # Buffers (written in place: rsl_rl steps under torch.inference_mode()).
+        self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=dev)
+        self._gen = torch.Generator(device=dev).manual_seed(cfg.seed)
+        self._rng = np.random.default_rng(cfg.seed)
+        max_delay = int(cfg.dr.action_delay[1])
+        self._act_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
+        self._delay = torch.zeros(num_envs, dtype=torch.long, device=dev)
+        self._joint_offset = torch.zeros(num_envs, J, device=dev)
+        self._params_dim = dr_mod.param_dim(be.num_bodies_total, J)
+        self._params_e = torch.zeros(num_envs, self._params_dim, device=dev)
+        self._push_timer = torch.full((num_envs,), math.inf, device=dev)
+        self._rewards = torch.zeros(num_envs, device=dev)
+        self._terminated = torch.zeros(num_envs, dtype=torch.bool, device=dev)
+        self._time_outs = torch.zeros(num_envs, dtype=torch.bool, device=dev)
+        self._arange = torch.arange(num_envs, device=dev)
+        self._gravity = torch.tensor([0.0, 0.0, -1.0], device=dev).expand(num_envs, 3)
+
+        # Adaptive sampling (BeyondMimic): failure rates per bin of the clip.
+        ad = cfg.adaptive
+        self._bin_count = int(self.num_frames // max(ad.bin_s / cfg.step_dt, 1.0)) + 1
+        self._bin_failed = torch.zeros(self._bin_count, device=dev)
+        self._bin_failed_now = torch.zeros(self._bin_count, device=dev)
+        kernel = torch.tensor([ad.kernel_lambda**i for i in range(ad.kernel_size)], device=dev)
+        self._kernel = (kernel / kernel.sum()).view(1, 1, -1)
+
+        # Observation buffers.
+        B, F = len(cfg.body_names), len(be.foot_body_names)
+        self._policy_dim = 2 * J + 3 + 6 + 3 + 3 + 3 * J
+        self._critic_dim = self._policy_dim + self._params_dim + 3 + 9 * B + F
+        self._policy = torch.zeros(num_envs, self._policy_dim, device=dev)
+        self._critic = torch.zeros(num_envs, self._critic_dim, device=dev)
+        self._history = torch.zeros(num_envs, cfg.history_length, self._policy_dim, device=dev)
+        self._fresh = torch.ones(num_envs, dtype=torch.bool, device=dev)
+        self._noise_scale = self._make_noise_scale()
+        self._log: dict[str, torch.Tensor] = {}
+
+        self._reset_idx(self._arange)
+        self._compute_observations()
+
+    # ------------------------------------------------------------------------------- API
+
+    def get_observations(self) -> TensorDict:
+        """Current observations: groups ``policy``, ``critic``, ``proprio_history``."""
+        return TensorDict(
+            {
+                "policy": self._policy.clone(),
+                "critic": self._critic.clone(),
+                "proprio_history": self._history.reshape(self.num_envs, -1).clone(),
+            },
+            batch_size=[self.num_envs],
+            device=self.device,
+        )
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        """Apply actions for one policy step; done envs are reset before returning.
+
+        Args:
+            actions: Shape: (num_envs, num_actions).
+
+        Returns:
+            Observations, rewards Shape: (num_envs,), dones Shape: (num_envs,) bool, and extras
+            with ``time_outs`` (a subset of the dones) and ``log`` (scalar tensors).
+        """
+        s, cfg = self.state, self.cfg
+        a = actions.detach().to(self.device, torch.float32)
+        s.last_action.copy_(s.action)
+        s.action.copy_(a)
+        if self._act_hist.shape[1] > 1:
+            self._act_hist[:, 1:] = self._act_hist[:, :-1].clone()
+        self._act_hist[:, 0] = a
+        applied = self._act_hist[self._arange, self._delay]
+        targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
+        self.backend.set_ctrl(targets.detach().cpu().double().numpy())
+        self.backend.step(cfg.decimation)
+
+        ep = self.episode_length_buf  # rsl_rl may have replaced it: read it fresh.
+        ep += 1
+        s.frame.add_(1).clamp_(max=self.num_frames - 1)
+        self._read_backend()
+        self._update_reference()
+
+        # Terminations and rewards, before any reset.
+        self._terminated.zero_()
+        self._time_outs.zero_()
+        log = self._log
+        for name, tc in cfg.terminations.items():
+            fired = tc.func(self, **tc.params)
+            if tc.time_out:
+                self._time_outs |= fired
+            else:
+                self._terminated |= fired
+            log[f"term_{name}"] = fired.float().mean()
+        self._rewards.zero_()
+        scale = self.step_dt if cfg.reward_dt_scale else 1.0
+        for name, tc in cfg.rewards.items():
+            value = tc.func(self, **tc.params) * (tc.weight * scale)
+            self._rewards += value
+            log[f"rew_{name}"] = value.mean()
+        dones = self._terminated | self._time_outs
+
+        self._update_failure_stats()
+        done_ids = dones.nonzero(as_tuple=False).flatten()
+        if done_ids.numel() > 0:
+            self._reset_idx(done_ids)
+        self._apply_pushes()
+        self._compute_observations()
+        log["sampling_entropy"] = self._sampling_entropy()
+        extras = {"time_outs": self._time_outs.clone(), "log": dict(log)}
+        return self.get_observations(), self._rewards.clone(), dones, extras
+
+    @property
+    def reference_joint_pos(self) -> torch.Tensor:
+        """The reference's joint positions, in the env's joint order. Shape: (frames, J)."""
+        return self._m_joint_pos
+
+    @property
+    def physics_params(self) -> torch.Tensor:
+        """The normalized physics parameters ``e`` of every env. Shape: (num_envs, D)."""
+        return self._params_e
+
+    @property
+    def sampling_weights(self) -> torch.Tensor:
+        """Start-bin sampling probabilities of the adaptive sampler. Shape: (bins,)."""
+        ad = self.cfg.adaptive
+        if not ad.enabled:
+            return torch.full((self._bin_count,), 1.0 / self._bin_count, device=self.device)
+        p = self._bin_failed + ad.uniform_ratio / self._bin_count
+        p = torch.nn.functional.pad(p.view(1, 1, -1), (0, ad.kernel_size - 1), mode="replicate")
+        p = torch.nn.functional.conv1d(p, self._kernel).view(-1)
+        return p / p.sum()
+
+    def close(self) -> None:
+        """Release the backend's threads."""
+        close = getattr(self.backend, "close", None)
+        if close is not None:
+            close()
+
+    # -------------------------------------------------------------------------- internals
+
+    def _read_backend(self) -> None:
+        r, s, dev = self.backend.read(), self.state, self.device
+
+        def put(dst: torch.Tensor, src: np.ndarray) -> None:
+            dst.copy_(torch.from_numpy(np.ascontiguousarray(src)).to(dev, torch.float32))
+
+        put(s.body_pos_w, r.body_pos_w)
+        put(s.body_quat_w, r.body_quat_w)
+        put(s.body_lin_vel_w, r.body_lin_vel_w)
+        put(s.body_ang_vel_w, r.body_ang_vel_w)
+        put(s.joint_pos, r.qpos[:, 7:])
+        put(s.joint_vel, r.qvel[:, 6:])
+        put(s.contact_found, r.contact_found)
+        put(s.foot_force, r.foot_force)
+
+    def _update_reference(self) -> None:
+        s, f = self.state, self.state.frame
+        s.ref_joint_pos.copy_(self._m_joint_pos[f])
+        s.ref_joint_vel.copy_(self._m_joint_vel[f])
+        s.ref_body_pos_w.copy_(self._m_body_pos[f])
+        s.ref_body_quat_w.copy_(self._m_body_quat[f])
+        s.ref_body_lin_vel_w.copy_(self._m_body_lin_vel[f])
+        s.ref_body_ang_vel_w.copy_(self._m_body_ang_vel[f])
+        s.update_relative()
+
+    def _rand(
+        self, lo: torch.Tensor | float, hi: torch.Tensor | float, shape: tuple[int, ...]
+    ) -> torch.Tensor:
+        u = torch.rand(shape, generator=self._gen, device=self.device)
+        return lo + (hi - lo) * u
+
+    def _sample_frames(self, n: int) -> torch.Tensor:
+        T = self.num_frames
+        if self.cfg.start_frame is not None:
+            return torch.full((n,), min(self.cfg.start_frame, T - 2), device=self.device)
+        if self.cfg.adaptive.enabled:
+            bins = torch.multinomial(
+                self.sampling_weights, n, replacement=True, generator=self._gen
+            )
+            u = torch.rand(n, generator=self._gen, device=self.device)
+            frames = ((bins.float() + u) / self._bin_count * (T - 1)).long()
+        else:
+            frames = torch.randint(0, T - 1, (n,), generator=self._gen, device=self.device)
+        return frames.clamp(0, T - 2)
+
+    def _update_failure_stats(self) -> None:
+        failed = self._terminated & ~self._time_outs
+        self._bin_failed_now.zero_()
+        if bool(failed.any()):
+            bins = (self.state.frame[failed] * self._bin_count) // self.num_frames
+            self._bin_failed_now += torch.bincount(
+                bins.clamp(0, self._bin_count - 1), minlength=self._bin_count
+            ).float()
+        a = self.cfg.adaptive.alpha
+        self._bin_failed.mul_(1.0 - a).add_(a * self._bin_failed_now)
+
+    def _sampling_entropy(self) -> torch.Tensor:
+        p = self.sampling_weights
+        h = -(p * (p + 1e-12).log()).sum()
+        return h / math.log(self._bin_count) if self._bin_count > 1 else h * 0 + 1
+
+    def _reset_idx(self, ids: torch.Tensor) -> None:
+        cfg, s, n, J = self.cfg, self.state, int(ids.numel()), self.num_actions
+        frames = self._sample_frames(n)
+        s.frame[ids] = frames
+
+        # Domain randomization.
+        smp = dr_mod.sample(
+            cfg.dr, n, num_bodies=self.backend.num_bodies_total, num_joints=J, rng=self._rng
+        )
+        ids_np = ids.cpu().numpy()
+        if cfg.dr.randomizes_model:
+            self.backend.set_params(ids_np, smp.physics)
+        dev = self.device
+        self._joint_offset[ids] = torch.as_tensor(smp.joint_offset, dtype=torch.float32, device=dev)
+        self._delay[ids] = torch.as_tensor(smp.action_delay, dtype=torch.long, device=dev)
+        self._params_e[ids] = torch.as_tensor(
+            dr_mod.normalize(cfg.dr, smp), dtype=torch.float32, device=dev
+        )
+
+        # Reference state initialization with noise.
+        rn = cfg.reset
+        pose = torch.tensor(rn.pose, device=dev)
+        vel = torch.tensor(rn.velocity, device=dev)
+        dp = self._rand(pose[:, 0], pose[:, 1], (n, 6))
+        dv = self._rand(vel[:, 0], vel[:, 1], (n, 6))
+        root_pos = self._m_root_pos[frames] + dp[:, :3]
+        root_quat = quat_mul(
+            quat_from_euler_xyz(dp[:, 3], dp[:, 4], dp[:, 5]), self._m_root_quat[frames]
+        )
+        root_quat = root_quat / root_quat.norm(dim=-1, keepdim=True)
+        lin_vel_w = self._m_root_lin_vel[frames] + dv[:, :3]
+        ang_vel_w = self._m_root_ang_vel[frames] + dv[:, 3:]
+        jp = self._m_joint_pos[frames] + self._rand(rn.joint_pos[0], rn.joint_pos[1], (n, J))
+        lim = s.soft_joint_limits
+        jp = torch.maximum(torch.minimum(jp, lim[:, 1]), lim[:, 0])
+        qpos = torch.cat([root_pos, root_quat, jp], dim=-1)
+        qvel = torch.cat(
+            [lin_vel_w, quat_apply_inverse(root_quat, ang_vel_w), self._m_joint_vel[frames]], dim=-1
+        )
+        self.backend.reset_to(ids_np, qpos.cpu().double().numpy(), qvel.cpu().double().numpy())
+
+        s.action[ids] = 0.0
+        s.last_action[ids] = 0.0
+        self._act_hist[ids] = 0.0
+        self.episode_length_buf[ids] = 0
+        self._fresh[ids] = True
+        if cfg.dr.push_interval_s is not None:
+            lo, hi = cfg.dr.push_interval_s
+            self._push_timer[ids] = self._rand(lo, hi, (n,))
+        self._read_backend()
+        self._update_reference()
+
+    def _apply_pushes(self) -> None:
+        dr = self.cfg.dr
+        if dr.push_interval_s is None:
+            return
+        self._push_timer -= self.step_dt
+        ids = (self._push_timer <= 0).nonzero(as_tuple=False).flatten()
+        if ids.numel() == 0:
+            return
+        n = int(ids.numel())
+        lo, hi = dr.push_interval_s
+        self._push_timer[ids] = self._rand(lo, hi, (n,))
+        r = self.backend.read()
+        ids_np = ids.cpu().numpy()
+        qpos, qvel = r.qpos[ids_np].copy(), r.qvel[ids_np].copy()
+        lin = torch.tensor(dr.push_lin_vel, device=self.device)
+        ang = torch.tensor(dr.push_ang_vel, device=self.device)
+        dv = torch.cat(
+            [self._rand(lin[:, 0], lin[:, 1], (n, 3)), self._rand(ang[:, 0], ang[:, 1], (n, 3))],
+            dim=-1,
+        )
+        qvel[:, :6] += dv.cpu().double().numpy()
+        self.backend.reset_to(ids_np, qpos, qvel)
+        self._read_backend()
+        self._update_reference()
+
+    def _make_noise_scale(self) -> torch.Tensor | None:
+        noise = self.cfg.dr.obs_noise
+        if noise is None:
+            return None
+        J = self.num_actions
+        parts = [
+            torch.zeros(2 * J),
+            torch.full((3,), noise.anchor_pos),
+            torch.full((6,), noise.anchor_ori),
+            torch.full((3,), noise.projected_gravity),
+            torch.full((3,), noise.base_ang_vel),
+            torch.full((J,), noise.joint_pos),
+            torch.full((J,), noise.joint_vel),
+            torch.zeros(J),
+        ]
+        return torch.cat(parts).to(self.device)
+
+    def _compute_observations(self) -> None:
+        s = self.state
+        root_quat = s.root_quat_w
+        anchor_pos_b, anchor_quat_b = subtract_frame_transforms(
+            s.anchor_pos_w, s.anchor_quat_w, s.ref_anchor_pos_w, s.ref_anchor_quat_w
+        )
+        root_ang_vel_b = quat_apply_inverse(root_quat, s.body_ang_vel_w[:, s.root_index])
+        policy = torch.cat(
+            [
+                s.ref_joint_pos,
+                s.ref_joint_vel,
+                anchor_pos_b,
+                rot6d_from_quat(anchor_quat_b),
+                quat_apply_inverse(root_quat, self._gravity),
+                root_ang_vel_b,
+                s.joint_pos - s.default_joint_pos,
+                s.joint_vel,
+                s.action,
+            ],
+            dim=-1,
+        )
+        B = len(s.body_names)
+        body_pos_b, body_quat_b = subtract_frame_transforms(
+            s.anchor_pos_w[:, None], s.anchor_quat_w[:, None], s.body_pos_w, s.body_quat_w
+        )
+        root_lin_vel_b = quat_apply_inverse(root_quat, s.body_lin_vel_w[:, s.root_index])
+        self._critic.copy_(
+            torch.cat(
+                [
+                    policy,
+                    self._params_e,
+                    root_lin_vel_b,
+                    body_pos_b.reshape(-1, 3 * B),
+                    rot6d_from_quat(body_quat_b).reshape(-1, 6 * B),
+                    s.foot_force,
+                ],
+                dim=-1,
+            )
+        )
+        if self._noise_scale is not None:
+            u = torch.rand(policy.shape, generator=self._gen, device=self.device)
+            policy = policy + (2.0 * u - 1.0) * self._noise_scale
+        self._policy.copy_(policy)
+        h = self._history
+        if h.shape[1] > 1:
+            h[:, :-1] = h[:, 1:].clone()
+        h[:, -1] = policy
+        fresh = self._fresh
+        if bool(fresh.any()):
+            h[fresh] = policy[fresh].unsqueeze(1).expand(-1, h.shape[1], -1)
+            fresh.zero_()
+
+
+__all__ = ["TrackingEnv", "build_backend", "tracking_model"]

@@ -1,0 +1,156 @@
+"""The one boundary module to rsl_rl (pinned: rsl-rl-lib 5.5.1).
+
+:func:`train_cfg` turns a :class:`PpoConfig` into the dict ``OnPolicyRunner`` reads. Defaults
+are BeyondMimic's / mjlab's G1 tracking values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from humimic.io import atomic_write
+
+RSL_RL_VERSION = "5.5.1"
+
+
+@dataclass(frozen=True, kw_only=True)
+class PpoConfig:
+    """PPO and its actor-critic networks.
+
+    Attributes:
+        actor_hidden_dims: Hidden layer sizes of the actor MLP.
+        critic_hidden_dims: Hidden layer sizes of the critic MLP.
+        activation: Activation of both MLPs.
+        obs_normalization: Empirical observation normalization in both models.
+        init_std: Initial action noise standard deviation (scalar parameterization).
+        learning_rate: Adam learning rate (adapted to ``desired_kl``).
+        schedule: ``adaptive`` or ``fixed``.
+        desired_kl: Target KL divergence of the adaptive schedule.
+        entropy_coef: Entropy bonus.
+        value_loss_coef: Value loss weight.
+        use_clipped_value_loss: Clip the value loss like the policy loss.
+        clip_param: PPO clipping.
+        num_learning_epochs: Epochs per update.
+        num_mini_batches: Mini-batches per epoch.
+        gamma: Discount.
+        lam: GAE lambda.
+        max_grad_norm: Gradient clipping.
+        num_steps_per_env: Rollout length per env and iteration.
+        save_interval: Iterations between checkpoints.
+        obs_groups: Observation sets -> env observation groups.
+        logger: rsl_rl log writer (``tensorboard``).
+        run_name: Suffix of the run folder.
+        check_for_nan: Check observations and rewards for NaN every step.
+    """
+
+    actor_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    activation: str = "elu"
+    obs_normalization: bool = True
+    init_std: float = 1.0
+    learning_rate: float = 1e-3
+    schedule: str = "adaptive"
+    desired_kl: float = 0.01
+    entropy_coef: float = 0.005
+    value_loss_coef: float = 1.0
+    use_clipped_value_loss: bool = True
+    clip_param: float = 0.2
+    num_learning_epochs: int = 5
+    num_mini_batches: int = 4
+    gamma: float = 0.99
+    lam: float = 0.95
+    max_grad_norm: float = 1.0
+    num_steps_per_env: int = 24
+    save_interval: int = 500
+    obs_groups: dict[str, tuple[str, ...]] = field(
+        default_factory=lambda: {"actor": ("policy",), "critic": ("critic",)}
+    )
+    logger: str = "tensorboard"
+    run_name: str = ""
+    check_for_nan: bool = True
+
+
+def tracking_ppo() -> PpoConfig:
+    """PPO for whole-body tracking (BeyondMimic / mjlab G1 defaults)."""
+    return PpoConfig()
+
+
+def train_cfg(cfg: PpoConfig) -> dict[str, Any]:
+    """The ``train_cfg`` dict of ``rsl_rl.runners.OnPolicyRunner`` (a new deep copy each call:
+    the runner mutates it)."""
+    out: dict[str, Any] = {
+        "num_steps_per_env": cfg.num_steps_per_env,
+        "save_interval": cfg.save_interval,
+        "obs_groups": {k: list(v) for k, v in cfg.obs_groups.items()},
+        "logger": cfg.logger,
+        "run_name": cfg.run_name,
+        "check_for_nan": cfg.check_for_nan,
+        "algorithm": {
+            "class_name": "PPO",
+            "learning_rate": cfg.learning_rate,
+            "schedule": cfg.schedule,
+            "desired_kl": cfg.desired_kl,
+            "entropy_coef": cfg.entropy_coef,
+            "value_loss_coef": cfg.value_loss_coef,
+            "use_clipped_value_loss": cfg.use_clipped_value_loss,
+            "clip_param": cfg.clip_param,
+            "num_learning_epochs": cfg.num_learning_epochs,
+            "num_mini_batches": cfg.num_mini_batches,
+            "gamma": cfg.gamma,
+            "lam": cfg.lam,
+            "max_grad_norm": cfg.max_grad_norm,
+        },
+        "actor": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(cfg.actor_hidden_dims),
+            "activation": cfg.activation,
+            "obs_normalization": cfg.obs_normalization,
+            "distribution_cfg": {
+                "class_name": "GaussianDistribution",
+                "init_std": cfg.init_std,
+                "std_type": "scalar",
+            },
+        },
+        "critic": {
+            "class_name": "MLPModel",
+            "hidden_dims": list(cfg.critic_hidden_dims),
+            "activation": cfg.activation,
+            "obs_normalization": cfg.obs_normalization,
+        },
+    }
+    return copy.deepcopy(out)
+
+
+def make_runner(env: Any, cfg: dict[str, Any], *, log_dir: Path | None, device: str) -> Any:
+    """An rsl_rl ``OnPolicyRunner`` whose checkpoints humimic writes (see :class:`_Runner`)."""
+    from rsl_rl.runners import OnPolicyRunner
+
+    class _Runner(OnPolicyRunner):
+        """rsl_rl's runner, except for checkpoints: rsl_rl writes ``model_<it>.pt`` with a plain
+        ``torch.save`` inside ``learn`` (a crash mid-write leaves a damaged file that looks
+        whole) and names it by the iteration in progress. humimic writes them atomically, named
+        by iterations done, and loads them with ``weights_only=True``."""
+
+        def save(self, path: str, infos: dict | None = None) -> None:
+            del path, infos  # Checkpoints are written by save_checkpoint.
+
+        def save_checkpoint(self, path: Path, iterations_done: int) -> None:
+            blob = self.alg.save()
+            blob["iter"] = iterations_done
+            blob["infos"] = None
+            with atomic_write(path) as f:
+                torch.save(blob, f)
+
+        def load_checkpoint(self, blob: dict[str, Any]) -> None:
+            self.alg.load(blob, None, True)
+            self.current_learning_iteration = int(blob["iter"])
+
+    with contextlib.redirect_stdout(io.StringIO()):  # rsl_rl prints its networks.
+        return _Runner(env, cfg, log_dir=None if log_dir is None else str(log_dir), device=device)

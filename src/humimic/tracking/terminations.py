@@ -1,0 +1,55 @@
+"""Termination terms of whole-body motion tracking: ``f(env, **params) -> Tensor[bool]``.
+
+Shape: (num_envs,). Default thresholds are mjlab's (``tracking_env_cfg.py``): anchor height
+0.25 m, anchor orientation 0.8 (difference of the z components of projected gravity),
+end-effector height 0.25 m for the feet and hands.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+
+from humimic.tracking.math import quat_apply_inverse
+from humimic.tracking.rewards import HasState
+
+
+class HasEpisode(HasState, Protocol):
+    """An env with an episode counter (the real env, or a fake one)."""
+
+    episode_length_buf: torch.Tensor
+    max_episode_length: int
+
+
+def anchor_height_error(env: HasState, threshold: float) -> torch.Tensor:
+    """The anchor's height differs from the reference's by more than ``threshold`` [m]."""
+    s = env.state
+    return torch.abs(s.ref_anchor_pos_w[:, 2] - s.anchor_pos_w[:, 2]) > threshold
+
+
+def anchor_ori_error(env: HasState, threshold: float) -> torch.Tensor:
+    """Projected gravity z of the anchor differs from the reference's by more than ``threshold``.
+
+    The projected gravity ``g_b = R^T [0, 0, -1]`` has ``z = -cos(tilt)``; against an upright
+    reference, 0.8 fires beyond a tilt of ``acos(0.2)``, about 78 degrees.
+    """
+    s = env.state
+    g = torch.tensor([0.0, 0.0, -1.0], device=s.joint_pos.device).expand(s.num_envs, 3)
+    ref = quat_apply_inverse(s.ref_anchor_quat_w, g)
+    robot = quat_apply_inverse(s.anchor_quat_w, g)
+    return torch.abs(ref[:, 2] - robot[:, 2]) > threshold
+
+
+def ee_height_error(env: HasState, threshold: float, body_names: tuple[str, ...]) -> torch.Tensor:
+    """Any named body's height differs from the anchor-relative reference by > ``threshold``."""
+    s = env.state
+    ids = s.body_ids(body_names)
+    err = torch.abs(s.ref_body_pos_rel_w[:, ids, 2] - s.body_pos_w[:, ids, 2])
+    return torch.any(err > threshold, dim=-1)
+
+
+def time_out(env: HasEpisode) -> torch.Tensor:
+    """The episode reached its length, or the reference clip its last frame."""
+    s = env.state
+    return (env.episode_length_buf >= env.max_episode_length) | (s.frame >= s.num_frames - 1)

@@ -1,0 +1,310 @@
+"""``humimic train``: PPO on the tracking environment, with a run folder that survives crashes.
+
+A run folder holds ``config.yaml`` (everything resolved: the settings, the task, the PPO dict),
+``progress.csv`` (one row per iteration), ``checkpoints/model_<iterations done>.pt`` (written
+atomically: a crash, even ``kill -9``, never leaves a half checkpoint that looks whole) and
+``tensorboard/``. ``--resume`` continues from the newest checkpoint that loads; what was
+learned before it is kept, what came after it is redone. Training that produces NaN stops with
+a clear error and leaves the last good checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import asdict, dataclass, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from humimic.configs.runs import TrainSettings
+from humimic.errors import HumimicError, InputError
+from humimic.io import atomic_write_text, check_writable
+from humimic.motion import Motion, load_motion, motion_from_qpos
+from humimic.tracking.config import (
+    DR_PROFILES,
+    DomainRandomization,
+    TrackingConfig,
+    g1_tracking,
+    load_dr_profile,
+)
+from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
+
+
+class TrainingDiverged(HumimicError):
+    """Training produced NaN or infinite values."""
+
+
+_MUST_MATCH_ON_RESUME = ("motion", "robot", "num_envs", "dr", "seed", "num_steps_per_env")
+
+
+def resolve_dr(dr: str) -> DomainRandomization:
+    """A DR profile by name, or from a YAML file."""
+    if dr in DR_PROFILES:
+        return DR_PROFILES[dr]()
+    path = Path(dr)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        raise InputError(
+            f"--dr {dr!r}: choose a profile ({', '.join(DR_PROFILES)}) or a .yaml file"
+        )
+    return load_dr_profile(path)
+
+
+def task_config(robot: str, dr: str, seed: int) -> TrackingConfig:
+    """The tracking task of a robot (G1 today) with a DR profile."""
+    if robot != "g1":
+        raise InputError(f"--robot {robot!r}: tracking is configured for g1 only so far")
+    return replace(g1_tracking(dr=resolve_dr(dr)), seed=seed)
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    small = theta < 1e-6
+    s = np.sin(np.where(small, 1.0, theta))
+    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / s)
+    w1 = np.where(small, u, np.sin(u * theta) / s)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def load_reference(path: Path, robot: str, fps: float) -> Motion:
+    """The motion file at the policy rate (resampled by interpolating ``qpos`` if needed)."""
+    from humimic.robots import get_robot, nominal_model
+
+    motion = load_motion(path)
+    if motion.robot != robot:
+        raise InputError(f"{path}: the motion is for robot {motion.robot!r}, not {robot!r}")
+    if abs(motion.fps - fps) < 1e-6:
+        return motion
+    T = motion.num_frames
+    duration = (T - 1) / motion.fps
+    n = max(2, math.floor(duration * fps + 1e-9) + 1)
+    x = np.arange(n) / fps * motion.fps
+    i0 = np.clip(np.floor(x).astype(int), 0, T - 2)
+    u = (x - i0)[:, None]
+    q0, q1 = motion.qpos[i0], motion.qpos[i0 + 1]
+    qpos = (1 - u) * q0 + u * q1
+    qpos[:, 3:7] = _slerp(q0[:, 3:7], q1[:, 3:7], u)
+    model = nominal_model(get_robot(robot))
+    info = dict(motion.info or {})
+    info["resampled_from_fps"] = motion.fps
+    return motion_from_qpos(model, qpos, fps, robot, info=info)
+
+
+def _plain(value: Any) -> Any:
+    """A config as YAML-able data (functions by their import path)."""
+    if is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if callable(value):
+        return f"{value.__module__}:{getattr(value, '__qualname__', repr(value))}"
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def _checkpoints(run: Path) -> list[Path]:
+    folder = run / "checkpoints"
+    if not folder.is_dir():
+        return []
+    return sorted(folder.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1]))
+
+
+def latest_checkpoint(run: Path) -> tuple[Path, dict] | None:
+    """The newest checkpoint of a run that loads (a damaged one is skipped, and said so)."""
+    for path in reversed(_checkpoints(run)):
+        try:
+            return path, torch.load(path, weights_only=True, map_location="cpu")
+        except Exception as e:
+            print(f"humimic: skipping unreadable checkpoint {path}: {e}")
+    return None
+
+
+@dataclass
+class _Progress:
+    """Called by the runner after every iteration: logs, checks, checkpoints."""
+
+    runner: Any
+    run: Path
+    every: int
+    total: int
+    bar: Any
+    started: float
+    num_envs: int
+    steps_per_env: int
+    last: dict[str, float] | None = None
+
+    def __call__(self, *, it: int, loss_dict: dict, learning_rate: float, action_std: torch.Tensor,
+                 collect_time: float, learn_time: float, **_: Any) -> None:  # fmt: skip
+        lg = self.runner.logger
+        done = it + 1
+        row: dict[str, float] = {
+            "iteration": done,
+            "env_steps": done * self.num_envs * self.steps_per_env,
+            "seconds": time.perf_counter() - self.started,
+            "steps_per_second": self.num_envs
+            * self.steps_per_env
+            / max(collect_time + learn_time, 1e-9),
+            "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
+            "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
+            "learning_rate": float(learning_rate),
+            "action_std": float(action_std.detach().mean()),
+            **{f"loss_{k}": float(v) for k, v in loss_dict.items()},
+        }
+        keys = dict.fromkeys(k for ep in lg.ep_extras for k in ep)
+        for key in keys:
+            vals = [torch.as_tensor(ep[key], dtype=torch.float32).flatten()
+                    for ep in lg.ep_extras if key in ep]  # fmt: skip
+            row[key] = float(torch.cat(vals).mean()) if vals else math.nan
+        lg.ep_extras.clear()
+        bad = [k for k, v in row.items() if k.startswith(("loss_", "action_std")) and
+               not math.isfinite(v)]  # fmt: skip
+        params = self.runner.alg.get_policy().parameters()
+        if bad or not all(bool(torch.isfinite(p).all()) for p in params):
+            last = _checkpoints(self.run)
+            raise TrainingDiverged(
+                f"training diverged at iteration {done}: non-finite "
+                f"{', '.join(bad) or 'policy parameters'}; the last good checkpoint is "
+                f"{last[-1] if last else 'none'}"
+            )
+        if lg.writer is not None:
+            for k, v in row.items():
+                if k != "iteration":
+                    lg.writer.add_scalar(f"humimic/{k}", v, done)
+        csv_path = self.run / "progress.csv"
+        new = not csv_path.exists()
+        with open(csv_path, "a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(row), extrasaction="ignore")
+            if new:
+                w.writeheader()
+            w.writerow(row)
+        self.last = row
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(reward=f"{row['mean_reward']:.3g}",
+                                 ep_len=f"{row['mean_episode_length']:.0f}",
+                                 sps=f"{row['steps_per_second']:.0f}")  # fmt: skip
+        if done % self.every == 0 or done == self.total:
+            path = self.run / "checkpoints" / f"model_{done:06d}.pt"
+            self.runner.save_checkpoint(path, done)
+
+
+def _write_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
+    blob = {"settings": _plain(asdict(settings)), "tracking": _plain(task), "ppo": _plain(ppo)}
+    atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
+
+
+def read_run_settings(run: Path) -> TrainSettings:
+    """The settings a run was started with."""
+    path = run / "config.yaml"
+    if not path.is_file():
+        raise InputError(f"{run}: not a humimic run folder (no config.yaml)")
+    try:
+        data = yaml.safe_load(path.read_text())["settings"]
+        data["motion"], data["out"] = Path(data["motion"]), Path(data["out"])
+        return TrainSettings(**data)
+    except (yaml.YAMLError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a humimic run configuration ({e})") from None
+
+
+def ppo_for(settings: TrainSettings) -> PpoConfig:
+    """The PPO configuration of a run."""
+    ppo = tracking_ppo()
+    if settings.num_steps_per_env is not None:
+        ppo = replace(ppo, num_steps_per_env=settings.num_steps_per_env)
+    return ppo
+
+
+def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
+    """Train (or resume) a tracking policy. Returns the last progress row."""
+    from humimic.tracking.env import TrackingEnv
+
+    s = settings
+    for name in ("num_envs", "max_iterations", "checkpoint_every"):
+        if getattr(s, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
+    if s.device.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError(f"--device {s.device}: CUDA is not available on this machine")
+    run = s.out
+    if run.exists() and not run.is_dir():
+        raise InputError(f"--out {run}: exists and is not a folder")
+    has_run = (run / "config.yaml").exists()
+    if has_run and not s.resume:
+        raise InputError(f"--out {run}: holds a run already; pass --resume to continue it")
+    if s.resume:
+        old = read_run_settings(run)
+        diff = [n for n in _MUST_MATCH_ON_RESUME if getattr(old, n) != getattr(s, n)]
+        if diff:
+            raise InputError(
+                f"--resume: {', '.join(diff)} differ from the run's ({', '.join(f'{n}={getattr(old, n)!r}' for n in diff)})"
+            )
+    if not s.motion.is_file():
+        raise InputError(f"--motion {s.motion}: no such file")
+    task = task_config(s.robot, s.dr, s.seed)
+    motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
+    cfg = train_cfg(ppo or ppo_for(s))
+    check_writable(run / "config.yaml")
+    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+    if not has_run:
+        _write_config(run, s, task, cfg)
+
+    torch.manual_seed(s.seed)
+    env = TrackingEnv(task, motion, s.num_envs, device=s.device)
+    try:
+        runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
+        start = 0
+        if s.resume:
+            found = latest_checkpoint(run)
+            if found is not None:
+                path, blob = found
+                runner.load_checkpoint(blob)
+                start = int(blob["iter"])
+                print(f"resuming {run} from {path.name} ({start} iterations done)")
+        if start >= s.max_iterations:
+            print(f"{run}: {start} iterations done already (--max-iterations {s.max_iterations})")
+            return {"iteration": start}
+        bar = None
+        if not s.quiet:
+            from tqdm import tqdm
+
+            bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc="train")
+        progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
+                             total=s.max_iterations, bar=bar, started=time.perf_counter(),
+                             num_envs=s.num_envs, steps_per_env=int(cfg["num_steps_per_env"]))  # fmt: skip
+        runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
+        try:
+            runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
+        except ValueError as e:  # rsl_rl's NaN check on observations and rewards.
+            if "NaN" in str(e):
+                raise TrainingDiverged(f"training diverged: {e}") from None
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        return progress.last or {}
+    finally:
+        env.close()
+
+
+__all__ = [
+    "TrainSettings",
+    "TrainingDiverged",
+    "latest_checkpoint",
+    "load_reference",
+    "read_run_settings",
+    "resolve_dr",
+    "task_config",
+    "train",
+]

@@ -1,0 +1,343 @@
+"""Tests of the motion-tracking environment (humimic.tracking). Fast: tiny env counts."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from rsl_rl.env import VecEnv
+from rsl_rl.runners import OnPolicyRunner
+
+from humimic.errors import InputError
+from humimic.motion import Motion, motion_from_qpos
+from humimic.tracking import rewards as rew
+from humimic.tracking import terminations as term
+from humimic.tracking.backend import MujocoCpuBackend
+from humimic.tracking.config import (
+    AdaptiveSampling,
+    default_rewards,
+    dr_default,
+    g1_tracking,
+    load_dr_profile,
+)
+from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
+from humimic.tracking.math import quat_from_euler_xyz
+from humimic.tracking.rsl import PpoConfig, train_cfg
+from humimic.tracking.state import TrackingState
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return tracking_model(g1_tracking("none"))
+
+
+@pytest.fixture(scope="module")
+def motion(model: mujoco.MjModel) -> Motion:
+    """The G1 standing in its home pose, arms swinging gently: 1.5 s at 50 fps."""
+    fps, T = 50.0, 75
+    q = np.tile(model.key_qpos[0], (T, 1))
+    t = np.arange(T) / fps
+    for name in ("left_shoulder_pitch_joint", "right_shoulder_pitch_joint"):
+        adr = model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]
+        q[:, adr] += 0.3 * np.sin(2 * np.pi * t)
+    return motion_from_qpos(model, q, fps, "g1")
+
+
+def make_env(
+    model: mujoco.MjModel, motion: Motion, n: int = 4, dr: str = "default", **kw
+) -> TrackingEnv:
+    cfg = replace(g1_tracking(dr), **kw)
+    return TrackingEnv(cfg, motion, n, model=model)
+
+
+# ------------------------------------------------------------------------- VecEnv contract
+
+
+def test_vec_env_contract(model: mujoco.MjModel, motion: Motion) -> None:
+    env = make_env(model, motion, n=4, episode_length_s=0.2)  # 10 policy steps
+    assert isinstance(env, VecEnv)
+    assert env.num_actions == 29 and isinstance(env.max_episode_length, int)
+    assert env.episode_length_buf.dtype == torch.long
+    obs = env.get_observations()
+    assert set(obs.keys()) == {"policy", "critic", "proprio_history"}
+    for v in obs.values():
+        assert v.dtype == torch.float32 and v.ndim == 2 and v.shape[0] == 4
+    assert obs["proprio_history"].shape[1] == 5 * obs["policy"].shape[1]
+    gen = torch.Generator().manual_seed(0)
+    saw_done = False
+    with torch.inference_mode():
+        for _ in range(12):
+            obs, rewards, dones, extras = env.step(0.3 * torch.randn(4, 29, generator=gen))
+            assert rewards.shape == (4,) and rewards.dtype == torch.float32
+            assert dones.shape == (4,) and dones.dtype == torch.bool
+            time_outs = extras["time_outs"]
+            assert time_outs.dtype == torch.bool and not bool((time_outs & ~dones).any())
+            for key, value in extras["log"].items():
+                assert "/" not in key and value.ndim == 0
+            for key in ("policy", "critic", "proprio_history"):
+                v = obs[key]
+                assert v.dtype == torch.float32 and torch.isfinite(v).all()
+            if dones.any():
+                saw_done = True
+                # Done envs were reset: a fresh episode, history filled with the new observation.
+                assert (env.episode_length_buf[dones] == 0).all()
+                hist = obs["proprio_history"][dones].view(-1, 5, obs["policy"].shape[1])
+                assert torch.equal(hist[:, 0], hist[:, -1])
+    assert saw_done
+
+
+def test_episode_length_buf_replaced_by_runner(model: mujoco.MjModel, motion: Motion) -> None:
+    env = make_env(model, motion, n=2, dr="none", episode_length_s=1.0)
+    # What OnPolicyRunner.learn(init_at_random_ep_len=True) does: the attribute is replaced.
+    env.episode_length_buf = torch.tensor([env.max_episode_length - 1, 0])
+    env.state.frame.zero_()
+    with torch.inference_mode():
+        _, _, dones, extras = env.step(torch.zeros(2, 29))
+    assert bool(extras["time_outs"][0]) and bool(dones[0])
+    assert int(env.episode_length_buf[0]) == 0 and int(env.episode_length_buf[1]) == 1
+
+
+def test_displaced_anchor_terminates(model: mujoco.MjModel, motion: Motion) -> None:
+    env = make_env(model, motion, n=2, dr="none")
+    r = env.backend.read()
+    qpos, qvel = r.qpos.copy(), r.qvel.copy()
+    qpos[0, 2] += 0.6  # Lift env 0 well above its reference.
+    env.backend.reset_to(np.arange(2), qpos, qvel)
+    with torch.inference_mode():
+        _, _, dones, extras = env.step(torch.zeros(2, 29))
+    assert bool(dones[0]) and not bool(extras["time_outs"][0])
+    assert float(extras["log"]["term_anchor_height"]) == 0.5
+    assert not bool(dones[1])
+
+
+# ----------------------------------------------------------------- rewards on a fake state
+
+
+@dataclass
+class FakeEnv:
+    """The least an MDP term reads: a state and the episode counters."""
+
+    state: TrackingState
+    episode_length_buf: torch.Tensor
+    max_episode_length: int = 100
+
+
+def fake_env(n: int = 3) -> FakeEnv:
+    state = TrackingState.zeros(
+        num_envs=n,
+        body_names=("pelvis", "torso", "hand"),
+        anchor_body="torso",
+        root_body="pelvis",
+        num_joints=2,
+        num_contact_bodies=2,
+        num_feet=2,
+        num_frames=10,
+    )
+    pos = torch.tensor([[0.0, 0.0, 0.8], [0.0, 0.0, 1.1], [0.3, 0.2, 1.0]])
+    state.body_pos_w[:] = pos
+    state.ref_body_pos_w[:] = pos
+    state.update_relative()
+    return FakeEnv(state=state, episode_length_buf=torch.zeros(n, dtype=torch.long))
+
+
+def test_perfect_tracking_gives_weight_sum() -> None:
+    env = fake_env()
+    terms = default_rewards()
+    total = sum(tc.weight * tc.func(env, **tc.params) for tc in terms.values())
+    expected = sum(tc.weight for tc in terms.values() if tc.weight > 0)
+    assert torch.allclose(torch.as_tensor(total), torch.full((3,), expected))
+
+
+def test_known_errors_give_exp() -> None:
+    env = fake_env()
+    s = env.state
+    s.body_pos_w[:, 1, 2] += 0.2  # Anchor 0.2 m too high (all envs).
+    got = rew.anchor_pos_error_exp(env, std=0.3)
+    assert torch.allclose(got, torch.full((3,), math.exp(-0.04 / 0.09)))
+    # Rotate the hand by 0.5 rad about z: mean squared angle over the 3 bodies is 0.25 / 3.
+    s.body_quat_w[:, 2] = quat_from_euler_xyz(
+        torch.tensor(0.0), torch.tensor(0.0), torch.tensor(0.5)
+    )
+    s.update_relative()
+    got = rew.body_ori_error_exp(env, std=0.4)
+    assert torch.allclose(got, torch.full((3,), math.exp(-(0.25 / 3) / 0.16)), atol=1e-6)
+    got = rew.body_ori_error_exp(env, std=0.4, body_names=("hand",))
+    assert torch.allclose(got, torch.full((3,), math.exp(-0.25 / 0.16)), atol=1e-6)
+    s.body_lin_vel_w[:, 0, 0] = 1.0  # One of three bodies 1 m/s off.
+    got = rew.body_lin_vel_error_exp(env, std=1.0)
+    assert torch.allclose(got, torch.full((3,), math.exp(-1.0 / 3)))
+    s.action[:] = torch.tensor([0.3, -0.4])
+    assert torch.allclose(rew.action_rate_l2(env), torch.full((3,), 0.25))
+    s.soft_joint_limits[:] = torch.tensor([[-1.0, 1.0], [-1.0, 1.0]])
+    s.joint_pos[:] = torch.tensor([1.5, -1.2])
+    assert torch.allclose(rew.joint_pos_limits(env), torch.full((3,), 0.7))
+    s.contact_found[1] = torch.tensor([2.0, 1.0])
+    assert rew.undesired_contacts(env).tolist() == [0.0, 2.0, 0.0]
+
+
+def test_body_position_reward_ignores_heading_and_horizontal_offset() -> None:
+    env = fake_env()
+    s = env.state
+    # The robot stands 1 m to the side, turned 90 degrees: relative tracking is still perfect.
+    yaw = quat_from_euler_xyz(torch.tensor(0.0), torch.tensor(0.0), torch.tensor(math.pi / 2))
+    rot = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    anchor = s.ref_body_pos_w[0, 1]
+    s.body_pos_w[:] = (s.ref_body_pos_w - anchor) @ rot.T + anchor + torch.tensor([1.0, 0.0, 0.0])
+    s.body_quat_w[:] = yaw
+    s.update_relative()
+    assert torch.allclose(rew.body_pos_error_exp(env, std=0.3), torch.ones(3), atol=1e-6)
+    assert torch.allclose(rew.body_ori_error_exp(env, std=0.4), torch.ones(3), atol=1e-6)
+    assert (rew.anchor_pos_error_exp(env, std=0.3) < 1e-4).all()
+
+
+def test_terminations_on_fake_state() -> None:
+    env = fake_env()
+    s = env.state
+    assert not term.anchor_height_error(env, threshold=0.25).any()
+    s.body_pos_w[0, 1, 2] += 0.3
+    s.body_pos_w[1, 1, 2] += 0.1
+    assert term.anchor_height_error(env, threshold=0.25).tolist() == [True, False, False]
+    s.body_quat_w[2, 1] = quat_from_euler_xyz(
+        torch.tensor(1.5), torch.tensor(0.0), torch.tensor(0.0)
+    )
+    assert term.anchor_ori_error(env, threshold=0.8).tolist() == [False, False, True]
+    s.update_relative()
+    s.body_pos_w[1, 2, 2] -= 0.4
+    assert term.ee_height_error(env, threshold=0.25, body_names=("hand",)).tolist() == [
+        False,
+        True,
+        False,
+    ]
+    env.episode_length_buf[:] = torch.tensor([100, 5, 5])
+    s.frame[:] = torch.tensor([0, 9, 3])
+    assert term.time_out(env).tolist() == [True, True, False]
+
+
+# ---------------------------------------------------------------- domain randomization
+
+
+def test_dr_none_is_nominal_and_noise_free(model: mujoco.MjModel, motion: Motion) -> None:
+    env = make_env(model, motion, n=3, dr="none")
+    assert torch.equal(env.physics_params, torch.zeros_like(env.physics_params))
+    assert isinstance(env.backend, MujocoCpuBackend)
+    assert np.array_equal(env.backend.model_of(2).body_mass, model.body_mass)
+    with torch.inference_mode():
+        obs, *_ = env.step(torch.zeros(3, 29))
+    p = obs["policy"]
+    assert torch.equal(p, obs["critic"][:, : p.shape[1]])  # No observation noise.
+    assert torch.equal(env.physics_params, torch.zeros_like(env.physics_params))
+
+
+def test_dr_default_varies_within_ranges(model: mujoco.MjModel, motion: Motion) -> None:
+    env = make_env(model, motion, n=4, dr="default")
+    dr = dr_default()
+    be = env.backend
+    assert isinstance(be, MujocoCpuBackend)
+    floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    frictions = [be.model_of(i).geom_friction[floor, 0] for i in range(4)]
+    assert len(set(frictions)) == 4 and all(
+        dr.friction[0] <= f <= dr.friction[1] for f in frictions
+    )
+    ratio = np.stack([be.model_of(i).body_mass[1:] / model.body_mass[1:] for i in range(4)])
+    assert ratio.min() >= dr.mass_scale[0] - 1e-9 and ratio.max() <= dr.mass_scale[1] + 1e-9
+    assert ratio.std() > 0.01
+    kp = np.stack(
+        [be.model_of(i).actuator_gainprm[:, 0] / model.actuator_gainprm[:, 0] for i in range(4)]
+    )
+    assert kp.min() >= dr.kp_scale[0] - 1e-9 and kp.max() <= dr.kp_scale[1] + 1e-9
+    e = env.physics_params
+    assert e.abs().max() <= 1.0 and e.std(dim=0).max() > 0.1
+    with torch.inference_mode():
+        obs, *_ = env.step(torch.zeros(4, 29))
+    p = obs["policy"]
+    assert not torch.equal(p, obs["critic"][:, : p.shape[1]])  # Noisy policy observations.
+    assert torch.equal(obs["critic"][:, p.shape[1] : p.shape[1] + e.shape[1]], e)
+
+
+def test_yaml_profile(tmp_path: Path) -> None:
+    good = tmp_path / "dr.yaml"
+    good.write_text(
+        "base: default\nfriction: [0.5, 0.9]\naction_delay: [0, 2]\nobs_noise: {joint_vel: 1.0}\n"
+    )
+    dr = load_dr_profile(good)
+    assert dr.friction == (0.5, 0.9) and dr.action_delay == (0, 2)
+    assert dr.obs_noise is not None and dr.obs_noise.joint_vel == 1.0
+    assert dr.com_offset == dr_default().com_offset
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("friction: [0.5, 0.9]\nfrcition_typo: [1, 2]\n")
+    with pytest.raises(InputError, match="frcition_typo"):
+        load_dr_profile(bad)
+    bad.write_text("obs_noise: {joint_velocity: 1.0}\n")
+    with pytest.raises(InputError, match="joint_velocity"):
+        load_dr_profile(bad)
+    bad.write_text("mass_scale: [1.2, 0.8]\n")
+    with pytest.raises(InputError, match="mass_scale"):
+        load_dr_profile(bad)
+
+
+# ---------------------------------------------------------------- sampling and backends
+
+
+def test_adaptive_sampling_favours_failing_bins(model: mujoco.MjModel, motion: Motion) -> None:
+    cfg = replace(g1_tracking("none"), adaptive=AdaptiveSampling(alpha=0.5))
+    env = TrackingEnv(cfg, motion, 2, model=model)
+    before = env.sampling_weights.clone()
+    assert torch.allclose(before, torch.full_like(before, 1 / len(before)))
+    env.state.frame[:] = 55  # Bin 1 of the 1.5 s clip (bins of 1 s).
+    env._terminated[:] = True
+    env._time_outs[:] = False
+    env._update_failure_stats()
+    after = env.sampling_weights
+    assert after[1] > after[0] and after[1] > 1.2 * before[1]
+
+
+def test_rollout_and_threads_agree(model: mujoco.MjModel) -> None:
+    cfg = g1_tracking("none")
+    a = build_backend(replace(cfg, step_method="rollout"), 2, model=model)
+    b = build_backend(replace(cfg, step_method="threads"), 2, model=model)
+    q = np.tile(model.key_qpos[0], (2, 1))
+    q[1, 2] += 0.05
+    for be in (a, b):
+        be.reset_to(np.arange(2), q, np.zeros((2, model.nv)))
+        be.set_ctrl(q[:, 7:] + 0.1)
+        be.step(4)
+    ra, rb = a.read(), b.read()
+    assert np.allclose(ra.qpos, rb.qpos, atol=1e-6)
+    assert np.allclose(ra.body_pos_w, rb.body_pos_w, atol=1e-6)
+    assert not np.allclose(ra.qpos, q)
+    a.close()
+    b.close()
+
+
+# ------------------------------------------------------------------------------- PPO
+
+
+def test_train_cfg_is_a_fresh_copy() -> None:
+    a = train_cfg(PpoConfig())
+    a["algorithm"]["learning_rate"] = 5.0
+    a["obs_groups"]["actor"].append("critic")
+    b = train_cfg(PpoConfig())
+    assert b["algorithm"]["learning_rate"] == 1e-3 and b["obs_groups"]["actor"] == ["policy"]
+
+
+def test_ppo_two_iterations(model: mujoco.MjModel, motion: Motion, tmp_path: Path) -> None:
+    env = make_env(model, motion, n=4, dr="default")
+    cfg = PpoConfig(
+        actor_hidden_dims=(32, 32),
+        critic_hidden_dims=(32, 32),
+        num_steps_per_env=4,
+        num_mini_batches=2,
+        num_learning_epochs=1,
+    )
+    runner = OnPolicyRunner(env, train_cfg(cfg), log_dir=str(tmp_path), device="cpu")
+    runner.learn(num_learning_iterations=2, init_at_random_ep_len=True)
+    checkpoints = sorted(tmp_path.glob("model_*.pt"))
+    assert [c.name for c in checkpoints] == ["model_0.pt", "model_1.pt"]
+    saved = torch.load(checkpoints[-1], weights_only=True)
+    assert saved["iter"] == 1
+    env.close()

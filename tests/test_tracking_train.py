@@ -1,0 +1,184 @@
+"""``humimic train`` and ``humimic eval``: run folders, crash and resume, NaN, evaluation.
+
+Tiny budgets (8 envs, a few iterations of 8 steps): these tests check the machinery, not what
+the policy learns.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from humimic.cli.main import main
+from humimic.motion import load_motion, motion_from_qpos, save_motion
+from humimic.robots import get_robot, nominal_model
+
+
+@pytest.fixture(scope="module")
+def motion_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The G1 standing, one arm swinging: 1.5 s at 30 fps (the trainer resamples to 50)."""
+    m = nominal_model(get_robot("g1"))
+    fps, T = 30.0, 46
+    q = np.tile(m.key_qpos[0], (T, 1))
+    adr = m.jnt_qposadr[m.joint("left_shoulder_pitch_joint").id]
+    q[:, adr] += 0.3 * np.sin(2 * np.pi * np.arange(T) / fps)
+    path = tmp_path_factory.mktemp("motion") / "stand.npz"
+    save_motion(motion_from_qpos(m, q, fps, "g1"), path)
+    return path
+
+
+def _train_args(motion: Path, out: Path, iterations: int, *extra: str) -> list[str]:
+    return ["train", "--motion", str(motion), "--out", str(out), "--num-envs", "8",
+            "--max-iterations", str(iterations), "--num-steps-per-env", "8", "--dr", "none",
+            "--checkpoint-every", "2", "--quiet", *extra]  # fmt: skip
+
+
+def test_reference_is_resampled_to_the_policy_rate(motion_file: Path) -> None:
+    from humimic.tracking.train import load_reference
+
+    src = load_motion(motion_file)
+    ref = load_reference(motion_file, "g1", 50.0)
+    assert ref.fps == 50.0
+    assert (ref.num_frames - 1) / 50.0 == pytest.approx((src.num_frames - 1) / 30.0, abs=0.02)
+    # Same pose at the same time (t = 1 s is frame 30 of the source, 50 of the reference).
+    np.testing.assert_allclose(ref.qpos[50], src.qpos[30], atol=1e-9)
+    assert ref.info is not None and ref.info["resampled_from_fps"] == 30.0
+
+
+def test_train_writes_a_run_and_refuses_to_overwrite_it(
+    motion_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    assert main(_train_args(motion_file, out, 3)) == 0
+    names = sorted(p.name for p in (out / "checkpoints").iterdir())
+    assert names == ["model_000002.pt", "model_000003.pt"]
+    blob = torch.load(out / "checkpoints" / "model_000003.pt", weights_only=True)
+    assert blob["iter"] == 3 and "actor_state_dict" in blob
+    rows = (out / "progress.csv").read_text().splitlines()
+    assert len(rows) == 4 and rows[0].startswith("iteration,")
+    cfg = (out / "config.yaml").read_text()
+    assert "settings:" in cfg and "tracking:" in cfg and "ppo:" in cfg
+    assert "humimic.tracking.rewards:" in cfg  # Reward functions by import path.
+    before = (out / "progress.csv").read_text()
+    assert main(_train_args(motion_file, out, 5)) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert (out / "progress.csv").read_text() == before
+    # A resume with other physics is refused, naming the difference.
+    args = _train_args(motion_file, out, 5, "--resume")
+    args[args.index("--dr") + 1] = "default"
+    assert main(args) == 2
+    assert "dr" in capsys.readouterr().err
+
+
+def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:
+    assert main(_train_args(tmp_path / "missing.npz", tmp_path / "a", 1)) == 2
+    assert main(_train_args(motion_file, tmp_path / "b", 0)) == 2
+    args = _train_args(motion_file, tmp_path / "c", 1)
+    args[args.index("--dr") + 1] = "nonsense"
+    assert main(args) == 2
+    assert not (tmp_path / "a").exists() and not (tmp_path / "c" / "config.yaml").exists()
+    assert main(["eval", str(tmp_path / "nothing")]) == 2
+
+
+def test_kill_9_then_resume_loses_nothing_beyond_the_last_checkpoint(
+    motion_file: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "humimic.cli.main",
+           *_train_args(motion_file, out, 400)]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            ckpts = list((out / "checkpoints").glob("model_*.pt")) if out.exists() else []
+            if len(ckpts) >= 2:
+                break
+            time.sleep(0.2)
+        else:
+            pytest.fail("no checkpoint within 120 s")
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    done = max(int(p.stem.split("_")[1]) for p in (out / "checkpoints").glob("model_*.pt"))
+    # A damaged newer file (a write cut short elsewhere) is skipped, not trusted.
+    (out / "checkpoints" / f"model_{done + 1:06d}.pt").write_bytes(b"PK\x03\x04 cut short")
+    assert main([*_train_args(motion_file, out, done + 2), "--resume"]) == 0
+    rows = [line.split(",")[0] for line in (out / "progress.csv").read_text().splitlines()[1:]]
+    iterations = [int(r) for r in rows]
+    assert iterations[-2:] == [done + 1, done + 2]  # Continued right after the checkpoint.
+    blob = torch.load(out / "checkpoints" / f"model_{done + 2:06d}.pt", weights_only=True)
+    assert blob["iter"] == done + 2
+
+
+def test_nan_stops_training_with_a_clear_error(
+    motion_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    import humimic.tracking.train as train_mod
+    from humimic.tracking.config import TermConfig
+
+    calls = {"n": 0}
+
+    def poisoned(env, **_) -> torch.Tensor:
+        calls["n"] += 1
+        value = torch.zeros(env.num_envs, device=env.device)
+        return value + (float("nan") if calls["n"] > 20 else 0.0)
+
+    original = train_mod.task_config
+
+    def task_config(robot: str, dr: str, seed: int):
+        cfg = original(robot, dr, seed)
+        rewards = {**cfg.rewards, "poison": TermConfig(func=poisoned, weight=1.0)}
+        return replace(cfg, rewards=rewards)
+
+    monkeypatch.setattr(train_mod, "task_config", task_config)
+    out = tmp_path / "run"
+    assert main(_train_args(motion_file, out, 10)) == 1
+    err = capsys.readouterr().err
+    assert "diverged" in err and "NaN" in err
+    ckpts = sorted((out / "checkpoints").glob("model_*.pt"))
+    for p in ckpts:  # Whatever was saved before the NaN loads.
+        torch.load(p, weights_only=True)
+
+
+def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    assert main(_train_args(motion_file, out, 2)) == 0
+    result_path = tmp_path / "eval.json"
+    assert main(["eval", str(out), "--episodes", "3", "--out", str(result_path)]) == 0
+    r = json.loads(result_path.read_text())
+    assert r["iterations"] == 2 and r["dr"] == "none"
+    for name in ("policy", "open_loop"):
+        m = r[name]
+        assert m["episodes"] == 3 and 0.0 <= m["success_rate"] <= 1.0
+        assert 0 < m["mpjpe_global_mm"] < 2000 and 0 < m["mpjpe_root_mm"] < 2000
+        assert m["joint_error_rad"] >= 0 and m["mean_steps"] >= 1
+        assert set(m["per_body_mm"]) >= {"pelvis", "torso_link"}
+    # The open loop replays the reference exactly in its first step: the first joint error
+    # is small, so the clip's reference and the env agree on joint order.
+    assert r["open_loop"]["joint_error_rad"] < 0.5
+
+
+def test_mujoco_model_of_the_reference_matches_the_env(motion_file: Path) -> None:
+    """The trainer's motion uses the same joint names as the env's model."""
+    from humimic.tracking.env import tracking_model
+    from humimic.tracking.train import load_reference, task_config
+
+    task = task_config("g1", "none", 0)
+    model = tracking_model(task)
+    ref = load_reference(motion_file, "g1", 50.0)
+    env_joints = [model.joint(j).name for j in range(model.njnt)
+                  if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]  # fmt: skip
+    assert list(ref.joint_names) == env_joints
+    assert os.path.getsize(motion_file) > 0
