@@ -182,3 +182,27 @@ def test_mujoco_model_of_the_reference_matches_the_env(motion_file: Path) -> Non
                   if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]  # fmt: skip
     assert list(ref.joint_names) == env_joints
     assert os.path.getsize(motion_file) > 0
+
+
+def test_export_onnx_matches_the_torch_policy(motion_file: Path, tmp_path: Path) -> None:
+    from onnx.reference import ReferenceEvaluator
+
+    from humimic.tracking.export import load_policy_runner
+
+    out = tmp_path / "run"
+    assert main(_train_args(motion_file, out, 2)) == 0
+    path = tmp_path / "policy.onnx"
+    assert main(["export", str(out), "--out", str(path)]) == 0
+    runner, env, _ = load_policy_runner(out, None)
+    try:
+        policy = runner.get_inference_policy(device="cpu")
+        obs = env.get_observations()
+        batch = obs["policy"].repeat(5, 1) + 0.1 * torch.randn(5, obs["policy"].shape[1])
+        with torch.inference_mode():
+            expected = policy(obs.expand(5).clone().update({"policy": batch})).numpy()
+    finally:
+        env.close()
+    (got,) = ReferenceEvaluator(str(path)).run(None, {"obs": batch.numpy()})
+    assert got.shape == expected.shape == (5, 29)
+    np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-4, atol=1e-5)
+    assert main(["export", str(out), "--out", str(tmp_path / "policy.txt")]) == 2

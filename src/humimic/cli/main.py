@@ -12,7 +12,7 @@ import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
-from humimic.configs.runs import EvalSettings, TrainSettings
+from humimic.configs.runs import EvalSettings, ExportSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
@@ -536,6 +536,7 @@ Commands = (
     | Annotated[FetchCommand, tyro.conf.subcommand("fetch")]
     | Annotated[TrainSettings, tyro.conf.subcommand("train")]
     | Annotated[EvalSettings, tyro.conf.subcommand("eval")]
+    | Annotated[ExportSettings, tyro.conf.subcommand("export")]
 )
 
 
@@ -569,6 +570,10 @@ def main(argv: list[str] | None = None) -> int:
             run_train(cmd)
         elif isinstance(cmd, EvalSettings):
             run_eval(cmd)
+        elif isinstance(cmd, ExportSettings):
+            from humimic.tracking.export import export
+
+            print(f"wrote {export(cmd)}")
     except InputError as e:
         print(f"humimic: error: {e}", file=sys.stderr)
         return 2

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import tyro
 
@@ -25,6 +25,7 @@ class TrainSettings:
         seed: Seed of torch and of the environment.
         checkpoint_every: Iterations between checkpoints (the last one is always written).
         num_steps_per_env: Rollout length per env and iteration (default: the PPO config's).
+        max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
         quiet: No progress bar.
     """
 
@@ -39,6 +40,7 @@ class TrainSettings:
     seed: int = 0
     checkpoint_every: int = 50
     num_steps_per_env: int | None = None
+    max_minutes: float | None = None
     quiet: bool = False
 
 
@@ -65,3 +67,21 @@ class EvalSettings:
     num_envs: int | None = None
     device: str = "cpu"
     seed: int = 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExportSettings:
+    """What ``humimic export`` writes.
+
+    Attributes:
+        run: Run folder of ``humimic train``.
+        format: ``onnx``: the deterministic policy (observation normalization included), one
+            input ``obs`` (the ``policy`` observation group), one output ``actions``.
+        out: Output file (default: ``RUN/policy.onnx``).
+        checkpoint: A checkpoint file (default: the run's newest).
+    """
+
+    run: Annotated[Path, tyro.conf.Positional]
+    format: Literal["onnx"] = "onnx"
+    out: Path | None = None
+    checkpoint: Path | None = None

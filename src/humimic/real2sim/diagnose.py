@@ -533,10 +533,10 @@ def diagnose_log(
         c.delay[:], c.offset[:], c.gain_scale[:] = nominal.delay, nominal.offset, nominal.gain_scale
         return c
 
-    def with_kept(c0: Correction, values: list[float] | None = None) -> Correction:
+    def with_kept(c0: Correction) -> Correction:
+        """``c0`` with the kept effects at their current values."""
         c = c0.copy()
-        for (q, v0), v in zip(kept, values or [v for _, v in kept], strict=True):
-            del v0
+        for q, v in kept:
             apply_effect(c, q.effect, q.index, v)
         return c
 
@@ -546,9 +546,7 @@ def diagnose_log(
             values_now = _polish(fit_a, start, kept)
             kept = [(q, v) for (q, _), v in zip(kept, values_now, strict=True)]
             findings = [replace(f, value=v) for f, v in zip(findings, values_now, strict=True)]
-            base = start.copy()
-            for q, v in kept:
-                apply_effect(base, q.effect, q.index, v)
+            base = with_kept(start)
             model = base.model
         err_a = score_a.per_joint(base)
         order = np.argsort(-err_a)
@@ -645,9 +643,7 @@ def diagnose_log(
         values = _refit(fit_a, start, kept)
         kept = [(p, v) for (p, _), v in zip(kept, values, strict=True)]
         findings = [replace(f, value=v) for f, v in zip(findings, values, strict=True)]
-        base = start.copy()
-        for p, v in kept:
-            apply_effect(base, p.effect, p.index, v)
+        base = with_kept(start)
         final = score_b.run([start, base])
         claimed, unclaimed = [], []
         for f, (p, v) in zip(findings, kept, strict=True):

@@ -39,6 +39,10 @@ class TrainingDiverged(HumimicError):
     """Training produced NaN or infinite values."""
 
 
+class _TimeUp(Exception):
+    """The run's wall-time budget is spent (a checkpoint has been written)."""
+
+
 _MUST_MATCH_ON_RESUME = ("motion", "robot", "num_envs", "dr", "seed", "num_steps_per_env")
 
 
@@ -144,6 +148,7 @@ class _Progress:
     started: float
     num_envs: int
     steps_per_env: int
+    max_seconds: float | None = None
     last: dict[str, float] | None = None
 
     def __call__(self, *, it: int, loss_dict: dict, learning_rate: float, action_std: torch.Tensor,
@@ -196,9 +201,12 @@ class _Progress:
             self.bar.set_postfix(reward=f"{row['mean_reward']:.3g}",
                                  ep_len=f"{row['mean_episode_length']:.0f}",
                                  sps=f"{row['steps_per_second']:.0f}")  # fmt: skip
-        if done % self.every == 0 or done == self.total:
+        time_up = self.max_seconds is not None and row["seconds"] > self.max_seconds
+        if done % self.every == 0 or done == self.total or time_up:
             path = self.run / "checkpoints" / f"model_{done:06d}.pt"
             self.runner.save_checkpoint(path, done)
+        if time_up:
+            raise _TimeUp
 
 
 def _write_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
@@ -235,6 +243,8 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     for name in ("num_envs", "max_iterations", "checkpoint_every"):
         if getattr(s, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
+    if s.max_minutes is not None and not s.max_minutes > 0:
+        raise InputError(f"--max-minutes {s.max_minutes}: must be positive")
     if s.device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError(f"--device {s.device}: CUDA is not available on this machine")
     run = s.out
@@ -282,10 +292,13 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc="train")
         progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
                              total=s.max_iterations, bar=bar, started=time.perf_counter(),
-                             num_envs=s.num_envs, steps_per_env=int(cfg["num_steps_per_env"]))  # fmt: skip
+                             num_envs=s.num_envs, steps_per_env=int(cfg["num_steps_per_env"]),
+                             max_seconds=None if s.max_minutes is None else 60 * s.max_minutes)  # fmt: skip
         runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
         try:
             runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
+        except _TimeUp:
+            print(f"{run}: --max-minutes {s.max_minutes} reached; resume to continue")
         except ValueError as e:  # rsl_rl's NaN check on observations and rewards.
             if "NaN" in str(e):
                 raise TrainingDiverged(f"training diverged: {e}") from None

@@ -1,0 +1,83 @@
+"""``humimic export``: the trained policy as ONNX for deployment.
+
+The exported graph is the actor's deterministic path, observation normalization included:
+input ``obs`` (the ``policy`` observation group, Shape: (batch, D)), output ``actions``
+(Shape: (batch, num_joints); PD targets are ``default + scale * actions``, see
+docs/tracking.md). The file is written atomically.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+
+from humimic.configs.runs import ExportSettings
+from humimic.errors import InputError, OutputPathError
+from humimic.io import check_writable
+
+
+def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
+    """The run's runner (with a one-env environment) loaded from a checkpoint."""
+    from humimic.tracking.env import TrackingEnv
+    from humimic.tracking.rsl import make_runner, train_cfg
+    from humimic.tracking.train import (
+        latest_checkpoint,
+        load_reference,
+        ppo_for,
+        read_run_settings,
+        task_config,
+    )
+
+    settings = read_run_settings(run)
+    if checkpoint is not None:
+        if not checkpoint.is_file():
+            raise InputError(f"--checkpoint {checkpoint}: no such file")
+        path, blob = checkpoint, torch.load(checkpoint, weights_only=True)
+    else:
+        found = latest_checkpoint(run)
+        if found is None:
+            raise InputError(f"{run}: the run has no checkpoint yet")
+        path, blob = found
+    task = task_config(settings.robot, "none", settings.seed)
+    motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
+    env = TrackingEnv(task, motion, 1, device=device)
+    runner = make_runner(env, train_cfg(ppo_for(settings)), log_dir=None, device=device)
+    runner.load_checkpoint(blob)
+    return runner, env, path
+
+
+def export(settings: ExportSettings) -> Path:
+    """Write the policy; returns the file."""
+    out = settings.out or settings.run / "policy.onnx"
+    if out.suffix != ".onnx":
+        raise InputError(f"--out {out}: an ONNX file must end in .onnx")
+    check_writable(out)
+    runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
+    try:
+        model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+        os.close(fd)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()), torch.no_grad():
+                torch.onnx.export(model, model.get_dummy_inputs(), tmp, export_params=True,
+                                  opset_version=18, input_names=["obs"],
+                                  output_names=["actions"], dynamo=True,
+                                  dynamic_shapes=({0: torch.export.Dim("batch")},))  # fmt: skip
+            os.chmod(tmp, 0o644)
+            os.replace(tmp, out)
+        except OSError as e:
+            raise OutputPathError(f"{out}: cannot write: {e}") from None
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    finally:
+        env.close()
+    return out
+
+
+__all__ = ["export", "load_policy_runner"]
