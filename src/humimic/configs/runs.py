@@ -54,7 +54,7 @@ class EvalSettings:
         dr: Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file.
         out: Write the metrics as JSON here.
         checkpoint: A checkpoint file (default: the run's newest).
-        num_envs: Episodes run in parallel (default: all of them, at most 64).
+        num_envs: Envs run in parallel, at least ``episodes`` (default: ``episodes``).
         device: Torch device of the policy.
         seed: Seed of the evaluation's randomness.
     """

@@ -229,18 +229,21 @@ def _markdown(
 
 
 def _signature(
-    f: Finding, log: RobotLog, nominal: Correction, corrected: Correction
+    f: Finding,
+    log: RobotLog,
+    nominal: Correction,
+    res_nominal: np.ndarray,
+    res_corrected: np.ndarray,
 ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray, str]:
     """The signature plot of a claimed effect: the residual torque of its joint (nominal and
     corrected model, inverse dynamics on the fit part) against the variable the effect acts
     through."""
-    from humimic.real2sim.actuator_net import residual_torque
 
     names = log.joint_names
     idx = _fit_samples(log)
     cols = [names.index(n) for n in f.joints]
-    nom_all = residual_torque(nominal, log, idx)[:, cols]
-    cor_all = residual_torque(corrected, log, idx)[:, cols]
+    nom_all = res_nominal[:, cols]
+    cor_all = res_corrected[:, cols]
     # The joint where the correction changes the residual most.
     k = int(np.argmax(np.median(np.abs(nom_all), axis=0) - np.median(np.abs(cor_all), axis=0)))
     j, res_nom, res_cor = cols[k], nom_all[:, k], cor_all[:, k]
@@ -339,8 +342,13 @@ def _plots(
     save(fig, "prediction_window.png")
 
     # 3. The signature that convinced the tool, per claimed effect.
+    from humimic.real2sim.actuator_net import residual_torque
+
+    if diagnosis.claimed:  # Residual torques once, for every signature plot.
+        idx = _fit_samples(log)
+        res_nom, res_cor = residual_torque(nominal, log, idx), residual_torque(corrected, log, idx)
     for f in diagnosis.claimed:
-        label, x, r0, r1, joint = _signature(f, log, nominal, corrected)
+        label, x, r0, r1, joint = _signature(f, log, nominal, res_nom, res_cor)
         fig, ax = plt.subplots(figsize=(5.5, 3.6))
         ax.plot(x, r0, ".", ms=2, alpha=0.5, label="nominal model")
         ax.plot(x, r1, ".", ms=2, alpha=0.5, label=f"with {f.effect}")

@@ -77,9 +77,9 @@ def evaluate(settings: EvalSettings) -> dict:
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
-        latest_checkpoint,
         load_reference,
         read_run_settings,
+        resolve_checkpoint,
         task_config,
     )
 
@@ -89,15 +89,7 @@ def evaluate(settings: EvalSettings) -> dict:
     if s.out is not None:
         check_writable(s.out)
     run = read_run_settings(s.run)
-    if s.checkpoint is not None:
-        if not s.checkpoint.is_file():
-            raise InputError(f"--checkpoint {s.checkpoint}: no such file")
-        path, blob = s.checkpoint, torch.load(s.checkpoint, weights_only=True)
-    else:
-        found = latest_checkpoint(s.run)
-        if found is None:
-            raise InputError(f"{s.run}: the run has no checkpoint yet")
-        path, blob = found
+    path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed)
     motion = load_reference(run.motion, run.robot, 1.0 / base.step_dt)
     task = replace(
@@ -108,7 +100,7 @@ def evaluate(settings: EvalSettings) -> dict:
         adaptive=AdaptiveSampling(enabled=False),
         episode_length_s=motion.num_frames * base.step_dt + 1.0,
     )  # fmt: skip
-    n = min(s.num_envs or s.episodes, s.episodes, 64) if s.num_envs is None else s.num_envs
+    n = s.num_envs or s.episodes
     if n < s.episodes:
         raise InputError(f"--num-envs {n}: evaluate at least as many envs as --episodes")
     results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),

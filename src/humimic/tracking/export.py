@@ -26,23 +26,15 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner, train_cfg
     from humimic.tracking.train import (
-        latest_checkpoint,
         load_reference,
         ppo_for,
         read_run_settings,
+        resolve_checkpoint,
         task_config,
     )
 
     settings = read_run_settings(run)
-    if checkpoint is not None:
-        if not checkpoint.is_file():
-            raise InputError(f"--checkpoint {checkpoint}: no such file")
-        path, blob = checkpoint, torch.load(checkpoint, weights_only=True)
-    else:
-        found = latest_checkpoint(run)
-        if found is None:
-            raise InputError(f"{run}: the run has no checkpoint yet")
-        path, blob = found
+    path, blob = resolve_checkpoint(run, checkpoint)
     task = task_config(settings.robot, "none", settings.seed)
     motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)

@@ -136,6 +136,18 @@ def latest_checkpoint(run: Path) -> tuple[Path, dict] | None:
     return None
 
 
+def resolve_checkpoint(run: Path, checkpoint: Path | None) -> tuple[Path, dict]:
+    """The given checkpoint file, or the run's newest that loads."""
+    if checkpoint is not None:
+        if not checkpoint.is_file():
+            raise InputError(f"--checkpoint {checkpoint}: no such file")
+        return checkpoint, torch.load(checkpoint, weights_only=True, map_location="cpu")
+    found = latest_checkpoint(run)
+    if found is None:
+        raise InputError(f"{run}: the run has no checkpoint yet")
+    return found
+
+
 @dataclass
 class _Progress:
     """Called by the runner after every iteration: logs, checks, checkpoints."""
