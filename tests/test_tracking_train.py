@@ -81,6 +81,32 @@ def test_train_writes_a_run_and_refuses_to_overwrite_it(
     assert "dr" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("variant", "actor_dim"),
+    [("robust", 160), ("asymmetric", 160 + 5 * 160), ("teacher", None)],
+)
+def test_each_variant_trains(
+    motion_file: Path, tmp_path: Path, variant: str, actor_dim: int | None
+) -> None:
+    """Each variant trains, records itself, and gives its actor the variant's observations;
+    a teacher (which reads simulator parameters) is not exported."""
+    out = tmp_path / variant
+    assert main(_train_args(motion_file, out, 1, "--variant", variant)) == 0
+    cfg = (out / "config.yaml").read_text()
+    assert f"variant: {variant}" in cfg
+    blob = torch.load(out / "checkpoints" / "model_000001.pt", weights_only=True)
+    first = next(v for k, v in blob["actor_state_dict"].items() if k.endswith("0.weight"))
+    critic_first = next(v for k, v in blob["critic_state_dict"].items() if k.endswith("0.weight"))
+    if variant == "teacher":
+        assert first.shape[1] > 160  # policy + physics parameters e
+        assert main(["export", str(out), "--out", str(tmp_path / "t.onnx")]) == 2
+        assert not (tmp_path / "t.onnx").exists()
+    else:
+        assert first.shape[1] == actor_dim
+    # Only the robust critic is limited to deployable observations.
+    assert (critic_first.shape[1] == 160) == (variant == "robust")
+
+
 def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:
     assert main(_train_args(tmp_path / "missing.npz", tmp_path / "a", 1)) == 2
     assert main(_train_args(motion_file, tmp_path / "b", 0)) == 2
@@ -168,6 +194,29 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     # The open loop replays the reference exactly in its first step: the first joint error
     # is small, so the clip's reference and the env agree on joint order.
     assert r["open_loop"]["joint_error_rad"] < 0.5
+
+    # The first episode, beside the JSON, with the reference: what `humimic view` plays.
+    from humimic.cli.main import load_rollout, read_any_motion
+    from humimic.mcap_io import qpos_from_log, read_mcap
+
+    mcap = tmp_path / "eval.mcap"
+    assert r["mcap"] == str(mcap)
+    ref = read_any_motion(mcap)
+    assert ref.fps == 50.0 and ref.joint_names[0] == "left_hip_pitch_joint"
+    log = read_mcap(mcap)
+    times, qpos = qpos_from_log(log, ref.joint_names)
+    # No reset noise, nominal physics: all episodes are the same, and the first state is the
+    # reference's first frame (joints clamped into the soft limits: the straight knees move).
+    assert len(times) == round(r["policy"]["mean_steps"]) + 1
+    np.testing.assert_allclose(qpos[0, :7], ref.qpos[0, :7], atol=1e-6)
+    assert np.abs(qpos[0, 7:] - ref.qpos[0, 7:]).max() < 0.07
+    assert np.all(np.diff(times) == 20_000_000)
+    assert len(log.topic("/open_loop/qpos")) == round(r["open_loop"]["mean_steps"]) + 1
+    assert len(log.topic("/joint_commands")) == len(times)
+    assert json.loads(log.meta("eval")["results"])["policy"] == r["policy"]
+    shown = load_rollout(None, mcap, ref)  # The viewer finds the rollout in the same file.
+    assert shown is not None and shown.shape == ref.qpos.shape
+    np.testing.assert_allclose(shown[: len(qpos)], qpos, atol=1e-12)
 
 
 def test_mujoco_model_of_the_reference_matches_the_env(motion_file: Path) -> None:

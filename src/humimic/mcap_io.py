@@ -487,61 +487,63 @@ def tf_message(t_ns: int, names: Iterable[str], pos: np.ndarray, quat: np.ndarra
 
 def write_motion_mcap(motion: Any, path: str | os.PathLike[str]) -> Path:
     """Write a :class:`humimic.motion.Motion` as MCAP, losslessly (plus ``/tf`` for Foxglove)."""
+    with McapWriter(path) as w:
+        write_motion_topics(w, motion)
+    return Path(path)
+
+
+def write_motion_topics(w: McapWriter, motion: Any) -> None:
+    """Write a motion's metadata and ``/reference/*`` and ``/tf`` topics into an open writer
+    (what :func:`read_motion_mcap` reads back)."""
     from humimic.motion import SCHEMA_VERSION
 
     extras = motion.extras or {}
-    with McapWriter(path) as w:
-        w.add_metadata(
-            "motion",
+    w.add_metadata(
+        "motion",
+        {
+            "schema_version": str(SCHEMA_VERSION),
+            "robot": motion.robot,
+            "fps": repr(float(motion.fps)),
+            "joint_names": json.dumps(list(motion.joint_names)),
+            "body_names": json.dumps(list(motion.body_names)),
+            "extras": json.dumps({k: [str(v.dtype), list(v.shape[1:])] for k, v in extras.items()}),
+            "info": json.dumps(motion.info or {}),
+        },
+    )
+    for i, t in iter_frames(motion.fps, motion.num_frames):
+        header = {"stamp": stamp(t), "frame_id": "world"}
+        w.write("/reference/qpos", t, {"header": header, "qpos": motion.qpos[i].tolist()})
+        w.write(
+            "/reference/joint_states",
+            t,
             {
-                "schema_version": str(SCHEMA_VERSION),
-                "robot": motion.robot,
-                "fps": repr(float(motion.fps)),
-                "joint_names": json.dumps(list(motion.joint_names)),
-                "body_names": json.dumps(list(motion.body_names)),
-                "extras": json.dumps(
-                    {k: [str(v.dtype), list(v.shape[1:])] for k, v in extras.items()}
-                ),
-                "info": json.dumps(motion.info or {}),
+                "header": header,
+                "name": list(motion.joint_names),
+                "position": motion.joint_pos[i].tolist(),
+                "velocity": motion.joint_vel[i].tolist(),
             },
         )
-        for i, t in iter_frames(motion.fps, motion.num_frames):
-            header = {"stamp": stamp(t), "frame_id": "world"}
-            w.write("/reference/qpos", t, {"header": header, "qpos": motion.qpos[i].tolist()})
+        w.write(
+            "/reference/body_states",
+            t,
+            {
+                "header": header,
+                "name": list(motion.body_names),
+                "position": motion.body_pos_w[i].tolist(),
+                "orientation": motion.body_quat_w[i].tolist(),
+                "linear_velocity": motion.body_lin_vel_w[i].tolist(),
+                "angular_velocity": motion.body_ang_vel_w[i].tolist(),
+            },
+        )
+        if extras:
             w.write(
-                "/reference/joint_states",
+                "/reference/extras",
                 t,
-                {
-                    "header": header,
-                    "name": list(motion.joint_names),
-                    "position": motion.joint_pos[i].tolist(),
-                    "velocity": motion.joint_vel[i].tolist(),
-                },
+                {"header": header, "arrays": {k: v[i].tolist() for k, v in extras.items()}},
             )
-            w.write(
-                "/reference/body_states",
-                t,
-                {
-                    "header": header,
-                    "name": list(motion.body_names),
-                    "position": motion.body_pos_w[i].tolist(),
-                    "orientation": motion.body_quat_w[i].tolist(),
-                    "linear_velocity": motion.body_lin_vel_w[i].tolist(),
-                    "angular_velocity": motion.body_ang_vel_w[i].tolist(),
-                },
-            )
-            if extras:
-                w.write(
-                    "/reference/extras",
-                    t,
-                    {"header": header, "arrays": {k: v[i].tolist() for k, v in extras.items()}},
-                )
-            w.write(
-                "/tf",
-                t,
-                tf_message(t, motion.body_names, motion.body_pos_w[i], motion.body_quat_w[i]),
-            )
-    return Path(path)
+        w.write(
+            "/tf", t, tf_message(t, motion.body_names, motion.body_pos_w[i], motion.body_quat_w[i])
+        )
 
 
 def read_motion_mcap(path: str | os.PathLike[str]) -> Any:

@@ -87,7 +87,8 @@ class ViewCommand:
     scene: Path | None = None
     """Scene objects: a mesh file (.obj, .stl, .ply) or a folder of them, in the clip's frame."""
     rollout: Path | None = None
-    """A rollout or robot log (.mcap with /qpos, or /base_pose and /joint_states)."""
+    """A rollout or robot log (.mcap with /qpos, or /base_pose and /joint_states). Default: the
+    motion file's own /qpos when it is an MCAP that has one (``humimic eval --mcap``)."""
     host: str = "127.0.0.1"
     """Address to bind; 127.0.0.1 keeps the viewer on this machine (0.0.0.0 exposes it)."""
     port: int = 8080
@@ -365,12 +366,29 @@ def run_convert(cmd: ConvertCommand) -> None:
     print(f"wrote {cmd.dst} ({motion.num_frames} frames)")
 
 
+def load_rollout(rollout: Path | None, motion_path: Path, motion) -> np.ndarray | None:
+    """The rollout ``humimic view`` shows, sampled at the motion's frames: ``rollout``'s, else
+    the motion MCAP's own ``/qpos`` if it has one, else none. Shape: (frames, nq)."""
+    from humimic.mcap_io import qpos_from_log, read_mcap, sample_at
+
+    if rollout is not None:
+        log = read_mcap(rollout)
+    elif motion_path.suffix == ".mcap":
+        log = read_mcap(motion_path, topics=["/qpos"])
+        if not log.messages.get("/qpos"):
+            return None
+    else:
+        return None
+    times, qpos = qpos_from_log(log, motion.joint_names)
+    ref_t = np.round(np.arange(motion.num_frames) * 1e9 / motion.fps).astype(np.int64)
+    return sample_at(times - times[0], qpos, ref_t)
+
+
 def run_view(cmd: ViewCommand) -> None:
     """Run ``humimic view``."""
     import time
 
     from humimic.datasets import load_clip
-    from humimic.mcap_io import qpos_from_log, read_mcap, sample_at
     from humimic.robots import get_robot, nominal_model
     from humimic.viewer import Viewer, load_scene_meshes
 
@@ -382,11 +400,7 @@ def run_view(cmd: ViewCommand) -> None:
         raise InputError(f"{cmd.motion}: joint names do not match robot {motion.robot}")
     human = load_clip(cmd.human) if cmd.human is not None else None
     scene = load_scene_meshes(cmd.scene) if cmd.scene is not None else None
-    rollout = None
-    if cmd.rollout is not None:
-        times, qpos = qpos_from_log(read_mcap(cmd.rollout), names)
-        ref_t = np.round(np.arange(motion.num_frames) * 1e9 / motion.fps).astype(np.int64)
-        rollout = sample_at(times - times[0], qpos, ref_t)
+    rollout = load_rollout(cmd.rollout, cmd.motion, motion)
     viewer = Viewer(
         motion, model, human=human, scene=scene, rollout_qpos=rollout, host=cmd.host, port=cmd.port
     )
@@ -524,6 +538,8 @@ def run_eval(cmd: EvalSettings) -> None:
               f"joint error {m['joint_error_rad']:.3f} rad")  # fmt: skip
     if cmd.out is not None:
         print(f"wrote {cmd.out}")
+    if "mcap" in result:
+        print(f"wrote {result['mcap']} (humimic view {result['mcap']})")
 
 
 Commands = (

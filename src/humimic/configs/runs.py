@@ -21,6 +21,11 @@ class TrainSettings:
         max_iterations: Total PPO iterations of the run (a resumed run continues up to it).
         device: Torch device of the learner (``cpu`` or ``cuda``).
         dr: Domain randomization: a profile name (``none``, ``default``) or a YAML file.
+        variant: What actor and critic observe (docs/tracking.md, "Variants"):
+            ``beyondmimic`` (actor: deployable observations; critic: privileged),
+            ``robust`` (both deployable only), ``asymmetric`` (actor: deployable plus the
+            proprioceptive history; critic: privileged), ``teacher`` (actor: deployable plus
+            the physics parameters e; critic: privileged; distill it with ``humimic distill``).
         resume: Continue the run in ``out`` from its newest checkpoint.
         seed: Seed of torch and of the environment.
         checkpoint_every: Iterations between checkpoints (the last one is always written).
@@ -36,6 +41,7 @@ class TrainSettings:
     max_iterations: int = 1000
     device: str = "cpu"
     dr: str = "default"
+    variant: Literal["beyondmimic", "robust", "asymmetric", "teacher"] = "beyondmimic"
     resume: bool = False
     seed: int = 0
     checkpoint_every: int = 50
@@ -53,6 +59,9 @@ class EvalSettings:
         episodes: Episodes to run (each plays the whole clip from its first frame).
         dr: Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file.
         out: Write the metrics as JSON here.
+        mcap: Write the first episode (policy and open loop) with the reference as MCAP here,
+            for ``humimic view MCAP`` and Foxglove (default: ``out`` with the suffix ``.mcap``
+            when ``out`` is given, else nothing).
         checkpoint: A checkpoint file (default: the run's newest).
         num_envs: Envs run in parallel, at least ``episodes`` (default: ``episodes``).
         device: Torch device of the policy.
@@ -63,6 +72,7 @@ class EvalSettings:
     episodes: int = 16
     dr: str = "none"
     out: Path | None = None
+    mcap: Path | None = None
     checkpoint: Path | None = None
     num_envs: int | None = None
     device: str = "cpu"

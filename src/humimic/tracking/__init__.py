@@ -16,6 +16,7 @@ from humimic.tracking.backend import (
 )
 from humimic.tracking.config import (
     DR_PROFILES,
+    TRACKING_TASKS,
     AdaptiveSampling,
     DomainRandomization,
     ObservationNoise,
@@ -27,6 +28,8 @@ from humimic.tracking.config import (
     dr_profile,
     g1_tracking,
     load_dr_profile,
+    t1_tracking,
+    tracking_task,
 )
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
 from humimic.tracking.rsl import PpoConfig, tracking_ppo, train_cfg
@@ -34,6 +37,7 @@ from humimic.tracking.state import TrackingState
 
 __all__ = [
     "DR_PROFILES",
+    "TRACKING_TASKS",
     "AdaptiveSampling",
     "DomainRandomization",
     "MujocoCpuBackend",
@@ -53,8 +57,10 @@ __all__ = [
     "dr_profile",
     "g1_tracking",
     "load_dr_profile",
+    "t1_tracking",
     "tracking_model",
     "tracking_ppo",
+    "tracking_task",
     "train_cfg",
     "training_model",
 ]

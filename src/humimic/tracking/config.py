@@ -466,13 +466,72 @@ def g1_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
         ),
         *(f"{s}_{b}_link" for s in ("left", "right") for b in ("wrist_roll", "wrist_pitch")),
     )
+    return _task("g1", "torso_link", G1_TRACKED_BODIES, G1_EE_BODIES, undesired, dr)
+
+
+def _task(
+    robot: str,
+    anchor: str,
+    bodies: tuple[str, ...],
+    ee: tuple[str, ...],
+    undesired: tuple[str, ...],
+    dr: str | DomainRandomization,
+) -> TrackingConfig:
+    """A tracking task with BeyondMimic's reward and termination terms."""
     return TrackingConfig(
-        robot="g1",
-        anchor_body="torso_link",
-        body_names=G1_TRACKED_BODIES,
-        ee_body_names=G1_EE_BODIES,
+        robot=robot,
+        anchor_body=anchor,
+        body_names=bodies,
+        ee_body_names=ee,
         undesired_contact_bodies=undesired,
         rewards=default_rewards(),
-        terminations=default_terminations(G1_EE_BODIES),
+        terminations=default_terminations(ee),
         dr=dr_profile(dr) if isinstance(dr, str) else dr,
     )
+
+
+T1_TRACKED_BODIES = (
+    "Trunk",
+    "Waist",
+    "Hip_Roll_Left",
+    "Shank_Left",
+    "left_foot_link",
+    "Hip_Roll_Right",
+    "Shank_Right",
+    "right_foot_link",
+    "AL1",
+    "AL3",
+    "left_hand_link",
+    "AR1",
+    "AR3",
+    "right_hand_link",
+)
+T1_EE_BODIES = ("left_foot_link", "right_foot_link", "left_hand_link", "right_hand_link")
+
+
+def t1_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """Booster T1 whole-body tracking, with the G1 task's terms and weights (not tuned for the
+    T1). The trunk is the anchor; every body but the feet is an undesired floor contact."""
+    feet = ("left_foot_link", "right_foot_link")
+    undesired = (
+        *(b for b in T1_TRACKED_BODIES if b not in feet),
+        *("H1", "H2", "AL2", "AR2", "Hip_Pitch_Left", "Hip_Pitch_Right"),
+    )
+    return _task("t1", "Trunk", T1_TRACKED_BODIES, T1_EE_BODIES, undesired, dr)
+
+
+TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {"g1": g1_tracking, "t1": t1_tracking}
+"""Registered tracking tasks: robot name -> task factory taking a DR profile."""
+
+
+def tracking_task(robot: str, dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """The registered tracking task of a robot.
+
+    Raises:
+        UnknownNameError: If no task is registered for ``robot``.
+    """
+    if robot not in TRACKING_TASKS:
+        raise UnknownNameError(
+            f"no tracking task for robot {robot!r}; registered: {', '.join(sorted(TRACKING_TASKS))}"
+        )
+    return TRACKING_TASKS[robot](dr)

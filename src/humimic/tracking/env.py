@@ -18,6 +18,8 @@ Observation groups (all float32, Shape: (num_envs, D)):
   (:mod:`.dr`), the base linear velocity (base frame), the tracked bodies' positions and 6D
   orientations in the robot anchor frame, and the feet's floor contact forces.
 * ``proprio_history``: the last ``history_length`` policy observations, oldest first.
+* ``physics``: the normalized physics parameters ``e`` alone (what a privileged teacher's
+  actor adds to ``policy``).
 
 All reward, termination and observation math is torch on batched tensors (the state lives in
 :class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
@@ -218,6 +220,7 @@ class TrackingEnv(VecEnv):
         self._params_e = torch.zeros(num_envs, self._params_dim, device=dev)
         self._push_timer = torch.full((num_envs,), math.inf, device=dev)
         self._rewards = torch.zeros(num_envs, device=dev)
+        self._targets = self.default_joint_pos.repeat(num_envs, 1)
         self._terminated = torch.zeros(num_envs, dtype=torch.bool, device=dev)
         self._time_outs = torch.zeros(num_envs, dtype=torch.bool, device=dev)
         self._arange = torch.arange(num_envs, device=dev)
@@ -244,17 +247,20 @@ class TrackingEnv(VecEnv):
         self._log: dict[str, torch.Tensor] = {}
 
         self._reset_idx(self._arange)
+        self._read_backend()
+        self._update_reference()
         self._compute_observations()
 
     # ------------------------------------------------------------------------------- API
 
     def get_observations(self) -> TensorDict:
-        """Current observations: groups ``policy``, ``critic``, ``proprio_history``."""
+        """Current observations: groups ``policy``, ``critic``, ``proprio_history``, ``physics``."""
         return TensorDict(
             {
                 "policy": self._policy.clone(),
                 "critic": self._critic.clone(),
                 "proprio_history": self._history.reshape(self.num_envs, -1).clone(),
+                "physics": self._params_e.clone(),
             },
             batch_size=[self.num_envs],
             device=self.device,
@@ -279,6 +285,7 @@ class TrackingEnv(VecEnv):
         self._act_hist[:, 0] = a
         applied = self._act_hist[self._arange, self._delay]
         targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
+        self._targets.copy_(targets)
         self.backend.set_ctrl(targets.detach().cpu().double().numpy())
         self.backend.step(cfg.decimation)
 
@@ -309,9 +316,13 @@ class TrackingEnv(VecEnv):
 
         self._update_failure_stats()
         done_ids = dones.nonzero(as_tuple=False).flatten()
-        if done_ids.numel() > 0:
+        moved = done_ids.numel() > 0
+        if moved:
             self._reset_idx(done_ids)
-        self._apply_pushes()
+        moved |= self._apply_pushes()
+        if moved:  # One read of the new states for resets and pushes together.
+            self._read_backend()
+            self._update_reference()
         self._compute_observations()
         log["sampling_entropy"] = self._sampling_entropy()
         extras = {"time_outs": self._time_outs.clone(), "log": dict(log)}
@@ -321,6 +332,12 @@ class TrackingEnv(VecEnv):
     def reference_joint_pos(self) -> torch.Tensor:
         """The reference's joint positions, in the env's joint order. Shape: (frames, J)."""
         return self._m_joint_pos
+
+    @property
+    def joint_targets(self) -> torch.Tensor:
+        """The PD position targets sent to the backend at the last step (after the action
+        delay and joint offsets of DR). Shape: (num_envs, J)."""
+        return self._targets
 
     @property
     def physics_params(self) -> torch.Tensor:
@@ -418,6 +435,8 @@ class TrackingEnv(VecEnv):
         return h / math.log(self._bin_count) if self._bin_count > 1 else h * 0 + 1
 
     def _reset_idx(self, ids: torch.Tensor) -> None:
+        """Reset some envs in the backend and in the env's buffers. The caller reads the
+        backend's new state (:meth:`_read_backend`, :meth:`_update_reference`) afterwards."""
         cfg, s, n, J = self.cfg, self.state, int(ids.numel()), self.num_actions
         frames = self._sample_frames(n)
         s.frame[ids] = frames
@@ -466,17 +485,17 @@ class TrackingEnv(VecEnv):
         if cfg.dr.push_interval_s is not None:
             lo, hi = cfg.dr.push_interval_s
             self._push_timer[ids] = self._rand(lo, hi, (n,))
-        self._read_backend()
-        self._update_reference()
 
-    def _apply_pushes(self) -> None:
+    def _apply_pushes(self) -> bool:
+        """Push the envs whose timer ran out; returns whether any was pushed (the caller then
+        reads the backend)."""
         dr = self.cfg.dr
         if dr.push_interval_s is None:
-            return
+            return False
         self._push_timer -= self.step_dt
         ids = (self._push_timer <= 0).nonzero(as_tuple=False).flatten()
         if ids.numel() == 0:
-            return
+            return False
         n = int(ids.numel())
         lo, hi = dr.push_interval_s
         self._push_timer[ids] = self._rand(lo, hi, (n,))
@@ -491,8 +510,7 @@ class TrackingEnv(VecEnv):
         )
         qvel[:, :6] += dv.cpu().double().numpy()
         self.backend.reset_to(ids_np, qpos, qvel)
-        self._read_backend()
-        self._update_reference()
+        return True
 
     def _make_noise_scale(self) -> torch.Tensor | None:
         noise = self.cfg.dr.obs_noise

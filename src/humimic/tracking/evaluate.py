@@ -12,14 +12,22 @@ the steps each episode lived:
 
 The open-loop baseline replays the reference's joint positions as PD targets (no policy): how
 far the raw reference gets on this robot and these physics.
+
+The first episode of both is written as MCAP with the reference (``--mcap``): the reference
+topics of :func:`humimic.mcap_io.write_motion_topics`, the policy's rollout on ``/qpos``,
+``/joint_states``, ``/joint_commands`` (PD targets) and ``/reward_terms`` (the step's total
+reward), the open-loop rollout on ``/open_loop/qpos``, and the metrics as metadata ``eval``.
+``humimic view EVAL.mcap`` plays the rollout against the reference.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from humimic.configs.runs import EvalSettings
@@ -28,8 +36,25 @@ from humimic.io import atomic_write_text, check_writable, json_ready
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
 
 
-def _episodes(env: Any, act: Any, episodes: int) -> dict:
-    """Run one episode per env; returns the metrics."""
+@dataclass
+class _Trace:
+    """What env 0 did, step by step, while its first episode lived."""
+
+    qpos: list[np.ndarray] = field(default_factory=list)
+    qvel: list[np.ndarray] = field(default_factory=list)
+    targets: list[np.ndarray] = field(default_factory=list)
+    reward: list[float] = field(default_factory=list)
+
+    def add(self, env: Any, reward: float) -> None:
+        r = env.backend.read()
+        self.qpos.append(np.array(r.qpos[0]))
+        self.qvel.append(np.array(r.qvel[0]))
+        self.targets.append(env.joint_targets[0].double().cpu().numpy())
+        self.reward.append(reward)
+
+
+def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) -> dict:
+    """Run one episode per env; returns the metrics. ``trace`` records env 0."""
     s, dev = env.state, env.device
     n = env.num_envs
     alive = torch.ones(n, dtype=torch.bool, device=dev)
@@ -39,11 +64,18 @@ def _episodes(env: Any, act: Any, episodes: int) -> dict:
     root = torch.zeros(n, device=dev)
     joint = torch.zeros(n, device=dev)
     per_body = torch.zeros(n, len(s.body_names), device=dev)
+    from humimic.tracking.rsl import torch_threads
+
     obs = env.get_observations()
-    with torch.inference_mode():
+    if trace is not None:
+        trace.add(env, 0.0)
+    threads = 1 if dev.type == "cpu" else torch.get_num_threads()  # As in training rollouts.
+    with torch.inference_mode(), torch_threads(threads):
         while bool(alive.any()):
-            obs, _, dones, extras = env.step(act(obs))
+            obs, rew, dones, extras = env.step(act(obs))
             live = alive & ~dones  # Done envs were reset inside step: their state is new.
+            if trace is not None and bool(live[0]):
+                trace.add(env, float(rew[0]))
             err = (s.body_pos_w - s.ref_body_pos_w).norm(dim=-1)  # (n, B)
             r = s.root_index
             rel = (s.body_pos_w - s.body_pos_w[:, r : r + 1]) - (
@@ -88,6 +120,11 @@ def evaluate(settings: EvalSettings) -> dict:
         raise InputError(f"--episodes {s.episodes}: must be at least 1")
     if s.out is not None:
         check_writable(s.out)
+    mcap = s.mcap if s.mcap is not None else (s.out.with_suffix(".mcap") if s.out else None)
+    if mcap is not None:
+        if mcap.suffix != ".mcap":
+            raise InputError(f"--mcap {mcap}: the file must end in .mcap")
+        check_writable(mcap)
     run = read_run_settings(s.run)
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed)
@@ -116,7 +153,9 @@ def evaluate(settings: EvalSettings) -> dict:
         runner = make_runner(env, train_cfg(ppo_for(run)), log_dir=None, device=s.device)
         runner.load_checkpoint(blob)
         policy = runner.get_inference_policy(device=s.device)
-        results["policy"] = _episodes(env, policy, s.episodes)
+        policy_trace = _Trace()
+        results["policy"] = _episodes(env, policy, s.episodes, policy_trace)
+        joint_names = env.joint_names
     finally:
         env.close()
     env = TrackingEnv(task, motion, n, device=s.device)
@@ -128,12 +167,50 @@ def evaluate(settings: EvalSettings) -> dict:
             nxt = (st.frame + 1).clamp(max=env.num_frames - 1)
             return (env.reference_joint_pos[nxt] - env.default_joint_pos) / env.action_scale
 
-        results["open_loop"] = _episodes(env, open_loop, s.episodes)
+        open_trace = _Trace()
+        results["open_loop"] = _episodes(env, open_loop, s.episodes, open_trace)
     finally:
         env.close()
+    if mcap is not None:
+        write_eval_mcap(mcap, motion, joint_names, task.step_dt, policy_trace, open_trace, results)
+        results["mcap"] = str(mcap)
     if s.out is not None:
         atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
     return results
 
 
-__all__ = ["evaluate"]
+def write_eval_mcap(
+    path: Path,
+    motion: Any,
+    joint_names: tuple[str, ...],
+    step_dt: float,
+    policy: _Trace,
+    open_loop: _Trace,
+    results: dict,
+) -> None:
+    """Write the reference and the first episode's rollouts (see the module docstring)."""
+    from humimic.mcap_io import McapWriter, stamp, write_motion_topics
+
+    names = list(joint_names)
+    with McapWriter(path) as w:
+        write_motion_topics(w, motion)
+        w.add_metadata("eval", {"results": json.dumps(json_ready(results))})
+        for k in range(len(policy.qpos)):
+            t = round(k * step_dt * 1e9)
+            header = {"stamp": stamp(t), "frame_id": "world"}
+            w.write("/qpos", t, {"header": header, "qpos": policy.qpos[k].tolist()})
+            w.write("/joint_states", t, {"header": header, "name": names,
+                                         "position": policy.qpos[k][7:].tolist(),
+                                         "velocity": policy.qvel[k][6:].tolist()})  # fmt: skip
+            w.write("/joint_commands", t, {"header": header, "name": names,
+                                           "position": policy.targets[k].tolist()})  # fmt: skip
+            w.write("/reward_terms", t, {"header": header, "terms": {"total": policy.reward[k]}})
+        for k in range(len(open_loop.qpos)):
+            t = round(k * step_dt * 1e9)
+            w.write("/open_loop/qpos", t,
+                    {"header": {"stamp": stamp(t), "frame_id": "world"},
+                     "qpos": open_loop.qpos[k].tolist()},
+                    schema="humimic.Qpos")  # fmt: skip
+
+
+__all__ = ["evaluate", "write_eval_mcap"]

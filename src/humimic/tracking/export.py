@@ -1,7 +1,9 @@
 """``humimic export``: the trained policy as ONNX for deployment.
 
 The exported graph is the actor's deterministic path, observation normalization included:
-input ``obs`` (the ``policy`` observation group, Shape: (batch, D)), output ``actions``
+input ``obs`` (the actor's observation groups concatenated in the order of the run's
+``obs_groups``, e.g. ``policy`` then ``proprio_history`` for the ``asymmetric`` variant; Shape:
+(batch, D)), output ``actions``
 (Shape: (batch, num_joints); PD targets are ``default + scale * actions``, see
 docs/tracking.md). The file is written atomically.
 """
@@ -49,6 +51,13 @@ def export(settings: ExportSettings) -> Path:
     if out.suffix != ".onnx":
         raise InputError(f"--out {out}: an ONNX file must end in .onnx")
     check_writable(out)
+    from humimic.tracking.train import read_run_settings
+
+    if read_run_settings(settings.run).variant == "teacher":
+        raise InputError(
+            f"{settings.run}: a teacher's actor reads the simulator's physics parameters, which "
+            "a robot does not have; distill it (humimic distill) and export the student"
+        )
     runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
     try:
         model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()

@@ -27,10 +27,11 @@ from humimic.io import atomic_write_text, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
 from humimic.tracking.config import (
     DR_PROFILES,
+    TRACKING_TASKS,
     DomainRandomization,
     TrackingConfig,
-    g1_tracking,
     load_dr_profile,
+    tracking_task,
 )
 from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
 
@@ -43,7 +44,15 @@ class _TimeUp(Exception):
     """The run's wall-time budget is spent (a checkpoint has been written)."""
 
 
-_MUST_MATCH_ON_RESUME = ("motion", "robot", "num_envs", "dr", "seed", "num_steps_per_env")
+_MUST_MATCH_ON_RESUME = (
+    "motion",
+    "robot",
+    "num_envs",
+    "dr",
+    "variant",
+    "seed",
+    "num_steps_per_env",
+)
 
 
 def resolve_dr(dr: str) -> DomainRandomization:
@@ -59,10 +68,12 @@ def resolve_dr(dr: str) -> DomainRandomization:
 
 
 def task_config(robot: str, dr: str, seed: int) -> TrackingConfig:
-    """The tracking task of a robot (G1 today) with a DR profile."""
-    if robot != "g1":
-        raise InputError(f"--robot {robot!r}: tracking is configured for g1 only so far")
-    return replace(g1_tracking(dr=resolve_dr(dr)), seed=seed)
+    """The registered tracking task of a robot (:data:`TRACKING_TASKS`) with a DR profile."""
+    if robot not in TRACKING_TASKS:
+        raise InputError(
+            f"--robot {robot!r}: no tracking task; registered: {', '.join(sorted(TRACKING_TASKS))}"
+        )
+    return replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -241,7 +252,7 @@ def read_run_settings(run: Path) -> TrainSettings:
 
 def ppo_for(settings: TrainSettings) -> PpoConfig:
     """The PPO configuration of a run."""
-    ppo = tracking_ppo()
+    ppo = tracking_ppo(settings.variant)
     if settings.num_steps_per_env is not None:
         ppo = replace(ppo, num_steps_per_env=settings.num_steps_per_env)
     return ppo

@@ -1,0 +1,176 @@
+"""G1 tracking env throughput on the CPU against raw ``mujoco.rollout`` stepping of the same model.
+
+For each env count, the env runs ``--steps`` policy steps (50 Hz, 4 physics steps each) with
+random actions while the benchmark records, before every step, the physics state and the PD
+targets of every env. The baseline then replays exactly that physics with raw
+``mujoco.rollout`` (one call per policy step from the recorded states and targets, same models,
+same thread count): the same contacts, resets and DR models, with none of the env's work
+(observations, rewards, terminations, resets, DR sampling, torch). The ratio
+``env / raw`` is the share of raw stepping throughput the env keeps; the issue's goal is 0.7.
+
+A second baseline, ``raw_single_call``, runs all steps of the recorded start states in one
+``mujoco.rollout`` call (no per-step return to Python at all; physics differs after resets,
+so it is indicative only).
+
+The env loop runs torch on one thread, as ``humimic train`` does while it collects rollouts
+(``humimic.tracking.rsl.torch_threads``); ``env_torch_all_threads_steps_per_s`` is the same loop
+with torch on all cores, for comparison.
+
+Also reported: the ``threads`` stepping method (Python thread pool over ``mj_step``) for the
+same env, to back the choice of ``rollout`` as the default.
+
+Usage: .venv/bin/python benchmarks/env_throughput.py [--num-envs 64 256 1024] [--steps 100]
+    [--dr default] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import torch
+from mujoco import rollout as mj_rollout
+
+from humimic.motion import motion_from_qpos
+from humimic.tracking.backend import MujocoCpuBackend
+from humimic.tracking.config import g1_tracking
+from humimic.tracking.env import TrackingEnv, tracking_model
+from humimic.tracking.rsl import torch_threads
+
+
+def _motion(model: mujoco.MjModel):
+    """A 5 s reference: the home pose with the arms swinging (no data files needed)."""
+    fps, T = 50.0, 250
+    q = np.tile(model.key_qpos[0], (T, 1))
+    for name, amp in (("left_shoulder_pitch_joint", 0.4), ("right_shoulder_pitch_joint", -0.4)):
+        adr = model.jnt_qposadr[model.joint(name).id]
+        q[:, adr] += amp * np.sin(2 * np.pi * np.arange(T) / fps)
+    return motion_from_qpos(model, q, fps, "g1")
+
+
+class _Recorder:
+    """Wraps a backend's ``step`` to record the state and targets before every call."""
+
+    def __init__(self, backend: MujocoCpuBackend) -> None:
+        self.backend = backend
+        self.states: list[np.ndarray] = []
+        self.ctrls: list[np.ndarray] = []
+        self._step = backend.step
+        backend.step = self._record  # type: ignore[method-assign]
+
+    def _record(self, n_substeps: int) -> None:
+        self.states.append(self.backend._state.copy())
+        self.ctrls.append(self.backend._ctrl.copy())
+        self._step(n_substeps)
+
+
+def _env_rate(env: TrackingEnv, actions: list[torch.Tensor]) -> float:
+    with torch.inference_mode(), torch_threads(1):  # As humimic's runner collects rollouts.
+        t0 = time.perf_counter()
+        for a in actions:
+            env.step(a)
+        return env.num_envs * len(actions) / (time.perf_counter() - t0)
+
+
+def _raw_rates(
+    backend: MujocoCpuBackend, states: list[np.ndarray], ctrls: list[np.ndarray], decimation: int
+) -> tuple[float, float]:
+    n = backend.num_envs
+    models = backend._models if backend._per_env else [backend._model] * n
+    datas = [mujoco.MjData(backend._model) for _ in range(backend.nthread)]
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    nstate = mujoco.mj_stateSize(backend._model, spec)
+    out_state = np.zeros((n, decimation, nstate))
+    out_sens = np.zeros((n, decimation, backend._model.nsensordata))
+    ctrl_seq = np.zeros((n, decimation, backend.nu))
+    with mj_rollout.Rollout(nthread=backend.nthread) as r:
+        t0 = time.perf_counter()
+        for st, c in zip(states, ctrls, strict=True):
+            ctrl_seq[:] = c[:, None, :]
+            r.rollout(models, datas, st, ctrl_seq, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+                      skip_checks=True, nstep=decimation, state=out_state, sensordata=out_sens)  # fmt: skip
+        per_step = n * len(states) / (time.perf_counter() - t0)
+        nstep = decimation * len(states)
+        seq = np.repeat(np.stack(ctrls, axis=1), decimation, axis=1)
+        big_state = np.zeros((n, nstep, nstate))
+        big_sens = np.zeros((n, nstep, backend._model.nsensordata))
+        t0 = time.perf_counter()
+        r.rollout(models, datas, states[0], seq, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+                  skip_checks=True, nstep=nstep, state=big_state, sensordata=big_sens)  # fmt: skip
+        single = n * len(states) / (time.perf_counter() - t0)
+    return per_step, single
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--num-envs", type=int, nargs="+", default=[64, 256, 1024])
+    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--dr", default="default")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--no-threads", action="store_true", help="skip the thread-pool method")
+    args = parser.parse_args()
+    out = {
+        "benchmark": "env_throughput",
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()},
+        "torch_threads": torch.get_num_threads(),
+        "mujoco": mujoco.__version__,
+        "dr": args.dr,
+        "steps": args.steps,
+        "results": [],
+    }
+    model = tracking_model(g1_tracking("none"))
+    motion = _motion(model)
+    for n in args.num_envs:
+        cfg = replace(g1_tracking(args.dr), episode_length_s=1e3)
+        gen = torch.Generator().manual_seed(0)
+        actions = [0.3 * torch.randn(n, 29, generator=gen) for _ in range(args.steps)]
+        env = TrackingEnv(cfg, motion, n, model=model)
+        assert isinstance(env.backend, MujocoCpuBackend)
+        with torch.inference_mode():
+            for a in actions[:10]:  # Warm-up: leave the all-reset start.
+                env.step(a)
+        env_rates, raw_rates, single_rates, all_threads = [], [], [], []
+        for _ in range(args.repeats):
+            rec = _Recorder(env.backend)
+            env_rates.append(_env_rate(env, actions))
+            env.backend.step = rec._step  # type: ignore[method-assign]
+            per_step, single = _raw_rates(env.backend, rec.states, rec.ctrls, cfg.decimation)
+            raw_rates.append(per_step)
+            single_rates.append(single)
+            with torch.inference_mode():
+                t0 = time.perf_counter()
+                for a in actions:
+                    env.step(a)
+                all_threads.append(n * len(actions) / (time.perf_counter() - t0))
+        env.close()
+        row = {
+            "num_envs": n,
+            "env_steps_per_s": float(np.median(env_rates)),
+            "raw_rollout_steps_per_s": float(np.median(raw_rates)),
+            "ratio": float(np.median(np.array(env_rates) / np.array(raw_rates))),
+            "raw_single_call_steps_per_s": float(np.median(single_rates)),
+            "physics_steps_per_s": float(np.median(env_rates)) * cfg.decimation,
+            "env_torch_all_threads_steps_per_s": float(np.median(all_threads)),
+        }
+        if not args.no_threads:
+            env_t = TrackingEnv(replace(cfg, step_method="threads"), motion, n, model=model)
+            with torch.inference_mode():
+                for a in actions[:10]:
+                    env_t.step(a)
+            row["env_threads_steps_per_s"] = float(
+                np.median([_env_rate(env_t, actions) for _ in range(args.repeats)])
+            )
+            env_t.close()
+        out["results"].append(row)
+        print(json.dumps(row), flush=True)
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()
