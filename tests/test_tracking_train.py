@@ -107,6 +107,39 @@ def test_each_variant_trains(
     assert (critic_first.shape[1] == 160) == (variant == "robust")
 
 
+def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> None:
+    """A teacher checkpoint loads into rsl_rl's distillation runner (its actor becomes the
+    teacher, weight for weight), the student's imitation loss falls, and the student run
+    evaluates and exports like any run."""
+    teacher = tmp_path / "teacher"
+    assert main(_train_args(motion_file, teacher, 2, "--variant", "teacher")) == 0
+    student = tmp_path / "student"
+    args = ["distill", "--teacher", str(teacher), "--out", str(student), "--num-envs", "8",
+            "--max-iterations", "12", "--checkpoint-every", "6", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    t_blob = torch.load(teacher / "checkpoints" / "model_000002.pt", weights_only=True)
+    s_blob = torch.load(student / "checkpoints" / "model_000012.pt", weights_only=True)
+    for k, v in t_blob["actor_state_dict"].items():
+        torch.testing.assert_close(s_blob["teacher_state_dict"][k], v)
+    first = next(v for k, v in s_blob["student_state_dict"].items() if k.endswith("0.weight"))
+    assert first.shape[1] == 160 + 5 * 160  # policy + proprio_history: no physics parameters
+    losses = [float(r.split(",")[header.index("loss_behavior")])
+              for header in [(student / "progress.csv").read_text().splitlines()[0].split(",")]
+              for r in (student / "progress.csv").read_text().splitlines()[1:]]  # fmt: skip
+    assert len(losses) == 12
+    assert np.mean(losses[-3:]) < 0.6 * np.mean(losses[:3])
+    assert main(args) == 2  # The folder holds a run: --resume or another --out.
+    assert main(["eval", str(student), "--episodes", "2"]) == 0
+    assert main(["export", str(student), "--out", str(tmp_path / "s.onnx")]) == 0
+    assert main(["distill", "--teacher", str(student), "--out", str(tmp_path / "x")]) == 2
+    gru = tmp_path / "gru"
+    gru_args = ["distill", "--teacher", str(teacher), "--out", str(gru), "--student", "gru",
+                "--num-envs", "8", "--max-iterations", "2", "--quiet"]  # fmt: skip
+    assert main(gru_args) == 0
+    assert main(["eval", str(gru), "--episodes", "2"]) == 0
+    assert main(["export", str(gru), "--out", str(tmp_path / "g.onnx")]) == 2
+
+
 def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:
     assert main(_train_args(tmp_path / "missing.npz", tmp_path / "a", 1)) == 2
     assert main(_train_args(motion_file, tmp_path / "b", 0)) == 2

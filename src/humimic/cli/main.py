@@ -12,7 +12,7 @@ import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
-from humimic.configs.runs import EvalSettings, ExportSettings, TrainSettings
+from humimic.configs.runs import DistillSettings, EvalSettings, ExportSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
@@ -526,6 +526,17 @@ def run_train(cmd: TrainSettings) -> None:
               f"{last.get('mean_episode_length', float('nan')):.1f} steps")  # fmt: skip
 
 
+def run_distill(cmd: DistillSettings) -> None:
+    """Run ``humimic distill``."""
+    from humimic.tracking.distill import distill
+
+    row = distill(cmd)
+    if "loss_behavior" in row:
+        print(f"{cmd.out}: {int(row['iteration'])} iterations, imitation loss "
+              f"{row['loss_behavior']:.4g}, mean episode length "
+              f"{row['mean_episode_length']:.1f} steps")  # fmt: skip
+
+
 def run_eval(cmd: EvalSettings) -> None:
     """Run ``humimic eval``."""
     from humimic.tracking.evaluate import evaluate
@@ -551,6 +562,7 @@ Commands = (
     | Annotated[SysidCommand, tyro.conf.subcommand("sysid")]
     | Annotated[FetchCommand, tyro.conf.subcommand("fetch")]
     | Annotated[TrainSettings, tyro.conf.subcommand("train")]
+    | Annotated[DistillSettings, tyro.conf.subcommand("distill")]
     | Annotated[EvalSettings, tyro.conf.subcommand("eval")]
     | Annotated[ExportSettings, tyro.conf.subcommand("export")]
 )
@@ -584,6 +596,8 @@ def main(argv: list[str] | None = None) -> int:
             run_fetch(cmd)
         elif isinstance(cmd, TrainSettings):
             run_train(cmd)
+        elif isinstance(cmd, DistillSettings):
+            run_distill(cmd)
         elif isinstance(cmd, EvalSettings):
             run_eval(cmd)
         elif isinstance(cmd, ExportSettings):

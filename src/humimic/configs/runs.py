@@ -51,6 +51,44 @@ class TrainSettings:
 
 
 @dataclass(frozen=True, kw_only=True)
+class DistillSettings:
+    """What ``humimic distill`` runs: DAgger-style distillation of a teacher run into a
+    proprioceptive student (rsl_rl's Distillation: the student acts, the teacher labels every
+    visited state).
+
+    Attributes:
+        teacher: Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one).
+        out: The student's run folder.
+        student: ``mlp-history`` (an MLP on the policy observations and their history) or
+            ``gru`` (a recurrent network on the policy observations).
+        teacher_checkpoint: The teacher's checkpoint (default: its newest).
+        num_envs: Parallel environments.
+        max_iterations: Total distillation iterations (a resumed run continues up to it).
+        device: Torch device (``cpu`` or ``cuda``).
+        dr: Domain randomization (default: the teacher's).
+        resume: Continue the run in ``out`` from its newest checkpoint.
+        seed: Seed of torch and of the environment.
+        checkpoint_every: Iterations between checkpoints.
+        max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
+        quiet: No progress bar.
+    """
+
+    teacher: Path
+    out: Path
+    student: Literal["mlp-history", "gru"] = "mlp-history"
+    teacher_checkpoint: Path | None = None
+    num_envs: int = 4096
+    max_iterations: int = 300
+    device: str = "cpu"
+    dr: str | None = None
+    resume: bool = False
+    seed: int = 0
+    checkpoint_every: int = 50
+    max_minutes: float | None = None
+    quiet: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
 class EvalSettings:
     """What ``humimic eval`` runs.
 

@@ -147,10 +147,9 @@ def evaluate(settings: EvalSettings) -> dict:
     torch.manual_seed(s.seed)
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
-        from humimic.tracking.rsl import train_cfg
-        from humimic.tracking.train import ppo_for
+        from humimic.tracking.train import run_rsl_cfg
 
-        runner = make_runner(env, train_cfg(ppo_for(run)), log_dir=None, device=s.device)
+        runner = make_runner(env, run_rsl_cfg(s.run), log_dir=None, device=s.device)
         runner.load_checkpoint(blob)
         policy = runner.get_inference_policy(device=s.device)
         policy_trace = _Trace()

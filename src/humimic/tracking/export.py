@@ -26,12 +26,12 @@ from humimic.io import check_writable
 def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     """The run's runner (with a one-env environment) loaded from a checkpoint."""
     from humimic.tracking.env import TrackingEnv
-    from humimic.tracking.rsl import make_runner, train_cfg
+    from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
         load_reference,
-        ppo_for,
         read_run_settings,
         resolve_checkpoint,
+        run_rsl_cfg,
         task_config,
     )
 
@@ -40,7 +40,7 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     task = task_config(settings.robot, "none", settings.seed)
     motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)
-    runner = make_runner(env, train_cfg(ppo_for(settings)), log_dir=None, device=device)
+    runner = make_runner(env, run_rsl_cfg(run), log_dir=None, device=device)
     runner.load_checkpoint(blob)
     return runner, env, path
 
@@ -51,13 +51,16 @@ def export(settings: ExportSettings) -> Path:
     if out.suffix != ".onnx":
         raise InputError(f"--out {out}: an ONNX file must end in .onnx")
     check_writable(out)
-    from humimic.tracking.train import read_run_settings
+    from humimic.tracking.train import run_rsl_cfg
 
-    if read_run_settings(settings.run).variant == "teacher":
+    cfg = run_rsl_cfg(settings.run)
+    if "physics" in cfg["obs_groups"].get("actor", ()):
         raise InputError(
             f"{settings.run}: a teacher's actor reads the simulator's physics parameters, which "
             "a robot does not have; distill it (humimic distill) and export the student"
         )
+    if cfg.get("student", {}).get("class_name") == "RNNModel":
+        raise InputError(f"{settings.run}: exporting recurrent students is not supported yet")
     runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
     try:
         model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()

@@ -160,10 +160,14 @@ def torch_threads(n: int) -> Iterator[None]:
 
 
 def make_runner(env: Any, cfg: dict[str, Any], *, log_dir: Path | None, device: str) -> Any:
-    """An rsl_rl ``OnPolicyRunner`` whose checkpoints humimic writes (see :class:`_Runner`)."""
-    from rsl_rl.runners import OnPolicyRunner
+    """An rsl_rl runner whose checkpoints humimic writes (see :class:`_Runner`):
+    ``OnPolicyRunner`` for PPO, ``DistillationRunner`` for ``Distillation``."""
+    from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
-    class _Runner(OnPolicyRunner):
+    distill = cfg["algorithm"]["class_name"] == "Distillation"
+    base: type[OnPolicyRunner] = DistillationRunner if distill else OnPolicyRunner
+
+    class _Runner(base):  # pyright: ignore[reportGeneralTypeIssues]
         """rsl_rl's runner, except for checkpoints: rsl_rl writes ``model_<it>.pt`` with a plain
         ``torch.save`` inside ``learn`` (a crash mid-write leaves a damaged file that looks
         whole) and names it by the iteration in progress. humimic writes them atomically, named

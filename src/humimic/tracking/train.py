@@ -10,6 +10,7 @@ a clear error and leaves the last good checkpoint.
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import time
@@ -250,6 +251,21 @@ def read_run_settings(run: Path) -> TrainSettings:
         raise InputError(f"{path}: not a humimic run configuration ({e})") from None
 
 
+def run_rsl_cfg(run: Path) -> dict[str, Any]:
+    """The rsl_rl ``train_cfg`` of a run: a PPO run's from its settings, a student's
+    (``humimic distill``) as stored in its config.yaml."""
+    settings = read_run_settings(run)
+    data = yaml.safe_load((run / "config.yaml").read_text())
+    if data.get("kind") == "student":
+        try:
+            return copy.deepcopy(data["rsl"])
+        except KeyError:
+            raise InputError(
+                f"{run}/config.yaml: a student run without its 'rsl' section"
+            ) from None
+    return train_cfg(ppo_for(settings))
+
+
 def ppo_for(settings: TrainSettings) -> PpoConfig:
     """The PPO configuration of a run."""
     ppo = tracking_ppo(settings.variant)
@@ -263,19 +279,8 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     from humimic.tracking.env import TrackingEnv
 
     s = settings
-    for name in ("num_envs", "max_iterations", "checkpoint_every"):
-        if getattr(s, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
-    if s.max_minutes is not None and not s.max_minutes > 0:
-        raise InputError(f"--max-minutes {s.max_minutes}: must be positive")
-    if s.device.startswith("cuda") and not torch.cuda.is_available():
-        raise InputError(f"--device {s.device}: CUDA is not available on this machine")
     run = s.out
-    if run.exists() and not run.is_dir():
-        raise InputError(f"--out {run}: exists and is not a folder")
-    has_run = (run / "config.yaml").exists()
-    if has_run and not s.resume:
-        raise InputError(f"--out {run}: holds a run already; pass --resume to continue it")
+    has_run = check_run_settings(s)
     if s.resume:
         old = read_run_settings(run)
         diff = [n for n in _MUST_MATCH_ON_RESUME if getattr(old, n) != getattr(s, n)]
@@ -297,50 +302,88 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     env = TrackingEnv(task, motion, s.num_envs, device=s.device)
     try:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
-        start = 0
-        if s.resume:
-            found = latest_checkpoint(run)
-            if found is not None:
-                path, blob = found
-                runner.load_checkpoint(blob)
-                start = int(blob["iter"])
-                print(f"resuming {run} from {path.name} ({start} iterations done)")
-        if start >= s.max_iterations:
-            print(f"{run}: {start} iterations done already (--max-iterations {s.max_iterations})")
-            return {"iteration": start}
-        bar = None
-        if not s.quiet:
-            from tqdm import tqdm
-
-            bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc="train")
-        progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
-                             total=s.max_iterations, bar=bar, started=time.perf_counter(),
-                             num_envs=s.num_envs, steps_per_env=int(cfg["num_steps_per_env"]),
-                             max_seconds=None if s.max_minutes is None else 60 * s.max_minutes)  # fmt: skip
-        runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
-        try:
-            runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
-        except _TimeUp:
-            print(f"{run}: --max-minutes {s.max_minutes} reached; resume to continue")
-        except ValueError as e:  # rsl_rl's NaN check on observations and rewards.
-            if "NaN" in str(e):
-                raise TrainingDiverged(f"training diverged: {e}") from None
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
-        return progress.last or {}
+        return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
     finally:
         env.close()
+
+
+def check_run_settings(s: Any) -> bool:
+    """Check the settings every run command shares (``TrainSettings``, ``DistillSettings``);
+    returns whether ``s.out`` holds a run already (allowed only with ``s.resume``)."""
+    for name in ("num_envs", "max_iterations", "checkpoint_every"):
+        if getattr(s, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
+    if s.max_minutes is not None and not s.max_minutes > 0:
+        raise InputError(f"--max-minutes {s.max_minutes}: must be positive")
+    if s.device.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError(f"--device {s.device}: CUDA is not available on this machine")
+    if s.out.exists() and not s.out.is_dir():
+        raise InputError(f"--out {s.out}: exists and is not a folder")
+    has_run = (s.out / "config.yaml").exists()
+    if has_run and not s.resume:
+        raise InputError(f"--out {s.out}: holds a run already; pass --resume to continue it")
+    return has_run
+
+
+def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int) -> dict:
+    """Run a runner's learning loop for a run folder: resume from its newest checkpoint if
+    ``s.resume``, progress bar, CSV, checks, periodic atomic checkpoints, time budget.
+
+    Args:
+        runner: From :func:`~humimic.tracking.rsl.make_runner`, its initial weights loaded.
+        run: The run folder.
+        s: Settings with ``resume``, ``max_iterations``, ``checkpoint_every``, ``quiet``,
+            ``num_envs`` and ``max_minutes`` (:class:`TrainSettings`, ``DistillSettings``).
+        steps_per_env: Rollout length per iteration.
+
+    Returns:
+        The last progress row.
+    """
+    start = 0
+    if s.resume:
+        found = latest_checkpoint(run)
+        if found is not None:
+            path, blob = found
+            runner.load_checkpoint(blob)
+            start = int(blob["iter"])
+            print(f"resuming {run} from {path.name} ({start} iterations done)")
+    if start >= s.max_iterations:
+        print(f"{run}: {start} iterations done already (--max-iterations {s.max_iterations})")
+        return {"iteration": start}
+    bar = None
+    if not s.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc=run.name or "train")
+    progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
+                         total=s.max_iterations, bar=bar, started=time.perf_counter(),
+                         num_envs=s.num_envs, steps_per_env=steps_per_env,
+                         max_seconds=None if s.max_minutes is None else 60 * s.max_minutes)  # fmt: skip
+    runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
+    try:
+        runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
+    except _TimeUp:
+        print(f"{run}: --max-minutes {s.max_minutes} reached; resume to continue")
+    except ValueError as e:  # rsl_rl's NaN check on observations and rewards.
+        if "NaN" in str(e):
+            raise TrainingDiverged(f"training diverged: {e}") from None
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    return progress.last or {}
 
 
 __all__ = [
     "TrainSettings",
     "TrainingDiverged",
+    "check_run_settings",
+    "fit",
     "latest_checkpoint",
     "load_reference",
     "read_run_settings",
     "resolve_dr",
+    "run_rsl_cfg",
     "task_config",
     "train",
 ]

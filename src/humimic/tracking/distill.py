@@ -1,0 +1,161 @@
+"""``humimic distill``: a privileged teacher distilled into a proprioceptive student.
+
+DAgger-style, with rsl_rl's ``Distillation`` algorithm: the student acts in the environment,
+the teacher labels every state the student visits with its own (deterministic) action, and
+the student regresses onto those labels. The student observes only deployable groups:
+
+* ``mlp-history``: an MLP on ``policy`` and ``proprio_history``;
+* ``gru``: a GRU on ``policy``.
+
+rsl_rl 5.x pitfalls handled here: the student needs a ``distribution_cfg`` (it acts
+stochastically during rollouts; a small fixed std), and the teacher's model config must be the
+trained actor's exactly (it is copied from the teacher run, with the actor's observation groups
+as the ``teacher`` set). The teacher's ``actor_state_dict`` is loaded into the teacher model.
+
+The student's run folder is a run like any other: ``humimic eval`` and ``humimic export``
+(``mlp-history``) take it.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+import yaml
+
+from humimic.configs.runs import DistillSettings
+from humimic.errors import InputError
+from humimic.io import atomic_write_text, check_writable
+
+STUDENT_OBS: dict[str, tuple[str, ...]] = {
+    "mlp-history": ("policy", "proprio_history"),
+    "gru": ("policy",),
+}
+"""Observation groups of each student kind."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class DistillConfig:
+    """Distillation hyperparameters (rsl_rl ``Distillation`` and the student network).
+
+    Attributes:
+        num_learning_epochs: Passes over each rollout.
+        learning_rate: Adam step size.
+        max_grad_norm: Gradient clipping.
+        loss_type: ``mse`` or ``huber``.
+        hidden_dims: Student MLP layers.
+        activation: Student activation.
+        init_std: Std of the student's exploration noise during rollouts.
+        rnn_hidden_dim: GRU width (``gru`` students).
+    """
+
+    num_learning_epochs: int = 2
+    learning_rate: float = 1e-3
+    max_grad_norm: float = 1.0
+    loss_type: str = "mse"
+    hidden_dims: tuple[int, ...] = (512, 256, 128)
+    activation: str = "elu"
+    init_std: float = 0.05
+    rnn_hidden_dim: int = 256
+
+
+def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> dict[str, Any]:
+    """The rsl_rl ``train_cfg`` of a distillation run from the teacher run's PPO ``train_cfg``.
+
+    The gradient length is the rollout length: each epoch backpropagates once through the
+    whole rollout (rsl_rl needs epochs x steps divisible by it).
+    """
+    if student not in STUDENT_OBS:
+        raise InputError(f"--student {student!r}: expected one of {', '.join(STUDENT_OBS)}")
+    steps = int(teacher_cfg["num_steps_per_env"])
+    model: dict[str, Any] = {
+        "class_name": "RNNModel" if student == "gru" else "MLPModel",
+        "hidden_dims": list(d.hidden_dims),
+        "activation": d.activation,
+        "obs_normalization": True,
+        "distribution_cfg": {
+            "class_name": "GaussianDistribution",
+            "init_std": d.init_std,
+            "std_type": "scalar",
+        },
+    }
+    if student == "gru":
+        model.update(rnn_type="gru", rnn_hidden_dim=d.rnn_hidden_dim, rnn_num_layers=1)
+    return copy.deepcopy(
+        {
+            "num_steps_per_env": steps,
+            "save_interval": teacher_cfg["save_interval"],
+            "obs_groups": {
+                "student": list(STUDENT_OBS[student]),
+                "teacher": list(teacher_cfg["obs_groups"]["actor"]),
+            },
+            "logger": teacher_cfg["logger"],
+            "run_name": "",
+            "check_for_nan": True,
+            "algorithm": {
+                "class_name": "Distillation",
+                "num_learning_epochs": d.num_learning_epochs,
+                "gradient_length": steps,
+                "learning_rate": d.learning_rate,
+                "max_grad_norm": d.max_grad_norm,
+                "loss_type": d.loss_type,
+            },
+            "student": model,
+            "teacher": teacher_cfg["actor"],
+        }
+    )
+
+
+def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
+    """Distill (or resume distilling) a teacher run into a student. Returns the last progress
+    row (``loss_behavior`` is the student's imitation loss)."""
+    from humimic.tracking.env import TrackingEnv
+    from humimic.tracking.rsl import make_runner
+    from humimic.tracking.train import (
+        _plain,
+        check_run_settings,
+        fit,
+        load_reference,
+        read_run_settings,
+        resolve_checkpoint,
+        run_rsl_cfg,
+        task_config,
+    )
+
+    s = settings
+    has_run = check_run_settings(s)
+    teacher = read_run_settings(s.teacher)
+    teacher_cfg = run_rsl_cfg(s.teacher)
+    if teacher_cfg["algorithm"]["class_name"] != "PPO":
+        raise InputError(f"--teacher {s.teacher}: not a PPO run (a student cannot teach)")
+    _, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint)
+    run = s.out
+    dr = s.dr or teacher.dr
+    task = task_config(teacher.robot, dr, s.seed)
+    motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
+    cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
+    check_writable(run / "config.yaml")
+    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+    if not has_run:
+        blob = {
+            "kind": "student",
+            "settings": _plain(asdict(teacher)),
+            "distill": _plain(asdict(s)),
+            "tracking": _plain(task),
+            "rsl": _plain(cfg),
+        }
+        atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
+
+    torch.manual_seed(s.seed)
+    env = TrackingEnv(task, motion, s.num_envs, device=s.device)
+    try:
+        runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
+        runner.alg.load(teacher_blob, None, True)  # The teacher's actor -> the teacher model.
+        return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
+    finally:
+        env.close()
+
+
+__all__ = ["STUDENT_OBS", "DistillConfig", "distill", "distill_cfg"]
