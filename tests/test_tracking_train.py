@@ -132,6 +132,13 @@ def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> N
     assert main(["eval", str(student), "--episodes", "2"]) == 0
     assert main(["export", str(student), "--out", str(tmp_path / "s.onnx")]) == 0
     assert main(["distill", "--teacher", str(student), "--out", str(tmp_path / "x")]) == 2
+    # A checkpoint of another variant does not fit the teacher's actor: refused, nothing written.
+    robust = tmp_path / "robust"
+    assert main(_train_args(motion_file, robust, 1, "--variant", "robust")) == 0
+    bad = ["distill", "--teacher", str(teacher), "--out", str(tmp_path / "bad"), "--num-envs",
+           "8", "--teacher-checkpoint", str(robust / "checkpoints" / "model_000001.pt")]  # fmt: skip
+    assert main(bad) == 2
+    assert not (tmp_path / "bad" / "config.yaml").exists()
     gru = tmp_path / "gru"
     gru_args = ["distill", "--teacher", str(teacher), "--out", str(gru), "--student", "gru",
                 "--num-envs", "8", "--max-iterations", "2", "--quiet"]  # fmt: skip

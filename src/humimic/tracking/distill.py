@@ -137,22 +137,27 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     check_writable(run / "config.yaml")
-    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-    if not has_run:
-        blob = {
-            "kind": "student",
-            "settings": _plain(asdict(teacher)),
-            "distill": _plain(asdict(s)),
-            "tracking": _plain(task),
-            "rsl": _plain(cfg),
-        }
-        atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
 
     torch.manual_seed(s.seed)
     env = TrackingEnv(task, motion, s.num_envs, device=s.device)
     try:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
-        runner.alg.load(teacher_blob, None, True)  # The teacher's actor -> the teacher model.
+        try:  # The teacher's actor -> the teacher model, before anything is written.
+            runner.alg.load(teacher_blob, None, True)
+        except (KeyError, RuntimeError) as e:
+            raise InputError(
+                f"--teacher {s.teacher}: the checkpoint does not fit the run's actor ({e})"
+            ) from None
+        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+        if not has_run:
+            blob = {
+                "kind": "student",
+                "settings": _plain(asdict(teacher)),
+                "distill": _plain(asdict(s)),
+                "tracking": _plain(task),
+                "rsl": _plain(cfg),
+            }
+            atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
         return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
     finally:
         env.close()

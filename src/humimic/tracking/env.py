@@ -285,7 +285,7 @@ class TrackingEnv(VecEnv):
         self._act_hist[:, 0] = a
         applied = self._act_hist[self._arange, self._delay]
         targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
-        self._targets.copy_(targets)
+        self._targets = targets
         self.backend.set_ctrl(targets.detach().cpu().double().numpy())
         self.backend.step(cfg.decimation)
 

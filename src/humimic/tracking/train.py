@@ -28,7 +28,6 @@ from humimic.io import atomic_write_text, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
 from humimic.tracking.config import (
     DR_PROFILES,
-    TRACKING_TASKS,
     DomainRandomization,
     TrackingConfig,
     load_dr_profile,
@@ -69,11 +68,7 @@ def resolve_dr(dr: str) -> DomainRandomization:
 
 
 def task_config(robot: str, dr: str, seed: int) -> TrackingConfig:
-    """The registered tracking task of a robot (:data:`TRACKING_TASKS`) with a DR profile."""
-    if robot not in TRACKING_TASKS:
-        raise InputError(
-            f"--robot {robot!r}: no tracking task; registered: {', '.join(sorted(TRACKING_TASKS))}"
-        )
+    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile."""
     return replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
 
 
@@ -238,32 +233,34 @@ def _write_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo:
     atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
 
 
-def read_run_settings(run: Path) -> TrainSettings:
-    """The settings a run was started with."""
+def _run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
+    """A run's config.yaml and the training settings in it (a student's: its teacher's)."""
     path = run / "config.yaml"
     if not path.is_file():
         raise InputError(f"{run}: not a humimic run folder (no config.yaml)")
     try:
-        data = yaml.safe_load(path.read_text())["settings"]
+        config = yaml.safe_load(path.read_text())
+        data = dict(config["settings"])
         data["motion"], data["out"] = Path(data["motion"]), Path(data["out"])
-        return TrainSettings(**data)
+        return config, TrainSettings(**data)
     except (yaml.YAMLError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a humimic run configuration ({e})") from None
+
+
+def read_run_settings(run: Path) -> TrainSettings:
+    """The settings a run was started with."""
+    return _run_config(run)[1]
 
 
 def run_rsl_cfg(run: Path) -> dict[str, Any]:
     """The rsl_rl ``train_cfg`` of a run: a PPO run's from its settings, a student's
     (``humimic distill``) as stored in its config.yaml."""
-    settings = read_run_settings(run)
-    data = yaml.safe_load((run / "config.yaml").read_text())
-    if data.get("kind") == "student":
-        try:
-            return copy.deepcopy(data["rsl"])
-        except KeyError:
-            raise InputError(
-                f"{run}/config.yaml: a student run without its 'rsl' section"
-            ) from None
-    return train_cfg(ppo_for(settings))
+    config, settings = _run_config(run)
+    if config.get("kind") != "student":
+        return train_cfg(ppo_for(settings))
+    if "rsl" not in config:
+        raise InputError(f"{run}/config.yaml: a student run without its 'rsl' section")
+    return copy.deepcopy(config["rsl"])
 
 
 def ppo_for(settings: TrainSettings) -> PpoConfig:
