@@ -2,10 +2,11 @@
 
 For each env count, the env runs ``--steps`` policy steps (50 Hz, 4 physics steps each) with
 random actions while the benchmark records, before every step, the physics state and the PD
-targets of every env. The baseline then replays exactly that physics with raw
-``mujoco.rollout`` (one call per policy step from the recorded states and targets, same models,
-same thread count): the same contacts, resets and DR models, with none of the env's work
-(observations, rewards, terminations, resets, DR sampling, torch). The ratio
+targets of every env. Right after each env step, the baseline replays exactly that step's
+physics with raw ``mujoco.rollout`` (one call from the recorded states and targets, same
+models, same thread count, separate MjData): the same contacts, resets and DR models, with none
+of the env's work (observations, rewards, terminations, resets, DR sampling, torch). Timing the
+two step by step keeps drifts of the machine's speed out of the ratio. The ratio
 ``env / raw`` is the share of raw stepping throughput the env keeps; the issue's goal is 0.7.
 
 A second baseline, ``raw_single_call``, runs all steps of the recorded start states in one
@@ -54,11 +55,24 @@ def _motion(model: mujoco.MjModel):
     return motion_from_qpos(model, q, fps, "g1")
 
 
-class _Recorder:
-    """Wraps a backend's ``step`` to record the state and targets before every call."""
+class _Interleaved:
+    """Times each env step and, right after it, raw ``mujoco.rollout`` stepping of the same
+    physics: the states and PD targets the env's backend started that step from, on the same
+    models, with separate MjData. Interleaving step by step keeps drifts of the machine's speed
+    out of the ratio."""
 
-    def __init__(self, backend: MujocoCpuBackend) -> None:
-        self.backend = backend
+    def __init__(self, env: TrackingEnv) -> None:
+        backend = env.backend
+        assert isinstance(backend, MujocoCpuBackend)
+        self.env, self.backend, self.decimation = env, backend, env.cfg.decimation
+        n = backend.num_envs
+        self.models = backend._models if backend._per_env else [backend._model] * n
+        self.datas = [mujoco.MjData(backend._model) for _ in range(backend.nthread)]
+        nstate = mujoco.mj_stateSize(backend._model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        self.out_state = np.zeros((n, self.decimation, nstate))
+        self.out_sens = np.zeros((n, self.decimation, backend._model.nsensordata))
+        self.ctrl_seq = np.zeros((n, self.decimation, backend.nu))
+        self.rollout = mj_rollout.Rollout(nthread=backend.nthread)
         self.states: list[np.ndarray] = []
         self.ctrls: list[np.ndarray] = []
         self._step = backend.step
@@ -69,42 +83,54 @@ class _Recorder:
         self.ctrls.append(self.backend._ctrl.copy())
         self._step(n_substeps)
 
+    def raw_step(self, state: np.ndarray, ctrl: np.ndarray) -> None:
+        self.ctrl_seq[:] = ctrl[:, None, :]
+        self.rollout.rollout(
+            self.models, self.datas, state, self.ctrl_seq,
+            control_spec=int(mujoco.mjtState.mjSTATE_CTRL), skip_checks=True,
+            nstep=self.decimation, state=self.out_state, sensordata=self.out_sens,
+        )  # fmt: skip
+
+    def rates(self, actions: list[torch.Tensor]) -> tuple[float, float]:
+        """Env and raw steps per second over ``actions``, interleaved step by step."""
+        t_env = t_raw = 0.0
+        with torch.inference_mode(), torch_threads(1):  # As humimic's runner collects rollouts.
+            for a in actions:
+                t0 = time.perf_counter()
+                self.env.step(a)
+                t1 = time.perf_counter()
+                self.raw_step(self.states[-1], self.ctrls[-1])
+                t_raw += time.perf_counter() - t1
+                t_env += t1 - t0
+        steps = self.env.num_envs * len(actions)
+        return steps / t_env, steps / t_raw
+
+    def single_call_rate(self) -> float:
+        """All recorded steps from the first recorded states in one rollout call."""
+        n, d = self.backend.num_envs, self.decimation
+        seq = np.repeat(np.stack(self.ctrls, axis=1), d, axis=1)
+        nstep = seq.shape[1]
+        big_state = np.zeros((n, nstep, self.out_state.shape[2]))
+        big_sens = np.zeros((n, nstep, self.out_sens.shape[2]))
+        t0 = time.perf_counter()
+        self.rollout.rollout(
+            self.models, self.datas, self.states[0], seq,
+            control_spec=int(mujoco.mjtState.mjSTATE_CTRL), skip_checks=True, nstep=nstep,
+            state=big_state, sensordata=big_sens,
+        )  # fmt: skip
+        return n * (nstep // d) / (time.perf_counter() - t0)
+
+    def close(self) -> None:
+        self.backend.step = self._step  # type: ignore[method-assign]
+        self.rollout.close()
+
 
 def _env_rate(env: TrackingEnv, actions: list[torch.Tensor]) -> float:
-    with torch.inference_mode(), torch_threads(1):  # As humimic's runner collects rollouts.
+    with torch.inference_mode(), torch_threads(1):
         t0 = time.perf_counter()
         for a in actions:
             env.step(a)
         return env.num_envs * len(actions) / (time.perf_counter() - t0)
-
-
-def _raw_rates(
-    backend: MujocoCpuBackend, states: list[np.ndarray], ctrls: list[np.ndarray], decimation: int
-) -> tuple[float, float]:
-    n = backend.num_envs
-    models = backend._models if backend._per_env else [backend._model] * n
-    datas = [mujoco.MjData(backend._model) for _ in range(backend.nthread)]
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    nstate = mujoco.mj_stateSize(backend._model, spec)
-    out_state = np.zeros((n, decimation, nstate))
-    out_sens = np.zeros((n, decimation, backend._model.nsensordata))
-    ctrl_seq = np.zeros((n, decimation, backend.nu))
-    with mj_rollout.Rollout(nthread=backend.nthread) as r:
-        t0 = time.perf_counter()
-        for st, c in zip(states, ctrls, strict=True):
-            ctrl_seq[:] = c[:, None, :]
-            r.rollout(models, datas, st, ctrl_seq, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-                      skip_checks=True, nstep=decimation, state=out_state, sensordata=out_sens)  # fmt: skip
-        per_step = n * len(states) / (time.perf_counter() - t0)
-        nstep = decimation * len(states)
-        seq = np.repeat(np.stack(ctrls, axis=1), decimation, axis=1)
-        big_state = np.zeros((n, nstep, nstate))
-        big_sens = np.zeros((n, nstep, backend._model.nsensordata))
-        t0 = time.perf_counter()
-        r.rollout(models, datas, states[0], seq, control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-                  skip_checks=True, nstep=nstep, state=big_state, sensordata=big_sens)  # fmt: skip
-        single = n * len(states) / (time.perf_counter() - t0)
-    return per_step, single
 
 
 def main() -> None:
@@ -137,12 +163,12 @@ def main() -> None:
                 env.step(a)
         env_rates, raw_rates, single_rates, all_threads = [], [], [], []
         for _ in range(args.repeats):
-            rec = _Recorder(env.backend)
-            env_rates.append(_env_rate(env, actions))
-            env.backend.step = rec._step  # type: ignore[method-assign]
-            per_step, single = _raw_rates(env.backend, rec.states, rec.ctrls, cfg.decimation)
-            raw_rates.append(per_step)
-            single_rates.append(single)
+            probe = _Interleaved(env)
+            env_rate, raw_rate = probe.rates(actions)
+            env_rates.append(env_rate)
+            raw_rates.append(raw_rate)
+            single_rates.append(probe.single_call_rate())
+            probe.close()
             with torch.inference_mode():
                 t0 = time.perf_counter()
                 for a in actions:

@@ -139,6 +139,41 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def quat_from_euler_xyz(angles: np.ndarray) -> np.ndarray:
+    """Quaternions of extrinsic x-y-z rotations (``R = Rz(yaw) Ry(pitch) Rx(roll)``).
+
+    Args:
+        angles: Roll, pitch, yaw [rad]. Shape: (..., 3).
+
+    Returns:
+        Shape: (..., 4).
+    """
+    half = 0.5 * np.asarray(angles, dtype=np.float64)
+    cr, cp, cy = np.moveaxis(np.cos(half), -1, 0)
+    sr, sp, sy = np.moveaxis(np.sin(half), -1, 0)
+    return np.stack(
+        [
+            cy * cr * cp + sy * sr * sp,
+            cy * sr * cp - sy * cr * sp,
+            cy * cr * sp + sy * sr * cp,
+            sy * cr * cp - cy * sr * sp,
+        ],
+        axis=-1,
+    )
+
+
+def quat_apply_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` by the inverse of unit quaternions ``q`` (world -> body frame).
+
+    Shapes: (..., 4), (..., 3) -> (..., 3).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    w, xyz = q[..., :1], -q[..., 1:]
+    t = 2.0 * np.cross(xyz, v)
+    return v + w * t + np.cross(xyz, t)
+
+
 def quat_conj(q: np.ndarray) -> np.ndarray:
     """Conjugate (inverse for unit quaternions). Shape: (..., 4)."""
     q = np.asarray(q, dtype=np.float64)

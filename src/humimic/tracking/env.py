@@ -37,6 +37,7 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from humimic import transforms as tf
 from humimic.errors import InputError
 from humimic.motion import Motion
 from humimic.robots.registry import get_robot
@@ -45,8 +46,6 @@ from humimic.tracking.backend import MujocoCpuBackend, PhysicsBackend, training_
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.math import (
     quat_apply_inverse,
-    quat_from_euler_xyz,
-    quat_mul,
     rot6d_from_quat,
     subtract_frame_transforms,
 )
@@ -173,10 +172,6 @@ class TrackingEnv(VecEnv):
         self._m_body_quat = t(motion.body_quat_w[:, bidx])
         self._m_body_lin_vel = t(motion.body_lin_vel_w[:, bidx])
         self._m_body_ang_vel = t(motion.body_ang_vel_w[:, bidx])
-        self._m_root_pos = t(motion.qpos[:, :3])
-        self._m_root_quat = t(motion.qpos[:, 3:7])
-        self._m_root_lin_vel = t(motion.body_lin_vel_w[:, root_m])
-        self._m_root_ang_vel = t(motion.body_ang_vel_w[:, root_m])
         # One packed table of what every step reads: one gather per step instead of six.
         T, Bt = motion.num_frames, len(bidx)
         self._m_packed = torch.cat(
@@ -186,6 +181,14 @@ class TrackingEnv(VecEnv):
         )  # fmt: skip
         self._m_split = [len(jidx), len(jidx), 3 * Bt, 4 * Bt, 3 * Bt, 3 * Bt]
         self.num_frames = motion.num_frames
+        self._ref_np = {
+            "root_pos": motion.qpos[:, :3].astype(np.float64),
+            "root_quat": motion.qpos[:, 3:7].astype(np.float64),
+            "root_lin_vel": motion.body_lin_vel_w[:, root_m].astype(np.float64),
+            "root_ang_vel": motion.body_ang_vel_w[:, root_m].astype(np.float64),
+            "joint_pos": np.ascontiguousarray(motion.joint_pos[:, jidx], dtype=np.float64),
+            "joint_vel": np.ascontiguousarray(motion.joint_vel[:, jidx], dtype=np.float64),
+        }
 
         # Robot constants.
         self.default_joint_pos = t(be.default_joint_pos)
@@ -193,6 +196,12 @@ class TrackingEnv(VecEnv):
         rng_ = be.joint_range
         mid, half = rng_.mean(axis=1), 0.5 * (rng_[:, 1] - rng_[:, 0]) * cfg.soft_limit_factor
         soft = t(np.stack([mid - half, mid + half], axis=1))
+        self._soft_lo, self._soft_hi = mid - half, mid + half
+        rn = cfg.reset
+        ranges = np.array([*rn.pose, *rn.velocity] + [rn.joint_pos] * J, dtype=np.float64)
+        self._reset_lo, self._reset_hi = ranges[:, 0], ranges[:, 1]
+        push = np.array([*cfg.dr.push_lin_vel, *cfg.dr.push_ang_vel], dtype=np.float64)
+        self._push_lo, self._push_hi = push[:, 0], push[:, 1]
 
         self.state = TrackingState.zeros(
             num_envs=num_envs,
@@ -322,7 +331,9 @@ class TrackingEnv(VecEnv):
         moved |= self._apply_pushes()
         if moved:  # One read of the new states for resets and pushes together.
             self._read_backend()
-            self._update_reference()
+            # The relative reference serves rewards and terminations only: the next step
+            # recomputes it after physics, so observations need the rest alone.
+            self._update_reference(relative=False)
         self._compute_observations()
         log["sampling_entropy"] = self._sampling_entropy()
         extras = {"time_outs": self._time_outs.clone(), "log": dict(log)}
@@ -372,10 +383,10 @@ class TrackingEnv(VecEnv):
     # -------------------------------------------------------------------------- internals
 
     def _read_backend(self) -> None:
-        r, s, dev = self.backend.read(), self.state, self.device
+        r, s = self.backend.read(), self.state
 
         def put(dst: torch.Tensor, src: np.ndarray) -> None:
-            dst.copy_(torch.from_numpy(np.ascontiguousarray(src)).to(dev, torch.float32))
+            dst.copy_(torch.from_numpy(src))  # copy_ converts to float32 and moves to dev.
 
         put(s.body_pos_w, r.body_pos_w)
         put(s.body_quat_w, r.body_quat_w)
@@ -386,7 +397,7 @@ class TrackingEnv(VecEnv):
         put(s.contact_found, r.contact_found)
         put(s.foot_force, r.foot_force)
 
-    def _update_reference(self) -> None:
+    def _update_reference(self, relative: bool = True) -> None:
         s, f = self.state, self.state.frame
         jp, jv, bp, bq, bl, ba = self._m_packed[f].split(self._m_split, dim=1)
         s.ref_joint_pos.copy_(jp)
@@ -395,7 +406,8 @@ class TrackingEnv(VecEnv):
         s.ref_body_quat_w.copy_(bq.view(s.ref_body_quat_w.shape))
         s.ref_body_lin_vel_w.copy_(bl.view(s.ref_body_lin_vel_w.shape))
         s.ref_body_ang_vel_w.copy_(ba.view(s.ref_body_ang_vel_w.shape))
-        s.update_relative()
+        if relative:
+            s.update_relative()
 
     def _rand(
         self, lo: torch.Tensor | float, hi: torch.Tensor | float, shape: tuple[int, ...]
@@ -455,27 +467,10 @@ class TrackingEnv(VecEnv):
             dr_mod.normalize(cfg.dr, smp), dtype=torch.float32, device=dev
         )
 
-        # Reference state initialization with noise.
-        rn = cfg.reset
-        pose = torch.tensor(rn.pose, device=dev)
-        vel = torch.tensor(rn.velocity, device=dev)
-        dp = self._rand(pose[:, 0], pose[:, 1], (n, 6))
-        dv = self._rand(vel[:, 0], vel[:, 1], (n, 6))
-        root_pos = self._m_root_pos[frames] + dp[:, :3]
-        root_quat = quat_mul(
-            quat_from_euler_xyz(dp[:, 3], dp[:, 4], dp[:, 5]), self._m_root_quat[frames]
-        )
-        root_quat = root_quat / root_quat.norm(dim=-1, keepdim=True)
-        lin_vel_w = self._m_root_lin_vel[frames] + dv[:, :3]
-        ang_vel_w = self._m_root_ang_vel[frames] + dv[:, 3:]
-        jp = self._m_joint_pos[frames] + self._rand(rn.joint_pos[0], rn.joint_pos[1], (n, J))
-        lim = s.soft_joint_limits
-        jp = torch.maximum(torch.minimum(jp, lim[:, 1]), lim[:, 0])
-        qpos = torch.cat([root_pos, root_quat, jp], dim=-1)
-        qvel = torch.cat(
-            [lin_vel_w, quat_apply_inverse(root_quat, ang_vel_w), self._m_joint_vel[frames]], dim=-1
-        )
-        self.backend.reset_to(ids_np, qpos.cpu().double().numpy(), qvel.cpu().double().numpy())
+        # Reference state initialization with noise, in float64 for the backend: a few envs
+        # per step, where numpy's small-array calls cost a fraction of torch's.
+        qpos, qvel = self._reset_state(frames.cpu().numpy())
+        self.backend.reset_to(ids_np, qpos, qvel)
 
         s.action[ids] = 0.0
         s.last_action[ids] = 0.0
@@ -485,6 +480,22 @@ class TrackingEnv(VecEnv):
         if cfg.dr.push_interval_s is not None:
             lo, hi = cfg.dr.push_interval_s
             self._push_timer[ids] = self._rand(lo, hi, (n,))
+
+    def _reset_state(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference's states at ``frames`` with the reset noise of the config.
+
+        Returns:
+            qpos Shape: (n, nq), qvel Shape: (n, nv), float64.
+        """
+        r, J, n = self._ref_np, self.num_actions, len(frames)
+        u = self._rng.uniform(self._reset_lo, self._reset_hi, size=(n, 12 + J))
+        root_quat = tf.quat_mul(tf.quat_from_euler_xyz(u[:, 3:6]), r["root_quat"][frames])
+        root_quat /= np.linalg.norm(root_quat, axis=-1, keepdims=True)
+        jp = np.clip(r["joint_pos"][frames] + u[:, 12:], self._soft_lo, self._soft_hi)
+        qpos = np.concatenate([r["root_pos"][frames] + u[:, :3], root_quat, jp], axis=-1)
+        ang_vel_b = tf.quat_apply_inverse(root_quat, r["root_ang_vel"][frames] + u[:, 9:12])
+        lin_vel_w = r["root_lin_vel"][frames] + u[:, 6:9]
+        return qpos, np.concatenate([lin_vel_w, ang_vel_b, r["joint_vel"][frames]], axis=-1)
 
     def _apply_pushes(self) -> bool:
         """Push the envs whose timer ran out; returns whether any was pushed (the caller then
@@ -502,13 +513,7 @@ class TrackingEnv(VecEnv):
         r = self.backend.read()
         ids_np = ids.cpu().numpy()
         qpos, qvel = r.qpos[ids_np].copy(), r.qvel[ids_np].copy()
-        lin = torch.tensor(dr.push_lin_vel, device=self.device)
-        ang = torch.tensor(dr.push_ang_vel, device=self.device)
-        dv = torch.cat(
-            [self._rand(lin[:, 0], lin[:, 1], (n, 3)), self._rand(ang[:, 0], ang[:, 1], (n, 3))],
-            dim=-1,
-        )
-        qvel[:, :6] += dv.cpu().double().numpy()
+        qvel[:, :6] += self._rng.uniform(self._push_lo, self._push_hi, size=(n, 6))
         self.backend.reset_to(ids_np, qpos, qvel)
         return True
 

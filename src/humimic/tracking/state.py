@@ -32,7 +32,9 @@ class TrackingState:
         ref_body_ang_vel_w: Shape: (N, B, 3).
         ref_body_pos_rel_w: The reference bodies moved so that the reference anchor sits at
             the robot anchor's horizontal position and heading (mjlab's
-            ``body_pos_relative_w``); its height is the reference's. Shape: (N, B, 3).
+            ``body_pos_relative_w``); its height is the reference's. Refreshed after the
+            physics of each step, for rewards and terminations (not after the step's resets).
+            Shape: (N, B, 3).
         ref_body_quat_rel_w: Same, orientations. Shape: (N, B, 4).
         body_pos_w: Robot body positions. Shape: (N, B, 3).
         body_quat_w: Shape: (N, B, 4).

@@ -11,7 +11,6 @@ from typing import Protocol
 
 import torch
 
-from humimic.tracking.math import quat_apply_inverse
 from humimic.tracking.rewards import HasState
 
 
@@ -35,10 +34,12 @@ def anchor_ori_error(env: HasState, threshold: float) -> torch.Tensor:
     reference, 0.8 fires beyond a tilt of ``acos(0.2)``, about 78 degrees.
     """
     s = env.state
-    g = torch.tensor([0.0, 0.0, -1.0], device=s.joint_pos.device).expand(s.num_envs, 3)
-    ref = quat_apply_inverse(s.ref_anchor_quat_w, g)
-    robot = quat_apply_inverse(s.anchor_quat_w, g)
-    return torch.abs(ref[:, 2] - robot[:, 2]) > threshold
+    return torch.abs(_gravity_z(s.ref_anchor_quat_w) - _gravity_z(s.anchor_quat_w)) > threshold
+
+
+def _gravity_z(q: torch.Tensor) -> torch.Tensor:
+    """z of the projected gravity ``R^T [0, 0, -1]``: ``-R_zz = 2 (x^2 + y^2) - 1``."""
+    return 2.0 * torch.square(q[..., 1:3]).sum(-1) - 1.0
 
 
 def ee_height_error(env: HasState, threshold: float, body_names: tuple[str, ...]) -> torch.Tensor:

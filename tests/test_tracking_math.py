@@ -1,0 +1,74 @@
+"""The tracking env's torch rotation math against the numpy reference in humimic.transforms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from humimic import transforms as tf
+from humimic.tracking import math as tm
+
+
+@pytest.fixture
+def quats() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(2, 7, 5, 4))
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b /= np.linalg.norm(b, axis=-1, keepdims=True)
+    return a, b, rng.normal(size=(7, 5, 3))
+
+
+def _t(x: np.ndarray) -> torch.Tensor:
+    return torch.as_tensor(x, dtype=torch.float64)
+
+
+def test_products_and_rotations_match_numpy(quats: tuple[np.ndarray, ...]) -> None:
+    a, b, v = quats
+    np.testing.assert_allclose(tm.quat_mul(_t(a), _t(b)).numpy(), tf.quat_mul(a, b), atol=1e-12)
+    np.testing.assert_allclose(
+        tm.quat_conj_mul(_t(a), _t(b)).numpy(), tf.quat_mul(tf.quat_conj(a), b), atol=1e-12
+    )
+    np.testing.assert_allclose(tm.quat_conj(_t(a)).numpy(), tf.quat_conj(a), atol=0)
+    R = tf.quat_to_matrix(a)
+    np.testing.assert_allclose(
+        tm.quat_apply(_t(a), _t(v)).numpy(), np.einsum("...ij,...j->...i", R, v), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        tm.quat_apply_inverse(_t(a), _t(v)).numpy(),
+        np.einsum("...ji,...j->...i", R, v),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(tf.quat_apply_inverse(a, v), np.einsum("...ji,...j->...i", R, v))
+    np.testing.assert_allclose(
+        tm.rot6d_from_quat(_t(a)).numpy(), R[..., :2].reshape(7, 5, 6), atol=1e-12
+    )
+
+
+def test_broadcasting(quats: tuple[np.ndarray, ...]) -> None:
+    a, b, _ = quats
+    one = _t(a[:, :1])  # (7, 1, 4) against (7, 5, 4)
+    np.testing.assert_allclose(
+        tm.quat_mul(one, _t(b)).numpy(), tf.quat_mul(np.broadcast_to(a[:, :1], b.shape), b)
+    )
+
+
+def test_angles_and_euler(quats: tuple[np.ndarray, ...]) -> None:
+    a, b, _ = quats
+    d = tf.quat_mul(tf.quat_conj(a), b)
+    angle = np.linalg.norm(tf.quat_to_rotvec(d), axis=-1)
+    np.testing.assert_allclose(tm.quat_error_magnitude(_t(a), _t(b)).numpy(), angle, atol=1e-9)
+    e = np.random.default_rng(1).uniform(-3, 3, size=(9, 3))
+    R = (
+        tf.axis_angle_matrix("z", e[:, 2])
+        @ tf.axis_angle_matrix("y", e[:, 1])
+        @ tf.axis_angle_matrix("x", e[:, 0])
+    )
+    np.testing.assert_allclose(tf.quat_to_matrix(tf.quat_from_euler_xyz(e)), R, atol=1e-12)
+    np.testing.assert_allclose(
+        tm.quat_from_euler_xyz(*_t(e).T).numpy(), tf.quat_from_euler_xyz(e), atol=1e-12
+    )
+    yaw = tm.yaw_quat(_t(a)).numpy()
+    heading = np.einsum("...ij,j->...i", tf.quat_to_matrix(a), [1.0, 0.0, 0.0])
+    want = np.arctan2(heading[..., 1], heading[..., 0])
+    np.testing.assert_allclose(2 * np.arctan2(yaw[..., 3], yaw[..., 0]), want, atol=1e-9)
