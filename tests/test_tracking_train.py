@@ -107,6 +107,29 @@ def test_each_variant_trains(
     assert (critic_first.shape[1] == 160) == (variant == "robust")
 
 
+def test_fine_tune_from_a_run_on_a_physics_file(motion_file: Path, tmp_path: Path) -> None:
+    """``--init-from`` starts from another run's weights (its observation statistics carry
+    on); ``--physics`` is recorded; networks that do not fit are refused, nothing written."""
+    base = tmp_path / "base"
+    assert main(_train_args(motion_file, base, 2)) == 0
+    tuned = tmp_path / "tuned"
+    args = _train_args(motion_file, tuned, 1, "--init-from", str(base), "--physics", "backpack")
+    assert main(args) == 0
+    assert "physics: backpack" in (tuned / "config.yaml").read_text()
+
+    def count(run: Path, it: int) -> float:
+        blob = torch.load(run / "checkpoints" / f"model_{it:06d}.pt", weights_only=True)
+        return float(next(v for k, v in blob["actor_state_dict"].items() if k.endswith("count")))
+
+    fresh = tmp_path / "fresh"
+    assert main(_train_args(motion_file, fresh, 1)) == 0
+    assert count(tuned, 1) == pytest.approx(count(base, 2) + count(fresh, 1))
+    bad = tmp_path / "bad"
+    assert main(_train_args(motion_file, bad, 1, "--init-from", str(tuned), "--variant",
+                            "teacher")) == 2  # fmt: skip
+    assert not bad.exists()
+
+
 def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> None:
     """A teacher checkpoint loads into rsl_rl's distillation runner (its actor becomes the
     teacher, weight for weight), the student's imitation loss falls, and the student run
@@ -203,8 +226,8 @@ def test_nan_stops_training_with_a_clear_error(
 
     original = train_mod.task_config
 
-    def task_config(robot: str, dr: str, seed: int):
-        cfg = original(robot, dr, seed)
+    def task_config(robot: str, dr: str, seed: int, physics: str | None = None):
+        cfg = original(robot, dr, seed, physics)
         rewards = {**cfg.rewards, "poison": TermConfig(func=poisoned, weight=1.0)}
         return replace(cfg, rewards=rewards)
 
@@ -257,6 +280,15 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     shown = load_rollout(None, mcap, ref)  # The viewer finds the rollout in the same file.
     assert shown is not None and shown.shape == ref.qpos.shape
     np.testing.assert_allclose(shown[: len(qpos)], qpos, atol=1e-12)
+
+    # The same policy on an unseen robot (a shipped physics file): a different rollout.
+    worn = tmp_path / "worn.json"
+    args = ["eval", str(out), "--episodes", "3", "--out", str(worn), "--physics", "worn_knees"]
+    assert main(args) == 0
+    w = json.loads(worn.read_text())
+    assert w["physics"]["name"] == "worn_knees" and w["physics"]["effects"]
+    assert w["policy"]["joint_error_rad"] != r["policy"]["joint_error_rad"]
+    assert main([*args[:-1], "no_such_robot.yaml"]) == 2
 
 
 def test_mujoco_model_of_the_reference_matches_the_env(motion_file: Path) -> None:

@@ -12,7 +12,13 @@ import numpy as np
 import tyro
 
 from humimic.configs import RetargetConfig, retarget_default, retarget_fast
-from humimic.configs.runs import DistillSettings, EvalSettings, ExportSettings, TrainSettings
+from humimic.configs.runs import (
+    DistillSettings,
+    EvalSettings,
+    ExportSettings,
+    LoopSettings,
+    TrainSettings,
+)
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
@@ -542,6 +548,8 @@ def run_eval(cmd: EvalSettings) -> None:
     from humimic.tracking.evaluate import evaluate
 
     result = evaluate(cmd)
+    if "physics" in result:
+        print(f"physics {result['physics']['name']}: {result['physics']['description']}")
     for name in ("policy", "open_loop"):
         m = result[name]
         print(f"{name:9s}: success {100 * m['success_rate']:.0f}%, global MPJPE "
@@ -551,6 +559,20 @@ def run_eval(cmd: EvalSettings) -> None:
         print(f"wrote {cmd.out}")
     if "mcap" in result:
         print(f"wrote {result['mcap']} (humimic view {result['mcap']})")
+
+
+def run_loop(cmd: LoopSettings) -> None:
+    """Run ``humimic loop``."""
+    from humimic.tracking.loop import loop
+
+    r = loop(cmd)
+    for name in ("before", "after", "after_nominal"):
+        if name in r:
+            p = r[name]["policy"]
+            print(f"{name:13s}: success {100 * p['success_rate']:.0f}%, global MPJPE "
+                  f"{p['mpjpe_global_mm']:.1f} mm, joint error {p['joint_error_rad']:.3f} rad")  # fmt: skip
+    print(f"sysid claimed: {', '.join(r['sysid']['claimed']) or 'nothing'}")
+    print(f"wrote {cmd.out / 'loop.md'}")
 
 
 Commands = (
@@ -565,6 +587,7 @@ Commands = (
     | Annotated[DistillSettings, tyro.conf.subcommand("distill")]
     | Annotated[EvalSettings, tyro.conf.subcommand("eval")]
     | Annotated[ExportSettings, tyro.conf.subcommand("export")]
+    | Annotated[LoopSettings, tyro.conf.subcommand("loop")]
 )
 
 
@@ -600,6 +623,8 @@ def main(argv: list[str] | None = None) -> int:
             run_distill(cmd)
         elif isinstance(cmd, EvalSettings):
             run_eval(cmd)
+        elif isinstance(cmd, LoopSettings):
+            run_loop(cmd)
         elif isinstance(cmd, ExportSettings):
             from humimic.tracking.export import export
 

@@ -21,6 +21,11 @@ class TrainSettings:
         max_iterations: Total PPO iterations of the run (a resumed run continues up to it).
         device: Torch device of the learner (``cpu`` or ``cuda``).
         dr: Domain randomization: a profile name (``none``, ``default``) or a YAML file.
+        physics: Train on a fixed model: a physics file (docs/tracking.md, "Physics files"),
+            e.g. the correction ``humimic sysid diagnose`` found; DR acts on top of it.
+        init_from: Start from another run's weights (its newest checkpoint, or a checkpoint
+            file): fine-tuning. Actor and critic must have the same inputs (same variant and
+            task).
         variant: What actor and critic observe (docs/tracking.md, "Variants"):
             ``beyondmimic`` (actor: deployable observations; critic: privileged),
             ``robust`` (both deployable only), ``asymmetric`` (actor: deployable plus the
@@ -41,6 +46,8 @@ class TrainSettings:
     max_iterations: int = 1000
     device: str = "cpu"
     dr: str = "default"
+    physics: str | None = None
+    init_from: Path | None = None
     variant: Literal["beyondmimic", "robust", "asymmetric", "teacher"] = "beyondmimic"
     resume: bool = False
     seed: int = 0
@@ -95,7 +102,11 @@ class EvalSettings:
     Attributes:
         run: Run folder of ``humimic train``.
         episodes: Episodes to run (each plays the whole clip from its first frame).
+        motion: Evaluate on this clip (a motion file of the run's robot) instead of the run's.
         dr: Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file.
+        physics: Evaluate on a fixed robot: a physics file or a shipped one (``backpack``,
+            ``worn_knees``; docs/tracking.md, "Physics files"), e.g. a "real" robot training
+            never saw. DR (``--dr``) acts on top of it.
         out: Write the metrics as JSON here.
         mcap: Write the first episode (policy and open loop) with the reference as MCAP here,
             for ``humimic view MCAP`` and Foxglove (default: ``out`` with the suffix ``.mcap``
@@ -108,13 +119,52 @@ class EvalSettings:
 
     run: Annotated[Path, tyro.conf.Positional]
     episodes: int = 16
+    motion: Path | None = None
     dr: str = "none"
+    physics: str | None = None
     out: Path | None = None
     mcap: Path | None = None
     checkpoint: Path | None = None
     num_envs: int | None = None
     device: str = "cpu"
     seed: int = 1
+
+
+@dataclass(frozen=True, kw_only=True)
+class LoopSettings:
+    """What ``humimic loop`` runs: deploy a policy on a "real" robot (a physics file that no
+    training step reads), diagnose the gap with sysid on a gantry log of that robot, fine-tune
+    in the corrected model, redeploy, report before and after (docs/tracking.md, "The loop").
+
+    Attributes:
+        run: The policy's run folder (``humimic train``; not a teacher or a student).
+        real: The "real" robot: a physics file or a shipped one (``backpack``, ``worn_knees``).
+        out: The loop's folder (new or empty).
+        motion: The clip to deploy and fine-tune on (default: the run's).
+        episodes: Episodes per deployment.
+        iterations: Fine-tuning PPO iterations.
+        num_envs: Fine-tuning envs.
+        sysid_duration: Seconds of the gantry log.
+        control: Also fine-tune in the nominal model for the same iterations, and deploy that.
+        device: Torch device.
+        seed: Seed of everything.
+        max_minutes: Time budget of each fine-tuning run.
+        quiet: No progress bars.
+    """
+
+    run: Path
+    real: str
+    out: Path
+    motion: Path | None = None
+    episodes: int = 16
+    iterations: int = 100
+    num_envs: int = 256
+    sysid_duration: float = 40.0
+    control: bool = False
+    device: str = "cpu"
+    seed: int = 0
+    max_minutes: float | None = None
+    quiet: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)

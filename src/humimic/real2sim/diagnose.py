@@ -420,6 +420,8 @@ def _refit(
         jac = np.stack([(res[1 + i][..., joints, :].ravel() - r0) / (probes[1 + i][i] - values[i])
                         for i in range(len(kept))], axis=1)  # fmt: skip
         jtj = jac.T @ jac
+        if not np.trace(jtj) > 0:  # No effect moves these predictions: nothing to refit.
+            break
         delta = np.linalg.solve(jtj + 1e-6 * np.trace(jtj) * np.eye(len(kept)), -jac.T @ r0)
         trial = np.clip(values + delta, lo, hi)
         r1 = predictor.run([correction(trial)])[0][..., joints, :].ravel()

@@ -29,7 +29,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Literal, Protocol
@@ -157,6 +157,7 @@ def training_model(
     foot_body_names: Sequence[str] = (),
     timestep: float = 0.005,
     menagerie_root: str | os.PathLike[str] | None = None,
+    edit: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> mujoco.MjModel:
     """The mesh-free training model of a robot, with the read-out sensors compiled in.
 
@@ -170,6 +171,8 @@ def training_model(
         foot_body_names: Bodies whose net floor contact force is read.
         timestep: Physics step [s].
         menagerie_root: Where the robot files are (see :func:`humimic.robots.nominal_spec`).
+        edit: Changes to the model, applied last (e.g. a physics file's
+            :meth:`~humimic.tracking.physics.Physics.edit`).
 
     Raises:
         UnknownNameError: If a body name is not in the model.
@@ -247,6 +250,9 @@ def training_model(
             f"robot {robot.name!r}: removing meshes changed the mass ({mass_full} -> {mass} kg); "
             "the MJCF must give explicit <inertial> elements"
         )
+    if edit is not None:
+        edit(spec)
+        model = spec.compile()
     return model
 
 
@@ -352,6 +358,8 @@ class MujocoCpuBackend:
         self._nstate = mujoco.mj_stateSize(model, self._spec)
         self._state = np.zeros((num_envs, self._nstate))
         self._scratch = [mujoco.MjData(model) for _ in range(self.nthread)]
+        # Actuators with a command history (a transport delay, e.g. from a physics file).
+        self._hist_acts = np.flatnonzero(model.actuator_history[:, 0] > 0)
         if method == "threads":
             self._datas = [mujoco.MjData(self.model_of(i)) for i in range(num_envs)]
             self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(self.nthread)
@@ -378,18 +386,25 @@ class MujocoCpuBackend:
         for k, i in enumerate(env_ids):
             m = self.model_of(int(i))
             d = self._datas[i] if self._datas else self._scratch[0]
-            if not self._datas:
-                mujoco.mj_resetData(m, d)
+            mujoco.mj_resetData(m, d)
             d.qpos[:] = qpos[k]
             d.qvel[:] = qvel[k]
-            d.qacc_warmstart[:] = 0.0
             d.ctrl[:] = self._ctrl[i]
+            if self._hist_acts.size:  # Delayed drives have been holding the reset pose.
+                self._init_history(m, d, qpos[k])
             mujoco.mj_forward(m, d)
             self._qpos[i] = d.qpos
             self._qvel[i] = d.qvel
             self._sens[i] = d.sensordata
-        self._state[env_ids, 1 : 1 + self.nq] = self._qpos[env_ids]
-        self._state[env_ids, 1 + self.nq : 1 + self.nq + self.nv] = self._qvel[env_ids]
+            mujoco.mj_getState(m, d, self._state[i], self._spec)
+
+    def _init_history(self, m: mujoco.MjModel, d: mujoco.MjData, qpos: np.ndarray) -> None:
+        dt = m.opt.timestep
+        for a in self._hist_acts:
+            n = int(m.actuator_history[a, 0])
+            times = -dt * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
+            values = np.full((n, 1), qpos[m.jnt_qposadr[m.actuator_trnid[a, 0]]])
+            mujoco.mj_initCtrlHistory(m, d, int(a), times, values)
 
     def set_ctrl(self, ctrl: np.ndarray) -> None:
         self._ctrl[:] = ctrl

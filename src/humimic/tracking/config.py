@@ -20,6 +20,7 @@ import yaml
 from humimic.errors import InputError, UnknownNameError
 from humimic.tracking import rewards as rew
 from humimic.tracking import terminations as term
+from humimic.tracking.physics import Physics
 
 Range = tuple[float, float]
 
@@ -331,6 +332,8 @@ class TrackingConfig:
         terminations: Termination terms.
         reward_dt_scale: Multiply rewards by the policy step (as mjlab/Isaac Lab do).
         dr: Domain randomization.
+        physics: Fixed changes to the nominal model (a physics file: a "real" robot, or a
+            model corrected by sysid); domain randomization acts on top of them.
         reset: Reference-state-initialization noise.
         adaptive: Adaptive start-frame sampling.
         history_length: Policy observations stacked in the ``proprio_history`` group.
@@ -354,6 +357,7 @@ class TrackingConfig:
     terminations: dict[str, TermConfig]
     reward_dt_scale: bool = True
     dr: DomainRandomization = field(default_factory=dr_default)
+    physics: Physics | None = None
     reset: ResetNoise = field(default_factory=ResetNoise)
     adaptive: AdaptiveSampling = field(default_factory=AdaptiveSampling)
     history_length: int = 5

@@ -133,7 +133,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     _, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint)
     run = s.out
     dr = s.dr or teacher.dr
-    task = task_config(teacher.robot, dr, s.seed)
+    task = task_config(teacher.robot, dr, s.seed, teacher.physics)
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     check_writable(run / "config.yaml")

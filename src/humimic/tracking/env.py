@@ -86,8 +86,12 @@ def build_backend(
 def tracking_model(
     cfg: TrackingConfig, *, menagerie_root: str | os.PathLike[str] | None = None
 ) -> mujoco.MjModel:
-    """The training model of ``cfg`` (mesh-free, with the read-out sensors)."""
+    """The training model of ``cfg`` (mesh-free, with the read-out sensors), with the changes
+    of ``cfg.physics`` when it has a physics file."""
     robot = get_robot(cfg.robot)
+    ph = cfg.physics
+    if ph is not None and ph.robot is not None and ph.robot != cfg.robot:
+        raise InputError(f"physics {ph.name!r} is written for {ph.robot!r}, not {cfg.robot!r}")
     return training_model(
         robot,
         body_names=cfg.body_names,
@@ -95,6 +99,7 @@ def tracking_model(
         foot_body_names=tuple(robot.feet.values()),
         timestep=cfg.sim_dt,
         menagerie_root=menagerie_root,
+        edit=None if ph is None else ph.edit,
     )
 
 

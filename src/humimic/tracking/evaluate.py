@@ -10,6 +10,9 @@ the steps each episode lived:
 * joint error: mean absolute joint position error [rad];
 * per-body global errors [mm].
 
+``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.tracking.physics`):
+a "real" robot that training never saw.
+
 The open-loop baseline replays the reference's joint positions as PD targets (no policy): how
 far the raw reference gets on this robot and these physics.
 
@@ -104,20 +107,21 @@ def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) ->
     }
 
 
-def evaluate(settings: EvalSettings) -> dict:
-    """Evaluate a run's policy and the open-loop baseline; write JSON if asked."""
-    from humimic.tracking.env import TrackingEnv
-    from humimic.tracking.rsl import make_runner
-    from humimic.tracking.train import (
-        load_reference,
-        read_run_settings,
-        resolve_checkpoint,
-        task_config,
-    )
+@dataclass(frozen=True)
+class Evaluation:
+    """What :func:`run_evaluation` measured: the metrics and the first episodes' traces."""
 
+    results: dict
+    policy: _Trace
+    open_loop: _Trace
+    joint_names: tuple[str, ...]
+    motion: Any
+    step_dt: float
+
+
+def evaluate(settings: EvalSettings) -> dict:
+    """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked."""
     s = settings
-    if s.episodes < 1:
-        raise InputError(f"--episodes {s.episodes}: must be at least 1")
     if s.out is not None:
         check_writable(s.out)
     mcap = s.mcap if s.mcap is not None else (s.out.with_suffix(".mcap") if s.out else None)
@@ -125,10 +129,39 @@ def evaluate(settings: EvalSettings) -> dict:
         if mcap.suffix != ".mcap":
             raise InputError(f"--mcap {mcap}: the file must end in .mcap")
         check_writable(mcap)
+    ev = run_evaluation(s)
+    results = ev.results
+    if mcap is not None:
+        write_eval_mcap(mcap, ev.motion, ev.joint_names, ev.step_dt, ev.policy, ev.open_loop,
+                        results)  # fmt: skip
+        results["mcap"] = str(mcap)
+    if s.out is not None:
+        atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
+    return results
+
+
+def run_evaluation(settings: EvalSettings) -> Evaluation:
+    """Run the policy and the open loop (writes nothing)."""
+    from humimic.tracking.env import TrackingEnv
+    from humimic.tracking.rsl import make_runner
+    from humimic.tracking.train import (
+        load_reference,
+        read_run_settings,
+        resolve_checkpoint,
+        run_rsl_cfg,
+        task_config,
+    )
+
+    s = settings
+    if s.episodes < 1:
+        raise InputError(f"--episodes {s.episodes}: must be at least 1")
     run = read_run_settings(s.run)
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
-    base = task_config(run.robot, s.dr, s.seed)
-    motion = load_reference(run.motion, run.robot, 1.0 / base.step_dt)
+    base = task_config(run.robot, s.dr, s.seed, s.physics)
+    motion_path = s.motion if s.motion is not None else run.motion
+    if not motion_path.is_file():
+        raise InputError(f"motion {motion_path}: no such file")
+    motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
     task = replace(
         base,
         start_frame=0,
@@ -142,13 +175,13 @@ def evaluate(settings: EvalSettings) -> dict:
         raise InputError(f"--num-envs {n}: evaluate at least as many envs as --episodes")
     results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
                                "iterations": int(blob["iter"]), "dr": s.dr,
-                               "motion": str(run.motion), "frames": motion.num_frames}  # fmt: skip
+                               "motion": str(motion_path), "frames": motion.num_frames}  # fmt: skip
+    if base.physics is not None:
+        results["physics"] = {"name": base.physics.name, **base.physics.as_dict()}
 
     torch.manual_seed(s.seed)
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
-        from humimic.tracking.train import run_rsl_cfg
-
         runner = make_runner(env, run_rsl_cfg(s.run), log_dir=None, device=s.device)
         runner.load_checkpoint(blob)
         policy = runner.get_inference_policy(device=s.device)
@@ -170,12 +203,7 @@ def evaluate(settings: EvalSettings) -> dict:
         results["open_loop"] = _episodes(env, open_loop, s.episodes, open_trace)
     finally:
         env.close()
-    if mcap is not None:
-        write_eval_mcap(mcap, motion, joint_names, task.step_dt, policy_trace, open_trace, results)
-        results["mcap"] = str(mcap)
-    if s.out is not None:
-        atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
-    return results
+    return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
 
 
 def write_eval_mcap(
@@ -212,4 +240,4 @@ def write_eval_mcap(
                     schema="humimic.Qpos")  # fmt: skip
 
 
-__all__ = ["evaluate", "write_eval_mcap"]
+__all__ = ["Evaluation", "evaluate", "run_evaluation", "write_eval_mcap"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import csv
 import math
+import shutil
 import time
 from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from pathlib import Path
@@ -49,6 +50,7 @@ _MUST_MATCH_ON_RESUME = (
     "robot",
     "num_envs",
     "dr",
+    "physics",
     "variant",
     "seed",
     "num_steps_per_env",
@@ -67,9 +69,13 @@ def resolve_dr(dr: str) -> DomainRandomization:
     return load_dr_profile(path)
 
 
-def task_config(robot: str, dr: str, seed: int) -> TrackingConfig:
-    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile."""
-    return replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
+def task_config(robot: str, dr: str, seed: int, physics: str | None = None) -> TrackingConfig:
+    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile and,
+    if given, a physics file (or a shipped one's name)."""
+    from humimic.tracking.physics import load_physics
+
+    task = replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
+    return task if physics is None else replace(task, physics=load_physics(physics))
 
 
 def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -242,6 +248,8 @@ def _run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
         config = yaml.safe_load(path.read_text())
         data = dict(config["settings"])
         data["motion"], data["out"] = Path(data["motion"]), Path(data["out"])
+        if data.get("init_from") is not None:
+            data["init_from"] = Path(data["init_from"])
         return config, TrainSettings(**data)
     except (yaml.YAMLError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a humimic run configuration ({e})") from None
@@ -287,18 +295,35 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             )
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
-    task = task_config(s.robot, s.dr, s.seed)
+    task = task_config(s.robot, s.dr, s.seed, s.physics)
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
     cfg = train_cfg(ppo or ppo_for(s))
+    init = None
+    if s.init_from is not None and not has_run:
+        if not s.init_from.exists():
+            raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
+        file = s.init_from if s.init_from.is_file() else None
+        init = resolve_checkpoint(s.init_from, file)
+    created = not run.exists()
     check_writable(run / "config.yaml")
-    (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-    if not has_run:
-        _write_config(run, s, task, cfg)
-
     torch.manual_seed(s.seed)
     env = TrackingEnv(task, motion, s.num_envs, device=s.device)
     try:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
+        if init is not None:
+            try:
+                runner.load_checkpoint(init[1])
+            except (RuntimeError, KeyError) as e:
+                if created:  # Leave nothing behind for a run that never started.
+                    shutil.rmtree(run, ignore_errors=True)
+                raise InputError(
+                    f"--init-from {init[0]}: its networks do not fit this run's (variant "
+                    f"{s.variant!r}, task of {s.robot!r}): {str(e).splitlines()[0]}"
+                ) from None
+            runner.current_learning_iteration = 0
+        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+        if not has_run:
+            _write_config(run, s, task, cfg)
         return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
     finally:
         env.close()

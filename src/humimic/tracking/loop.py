@@ -1,0 +1,231 @@
+"""``humimic loop``: deploy on the "real" robot, find what the simulator lacks, fine-tune, redeploy.
+
+The "real" robot is a physics file (:mod:`humimic.tracking.physics`). Only the deploy stage
+(:func:`deploy`, :func:`gantry_session`) reads it; the stages after it see what a team would
+have from a real robot: logs.
+
+1. **Deploy** the run's policy on the real robot: closed-loop metrics against the open loop
+   (``before/eval.json``, ``before/eval.mcap``) and the first episode as a robot log in the
+   real2sim format (``before/robot_log.mcap``, floating base).
+2. **Gantry session** on the real robot: the robot hangs in a gantry and follows multi-sine PD
+   targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes). ``humimic sysid
+   diagnose`` identifies joint-level effects from fixed-base logs; a walking robot's log has
+   no ground truth for the base and the contacts, so the identification runs on the gantry
+   log, as it would on a real robot.
+3. **Sysid**: ``humimic sysid diagnose gantry.mcap`` (``sysid/``); its claimed effects become a
+   physics file, ``corrected.yaml``.
+4. **Fine-tune** the policy in the corrected model, under the run's DR (``finetune/``); with
+   ``--control``, also in the nominal model for the same iterations (``finetune_nominal/``),
+   to tell the correction's gain from that of more training.
+5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and after
+   (``loop.json``, ``loop.md``).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from humimic.configs.runs import EvalSettings, LoopSettings, TrainSettings
+from humimic.errors import InputError
+from humimic.io import atomic_write_text, check_writable, json_ready
+
+_METRICS = ("success_rate", "mean_steps", "mpjpe_global_mm", "mpjpe_root_mm", "joint_error_rad")
+
+
+def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
+    """Run ``run``'s policy on the real robot; write its metrics, MCAP and robot log.
+
+    Returns:
+        The evaluation results (policy and open loop).
+    """
+    from humimic.real2sim.robotlog import RobotLog, write_robot_log
+    from humimic.robots import get_robot
+    from humimic.robots.model import nominal_spec
+    from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
+    from humimic.tracking.train import read_run_settings
+
+    settings = EvalSettings(run=run, episodes=s.episodes, motion=s.motion, physics=s.real,
+                            device=s.device, seed=s.seed)  # fmt: skip
+    ev = run_evaluation(settings)
+    out.mkdir(parents=True, exist_ok=True)
+    write_eval_mcap(out / "eval.mcap", ev.motion, ev.joint_names, ev.step_dt, ev.policy,
+                    ev.open_loop, ev.results)  # fmt: skip
+    robot = get_robot(read_run_settings(run).robot)
+    drives = nominal_spec(robot)[1]
+    names = ev.joint_names
+    tr = ev.policy
+    t = np.arange(len(tr.qpos)) * ev.step_dt
+    q = np.stack(tr.qpos)[:, 7:]
+    kp = np.array([drives[n].kp for n in names])
+    kd = np.array([drives[n].kd for n in names])
+    zeros = np.zeros_like(q)
+    log = RobotLog(robot=robot.name, base="floating", base_pose=np.zeros(7), joint_names=names,
+                   t=t, q=q, qd=np.stack(tr.qvel)[:, 6:], effort=None, t_cmd=t,
+                   cmd_q=np.stack(tr.targets), cmd_qd=zeros, cmd_tau=zeros,
+                   kp=np.tile(kp, (len(t), 1)), kd=np.tile(kd, (len(t), 1)))  # fmt: skip
+    write_robot_log(log, out / "robot_log.mcap")
+    results = dict(ev.results)
+    results["robot_log"] = str(out / "robot_log.mcap")
+    atomic_write_text(out / "eval.json", json.dumps(json_ready(results), indent=2) + "\n")
+    return results
+
+
+def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
+    """Record the real robot hanging in a gantry (multi-sine PD targets) as a robot log."""
+    from humimic.real2sim.robotlog import write_robot_log
+    from humimic.real2sim.simulate import LogSettings, simulate_log
+    from humimic.robots import get_robot
+    from humimic.tracking.physics import load_physics
+
+    real = load_physics(s.real)
+    settings = LogSettings(duration=s.sysid_duration, seed=s.seed)
+    log = simulate_log(get_robot(robot), list(real.effects), settings,
+                       edit=real.edit_parameters)  # fmt: skip
+    return write_robot_log(log, path)
+
+
+def _check(s: LoopSettings) -> Any:
+    from humimic.tracking.physics import physics_path
+    from humimic.tracking.train import _run_config
+
+    physics_path(s.real)  # It exists (read only when deploying).
+    for name in ("episodes", "iterations", "num_envs"):
+        if getattr(s, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
+    if not s.sysid_duration >= 5.0:
+        raise InputError(f"--sysid-duration {s.sysid_duration}: at least 5 s")
+    config, run = _run_config(s.run)
+    if config.get("kind") == "student":
+        raise InputError(f"{s.run}: a distilled student; the loop fine-tunes PPO runs (fine-tune "
+                         "its teacher, then distill again)")  # fmt: skip
+    if run.variant == "teacher":
+        raise InputError(f"{s.run}: a teacher reads simulator parameters and cannot be "
+                         "deployed; run the loop on a deployable variant")  # fmt: skip
+    if s.motion is not None and not s.motion.is_file():
+        raise InputError(f"--motion {s.motion}: no such file")
+    if s.out.exists() and any(s.out.iterdir()):
+        raise InputError(f"--out {s.out}: exists and is not empty")
+    check_writable(s.out / "loop.json")
+    return run
+
+
+def _finetune(s: LoopSettings, run: Any, out: Path, physics: Path | None) -> dict:
+    from humimic.tracking.train import train
+
+    t0 = time.perf_counter()
+    ts = TrainSettings(motion=s.motion or run.motion, out=out, robot=run.robot,
+                       num_envs=s.num_envs, max_iterations=s.iterations, device=s.device,
+                       dr=run.dr, physics=None if physics is None else str(physics),
+                       init_from=s.run, variant=run.variant, seed=s.seed,
+                       checkpoint_every=s.iterations, num_steps_per_env=run.num_steps_per_env,
+                       max_minutes=s.max_minutes, quiet=s.quiet)  # fmt: skip
+    last = train(ts)
+    return {"run": str(out), "physics": None if physics is None else str(physics),
+            "seconds": time.perf_counter() - t0, "last": last}  # fmt: skip
+
+
+def _summary(r: dict) -> dict:
+    return {k: {m: r[k][m] for m in _METRICS} for k in ("policy", "open_loop")}
+
+
+def loop(settings: LoopSettings) -> dict:
+    """Run the loop (see the module docstring); returns ``loop.json``'s content."""
+    from humimic.real2sim.report import run_diagnosis
+    from humimic.tracking.physics import physics_from_sysid, write_physics
+
+    s = settings
+    out = s.out
+    created = not out.exists()
+    run = _check(s)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    report: dict[str, Any] = {"run": str(s.run), "motion": str(s.motion or run.motion),
+                              "real": s.real, "iterations": s.iterations}  # fmt: skip
+
+    print(f"[1/5] deploying {s.run} on the real robot")
+    try:
+        before = deploy(s, s.run, out / "before")
+    except InputError:
+        if created:  # Nothing ran: leave nothing behind.
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    report["before"] = _summary(before)
+    print(f"[2/5] gantry session on the real robot ({s.sysid_duration:.0f} s)")
+    gantry = gantry_session(s, run.robot, out / "gantry.mcap")
+
+    print("[3/5] sysid diagnose on the gantry log")
+    diag = run_diagnosis(gantry, out / "sysid")
+    corrected = physics_from_sysid(diag, name="corrected", robot=run.robot)
+    write_physics(corrected, out / "corrected.yaml")
+    report["sysid"] = {
+        "claimed": corrected.as_dict().get("effects", []),
+        "kstep_rmse_mrad_before": 1e3 * diag["error_before"]["kstep_rmse_rad"],
+        "kstep_rmse_mrad_after": 1e3 * diag["error_after"]["kstep_rmse_rad"],
+        "unexplained": diag["unexplained"],
+        "residual_model_used": False,  # The training model holds the effects alone.
+        "not_identifiable": len(diag["not_identifiable"]),
+        "seconds": diag["seconds"],
+    }
+
+    print(f"[4/5] fine-tuning {s.iterations} iterations in the corrected model")
+    report["finetune"] = _finetune(s, run, out / "finetune", out / "corrected.yaml")
+    if s.control:
+        print(f"      control: {s.iterations} iterations in the nominal model")
+        report["finetune_nominal"] = _finetune(s, run, out / "finetune_nominal", None)
+
+    print("[5/5] redeploying on the real robot")
+    report["after"] = _summary(deploy(s, out / "finetune", out / "after"))
+    if s.control:
+        report["after_nominal"] = _summary(
+            deploy(s, out / "finetune_nominal", out / "after_nominal")
+        )
+    report["seconds"] = time.perf_counter() - t0
+    atomic_write_text(out / "loop.json", json.dumps(json_ready(report), indent=2) + "\n")
+    atomic_write_text(out / "loop.md", _markdown(report))
+    return report
+
+
+def _markdown(r: dict) -> str:
+    rows = [("before", r["before"]), ("after (corrected model)", r["after"])]
+    if "after_nominal" in r:
+        rows.append(("after (nominal model, control)", r["after_nominal"]))
+    lines = [
+        f"# humimic loop: {r['run']} on the real robot `{r['real']}`",
+        "",
+        f"Motion `{r['motion']}`; fine-tuning {r['iterations']} iterations.",
+        "",
+        "| policy | success | mean steps | global MPJPE mm | root-relative MPJPE mm | joint error rad |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, m in rows:
+        p = m["policy"]
+        lines.append(f"| {name} | {100 * p['success_rate']:.0f}% | {p['mean_steps']:.1f} | "
+                     f"{p['mpjpe_global_mm']:.1f} | {p['mpjpe_root_mm']:.1f} | "
+                     f"{p['joint_error_rad']:.3f} |")  # fmt: skip
+    o = r["before"]["open_loop"]
+    lines.append(f"| open loop | {100 * o['success_rate']:.0f}% | {o['mean_steps']:.1f} | "
+                 f"{o['mpjpe_global_mm']:.1f} | {o['mpjpe_root_mm']:.1f} | "
+                 f"{o['joint_error_rad']:.3f} |")  # fmt: skip
+    sy = r["sysid"]
+    claimed = "\n".join(f"- `{e}`" for e in sy["claimed"]) or "- nothing claimed"
+    lines += [
+        "",
+        "## What sysid found (gantry log)",
+        "",
+        claimed,
+        "",
+        f"k-step prediction error on held-out data: {sy['kstep_rmse_mrad_before']:.2f} mrad "
+        f"(nominal) -> {sy['kstep_rmse_mrad_after']:.2f} mrad (corrected); unexplained: "
+        f"{sy['unexplained']}. Details: `sysid/report.md`.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+__all__ = ["deploy", "gantry_session", "loop"]

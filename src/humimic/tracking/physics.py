@@ -1,0 +1,297 @@
+"""Physics files: one fixed robot, as changes to the nominal model (YAML).
+
+A physics file describes a robot whose physics differ from the nominal model in known ways:
+the "real" robot of ``humimic eval --physics`` and ``humimic loop --real`` (values training
+never sampled), or a model corrected by ``humimic sysid diagnose`` (``humimic train
+--physics``). Every value is fixed for the whole run; domain randomization, where asked for,
+acts on top of it.
+
+Example::
+
+    description: A backpack and a slow bus.
+    robot: g1                       # optional; checked against the run's robot
+    floor_friction: 0.35            # sliding friction of the floor and the robot's colliders
+    mass_scale: 1.05                # every link, or a mapping {body: scale}
+    com_offset: {torso_link: [-0.06, 0.0, 0.05]}   # CoM moved [m], body frame
+    kp_scale: {left_knee_joint: 0.8}               # number (every joint) or mapping
+    kd_scale: 1.0
+    armature_scale: 1.0
+    effects:                        # the real2sim vocabulary (docs/real2sim.md), as in
+      - payload_mass:torso_link=4.0 # ``humimic sysid simulate --inject``
+      - delay:left_knee_joint,right_knee_joint=0.03
+
+Shipped files (``--physics NAME``): see :data:`SHIPPED`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import yaml
+
+from humimic.errors import InputError
+from humimic.real2sim.effects import Injection, apply_to_spec, parse_injection
+
+_KEYS = (
+    "description",
+    "robot",
+    "floor_friction",
+    "mass_scale",
+    "com_offset",
+    "kp_scale",
+    "kd_scale",
+    "armature_scale",
+    "effects",
+)
+
+SHIPPED = ("backpack", "worn_knees")
+"""Physics files shipped with humimic (``src/humimic/configs/physics/NAME.yaml``)."""
+
+_ALL = "*"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Physics:
+    """A fixed robot: changes to the nominal model.
+
+    Attributes:
+        name: The file's stem (or a shipped name).
+        description: Free text.
+        robot: Registry name the file is written for (``None``: any).
+        floor_friction: Sliding friction of the floor and every robot collider.
+        mass_scale: Body -> mass and inertia multiplier (``*``: every body).
+        com_offset: Body -> CoM offset [m] in the body frame.
+        kp_scale: Joint -> PD stiffness multiplier (``*``: every actuated joint).
+        kd_scale: Joint -> PD damping multiplier.
+        armature_scale: Joint -> armature multiplier.
+        effects: Effects of the real2sim vocabulary.
+    """
+
+    name: str
+    description: str = ""
+    robot: str | None = None
+    floor_friction: float | None = None
+    mass_scale: dict[str, float] = field(default_factory=dict)
+    com_offset: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    kp_scale: dict[str, float] = field(default_factory=dict)
+    kd_scale: dict[str, float] = field(default_factory=dict)
+    armature_scale: dict[str, float] = field(default_factory=dict)
+    effects: tuple[Injection, ...] = ()
+
+    def edit(self, spec: mujoco.MjSpec) -> None:
+        """Apply every change to a model spec of the robot (in place).
+
+        Raises:
+            InputError: If a body or joint is not in the model.
+        """
+        self.edit_parameters(spec)
+        apply_to_spec(spec, list(self.effects))
+
+    def edit_parameters(self, spec: mujoco.MjSpec) -> None:
+        """Apply the parameter changes (everything but :attr:`effects`) to a spec."""
+        if self.floor_friction is not None:
+            for g in spec.geoms:
+                if g.contype or g.conaffinity:
+                    fr = np.array(g.friction, dtype=np.float64)
+                    fr[0] = self.floor_friction
+                    g.friction = fr
+        bodies = [b for b in spec.bodies if b.name != "world" and b.mass > 0]
+        for b in _targets(self.mass_scale, {b.name: b for b in bodies}, "mass_scale", "body"):
+            s = _value(self.mass_scale, b.name)
+            b.mass = b.mass * s
+            b.inertia = np.asarray(b.inertia) * s
+            full = np.asarray(b.fullinertia)
+            if not np.isnan(full[0]):
+                b.fullinertia = full * s
+        for name, off in self.com_offset.items():
+            b = spec.body(name)
+            if b is None:
+                raise InputError(f"physics {self.name!r}: com_offset: no body {name!r}")
+            b.ipos = np.asarray(b.ipos) + np.asarray(off, dtype=np.float64)
+        acts = {a.target: a for a in spec.actuators}
+        for a in _targets(self.kp_scale, acts, "kp_scale", "actuated joint"):
+            s = _value(self.kp_scale, a.target)
+            a.gainprm = _scaled(a.gainprm, 0, s)
+            a.biasprm = _scaled(a.biasprm, 1, s)
+        for a in _targets(self.kd_scale, acts, "kd_scale", "actuated joint"):
+            a.biasprm = _scaled(a.biasprm, 2, _value(self.kd_scale, a.target))
+        joints = {j.name: j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_HINGE}
+        for j in _targets(self.armature_scale, joints, "armature_scale", "joint"):
+            j.armature = j.armature * _value(self.armature_scale, j.name)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The file's content (what :func:`write_physics` writes)."""
+        out: dict[str, Any] = {"description": self.description}
+        if self.robot is not None:
+            out["robot"] = self.robot
+        if self.floor_friction is not None:
+            out["floor_friction"] = self.floor_friction
+        for key in ("mass_scale", "kp_scale", "kd_scale", "armature_scale"):
+            m = getattr(self, key)
+            if m:
+                out[key] = m[_ALL] if set(m) == {_ALL} else dict(m)
+        if self.com_offset:
+            out["com_offset"] = {k: list(v) for k, v in self.com_offset.items()}
+        if self.effects:
+            out["effects"] = [
+                f"{e.effect}:{','.join(e.targets)}={e.value:.6g}" for e in self.effects
+            ]
+        return out
+
+
+def _value(m: Mapping[str, float], name: str) -> float:
+    return m.get(name, m.get(_ALL, 1.0))
+
+
+def _scaled(prm: Any, i: int, s: float) -> np.ndarray:
+    p = np.array(prm, dtype=np.float64)
+    p[i] *= s
+    return p
+
+
+def _targets(m: Mapping[str, Any], known: Mapping[str, Any], key: str, what: str) -> list[Any]:
+    missing = [k for k in m if k != _ALL and k not in known]
+    if missing:
+        raise InputError(f"{key}: no {what} {missing[0]!r} in the robot")
+    return [v for k, v in known.items() if k in m or _ALL in m]
+
+
+def _number(v: Any, where: str, positive: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise InputError(f"{where}: expected a number, got {v!r}")
+    if positive and v <= 0:
+        raise InputError(f"{where}: must be positive, got {v!r}")
+    return float(v)
+
+
+def _scale_map(v: Any, where: str) -> dict[str, float]:
+    if isinstance(v, Mapping):
+        return {str(k): _number(x, f"{where}.{k}", positive=True) for k, x in v.items()}
+    return {_ALL: _number(v, where, positive=True)}
+
+
+def parse_physics(data: Any, name: str, where: str) -> Physics:
+    """A :class:`Physics` from a parsed YAML mapping; ``where`` names it in errors."""
+    if not isinstance(data, Mapping):
+        raise InputError(f"{where}: expected a mapping of physics fields")
+    unknown = [k for k in data if k not in _KEYS]
+    if unknown:
+        raise InputError(f"{where}: unknown field {unknown[0]!r}; known: {', '.join(_KEYS)}")
+    com: dict[str, tuple[float, float, float]] = {}
+    raw_com = data.get("com_offset") or {}
+    if not isinstance(raw_com, Mapping):
+        raise InputError(f"{where}: com_offset must map bodies to [x, y, z]")
+    for body, off in raw_com.items():
+        if not isinstance(off, list | tuple) or len(off) != 3:
+            raise InputError(f"{where}: com_offset.{body}: expected [x, y, z] in m")
+        xyz = [_number(x, f"{where}: com_offset.{body}") for x in off]
+        com[str(body)] = (xyz[0], xyz[1], xyz[2])
+    effects = data.get("effects") or []
+    if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
+        raise InputError(f"{where}: effects must be a list of EFFECT:TARGET[,TARGET]=VALUE")
+    friction = data.get("floor_friction")
+    robot = data.get("robot")
+    try:
+        parsed = tuple(parse_injection(e) for e in effects)
+    except InputError as e:
+        raise InputError(f"{where}: effects: {e}") from None
+    return Physics(
+        name=name,
+        description=str(data.get("description") or ""),
+        robot=None if robot is None else str(robot),
+        floor_friction=None if friction is None else _number(friction, f"{where}: floor_friction"),
+        mass_scale=_scale_map(data["mass_scale"], f"{where}: mass_scale")
+        if "mass_scale" in data
+        else {},
+        com_offset=com,
+        kp_scale=_scale_map(data["kp_scale"], f"{where}: kp_scale") if "kp_scale" in data else {},
+        kd_scale=_scale_map(data["kd_scale"], f"{where}: kd_scale") if "kd_scale" in data else {},
+        armature_scale=_scale_map(data["armature_scale"], f"{where}: armature_scale")
+        if "armature_scale" in data
+        else {},
+        effects=parsed,
+    )
+
+
+def physics_path(name_or_path: str | os.PathLike[str]) -> Path:
+    """The file of a shipped name or a path.
+
+    Raises:
+        InputError: If neither a shipped name nor an existing file.
+    """
+    text = str(name_or_path)
+    if text in SHIPPED:
+        res = resources.files("humimic") / "configs" / "physics" / f"{text}.yaml"
+        return Path(str(res))
+    path = Path(text)
+    if not path.is_file():
+        raise InputError(
+            f"physics {text!r}: no such file, and not a shipped one ({', '.join(SHIPPED)})"
+        )
+    return path
+
+
+def load_physics(name_or_path: str | os.PathLike[str]) -> Physics:
+    """Read a physics file (or a shipped one by name).
+
+    Raises:
+        InputError: For a missing file, bad YAML or a bad field (named).
+    """
+    path = physics_path(name_or_path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise InputError(f"{path}: cannot read the physics file: {e}") from None
+    return parse_physics(data, path.stem, str(path))
+
+
+def write_physics(physics: Physics, path: str | os.PathLike[str]) -> Path:
+    """Write a physics file (atomically)."""
+    from humimic.io import atomic_write_text
+
+    text = f"# humimic physics file: {physics.name}\n" + yaml.safe_dump(
+        physics.as_dict(), sort_keys=False
+    )
+    atomic_write_text(Path(path), text)
+    return Path(path)
+
+
+def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | None) -> Physics:
+    """The correction ``humimic sysid diagnose`` claimed (its ``report.json``) as physics.
+
+    Only claimed effects (confidence >= 0.5) are kept; a residual network, if the report has
+    one, is not part of a model and is left out.
+    """
+    from humimic.real2sim.diagnose import CLAIM
+
+    effects = []
+    for e in report.get("effects", []):
+        if e["confidence"] < CLAIM:
+            continue
+        targets = (e["body"],) if "body" in e else tuple(e["joints"])
+        effects.append(Injection(effect=e["effect"], targets=targets, value=e["params"]["value"]))
+    return Physics(
+        name=name,
+        description=f"effects claimed by sysid diagnose on {report.get('log', 'a log')}",
+        robot=robot,
+        effects=tuple(effects),
+    )
+
+
+__all__ = [
+    "SHIPPED",
+    "Physics",
+    "load_physics",
+    "parse_physics",
+    "physics_from_sysid",
+    "physics_path",
+    "write_physics",
+]

@@ -1,0 +1,97 @@
+"""``humimic loop`` end to end on a tiny budget, and the rule that no training step reads the
+"real" robot's physics file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.cli.main import main
+from humimic.motion import motion_from_qpos, save_motion
+from humimic.robots import get_robot, nominal_model
+
+
+@pytest.fixture(scope="module")
+def base_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 2-iteration policy on the G1 standing with one arm swinging (1.5 s)."""
+    folder = tmp_path_factory.mktemp("loop")
+    m = nominal_model(get_robot("g1"))
+    q = np.tile(m.key_qpos[0], (46, 1))
+    q[:, m.jnt_qposadr[m.joint("left_shoulder_pitch_joint").id]] += 0.3 * np.sin(
+        2 * np.pi * np.arange(46) / 30.0
+    )
+    save_motion(motion_from_qpos(m, q, 30.0, "g1"), folder / "stand.npz")
+    run = folder / "base"
+    args = ["train", "--motion", str(folder / "stand.npz"), "--out", str(run), "--num-envs", "8",
+            "--max-iterations", "2", "--num-steps-per-env", "8", "--dr", "none", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    return run
+
+
+def test_loop_end_to_end_never_trains_on_the_real_physics(
+    base_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real = tmp_path / "real.yaml"
+    real.write_text("floor_friction: 0.5\neffects:\n  - coulomb_friction:left_knee_joint=3.0\n")
+    hidden = tmp_path / "elsewhere.yaml"
+    stages: list[str] = []
+
+    def hide_real(name: str, fn):
+        def wrapped(*args, **kwargs):
+            stages.append(name)
+            real.rename(hidden)  # Any read of the real file now fails.
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                hidden.rename(real)
+
+        return wrapped
+
+    import humimic.real2sim.report as report_mod
+    import humimic.tracking.train as train_mod
+
+    monkeypatch.setattr(train_mod, "train", hide_real("train", train_mod.train))
+    monkeypatch.setattr(report_mod, "run_diagnosis",
+                        hide_real("sysid", report_mod.run_diagnosis))  # fmt: skip
+    out = tmp_path / "loop"
+    args = ["loop", "--run", str(base_run), "--real", str(real), "--out", str(out),
+            "--episodes", "2", "--iterations", "1", "--num-envs", "8",
+            "--sysid-duration", "6", "--control", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    assert stages == ["sysid", "train", "train"]  # Fine-tuning in the corrected and nominal models.
+
+    r = json.loads((out / "loop.json").read_text())
+    for name in ("before", "after", "after_nominal"):
+        assert 0.0 <= r[name]["policy"]["success_rate"] <= 1.0
+        assert r[name]["policy"]["mpjpe_global_mm"] > 0
+    assert r["sysid"]["kstep_rmse_mrad_before"] > r["sysid"]["kstep_rmse_mrad_after"]
+    assert "humimic loop" in (out / "loop.md").read_text()
+
+    from humimic.real2sim.robotlog import read_robot_log
+    from humimic.tracking.physics import load_physics
+    from humimic.tracking.train import read_run_settings
+
+    corrected = load_physics(out / "corrected.yaml")
+    assert [e.effect for e in corrected.effects]  # Sysid found the knee's friction, or a proxy.
+    assert all(t == "left_knee_joint" for e in corrected.effects for t in e.targets)
+    tuned = read_run_settings(out / "finetune")
+    assert tuned.physics == str(out / "corrected.yaml") and tuned.init_from == base_run
+    assert read_run_settings(out / "finetune_nominal").physics is None
+    names = tuple(nominal_model(get_robot("g1")).joint(j).name for j in range(1, 30))
+    log = read_robot_log(out / "before" / "robot_log.mcap", names)
+    assert log.base == "floating" and len(log.t) == r["before"]["policy"]["mean_steps"] + 1
+    assert json.loads((out / "before" / "eval.json").read_text())["physics"]["name"] == "real"
+
+
+def test_bad_input_exits_2_and_writes_nothing(base_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "loop"
+    args = ["loop", "--run", str(base_run), "--out", str(out), "--quiet"]
+    assert main([*args, "--real", str(tmp_path / "missing.yaml")]) == 2
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("floor_friction: slippery\n")
+    assert main([*args, "--real", str(bad)]) == 2
+    assert main([*args, "--real", "worn_knees", "--iterations", "0"]) == 2
+    assert not out.exists()

@@ -1,0 +1,118 @@
+"""Physics files: parsing, what they change in the training model, delays across steps."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from humimic.errors import InputError
+from humimic.tracking.backend import MujocoCpuBackend
+from humimic.tracking.config import g1_tracking
+from humimic.tracking.env import build_backend, tracking_model
+from humimic.tracking.physics import SHIPPED, load_physics, parse_physics, write_physics
+
+
+@pytest.fixture(scope="module")
+def nominal() -> mujoco.MjModel:
+    return tracking_model(g1_tracking("none"))
+
+
+def test_shipped_files_load_and_compile() -> None:
+    for name in SHIPPED:
+        ph = load_physics(name)
+        assert ph.name == name and ph.description and ph.robot == "g1" and ph.effects
+        model = tracking_model(replace(g1_tracking("none"), physics=ph))
+        assert model.nu == 29
+
+
+def test_every_change_reaches_the_model(nominal: mujoco.MjModel, tmp_path: Path) -> None:
+    data = {
+        "floor_friction": 0.4,
+        "mass_scale": {"pelvis": 1.2},
+        "com_offset": {"torso_link": [0.01, -0.02, 0.03]},
+        "kp_scale": 0.8,
+        "kd_scale": {"left_knee_joint": 1.5},
+        "armature_scale": 2.0,
+        "effects": ["coulomb_friction:right_knee_joint=2.5", "payload_mass:torso_link=3"],
+    }
+    ph = parse_physics(data, "test", "test")
+    m = tracking_model(replace(g1_tracking("none"), physics=ph))
+    n = nominal
+    colliders = np.flatnonzero((n.geom_contype | n.geom_conaffinity) != 0)
+    np.testing.assert_allclose(m.geom_friction[colliders, 0], 0.4)
+    pelvis, torso = n.body("pelvis").id, n.body("torso_link").id
+    assert m.body_mass[pelvis] == pytest.approx(1.2 * n.body_mass[pelvis])
+    np.testing.assert_allclose(m.body_inertia[pelvis], 1.2 * n.body_inertia[pelvis], rtol=1e-9)
+    assert m.body_mass[torso] == pytest.approx(n.body_mass[torso] + 3.0)
+    np.testing.assert_allclose(m.body_ipos[torso] - n.body_ipos[torso], [0.01, -0.02, 0.03])
+    np.testing.assert_allclose(m.actuator_gainprm[:, 0], 0.8 * n.actuator_gainprm[:, 0])
+    np.testing.assert_allclose(m.actuator_biasprm[:, 1], 0.8 * n.actuator_biasprm[:, 1])
+    knee = next(a for a in range(n.nu) if n.actuator(a).name.startswith("left_knee"))
+    kd = m.actuator_biasprm[:, 2] / n.actuator_biasprm[:, 2]
+    assert kd[knee] == pytest.approx(1.5) and np.delete(kd, knee) == pytest.approx(1.0)
+    hinges = np.arange(6, n.nv)
+    np.testing.assert_allclose(m.dof_armature[hinges], 2.0 * n.dof_armature[hinges])
+    rk = m.jnt_dofadr[m.joint("right_knee_joint").id]
+    assert m.dof_frictionloss[rk] == pytest.approx(n.dof_frictionloss[rk] + 2.5)
+    # Written and read back: the same physics.
+    path = write_physics(ph, tmp_path / "p.yaml")
+    assert load_physics(path).as_dict() == ph.as_dict()
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"gravity": 1}, "unknown field 'gravity'"),
+        ({"kp_scale": -1}, "must be positive"),
+        ({"kp_scale": {"no_joint": 1.1}}, "no actuated joint 'no_joint'"),
+        ({"floor_friction": "slippery"}, "expected a number"),
+        ({"com_offset": {"torso_link": [0, 0]}}, "expected [x, y, z]"),
+        ({"effects": ["rust:left_knee_joint=1"]}, "unknown effect 'rust'"),
+        ({"effects": ["payload_mass:no_body=1"]}, "no body 'no_body'"),
+        ({"robot": "t1"}, "written for 't1', not 'g1'"),
+    ],
+)
+def test_bad_files_are_refused(data: dict, message: str) -> None:
+    with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        tracking_model(replace(g1_tracking("none"), physics=parse_physics(data, "bad", "bad")))
+
+
+def test_missing_file_names_the_shipped_ones() -> None:
+    with pytest.raises(InputError, match=r"not a shipped one .*worn_knees"):
+        load_physics("no_such_physics.yaml")
+
+
+def test_transport_delay_holds_the_reset_pose_and_survives_steps(
+    nominal: mujoco.MjModel,
+) -> None:
+    """A 30 ms delay on the left knee: after a reset, its drive holds the reset pose for
+    30 ms whatever the new command, across several stepping calls (the delay line is part
+    of each env's state); without the delay the knee moves at once."""
+    ph = parse_physics({"effects": ["delay:left_knee_joint=0.03"]}, "delay", "delay")
+    delayed = tracking_model(replace(g1_tracking("none"), physics=ph))
+    knee = delayed.jnt_qposadr[delayed.joint("left_knee_joint").id]
+    pose = nominal.key_qpos[0].copy()
+    pose[knee] = 0.4  # Bent: a drive that held zeros instead would pull it straight.
+
+    def knee_after(model: mujoco.MjModel, calls: int, command: float) -> float:
+        be = build_backend(g1_tracking("none"), 1, model=model)
+        assert isinstance(be, MujocoCpuBackend)
+        be.set_ctrl(np.zeros((1, model.nu)))  # Whatever the previous episode commanded.
+        be.reset_to(np.array([0]), pose[None], np.zeros((1, model.nv)))
+        ctrl = pose[None, 7:].copy()
+        ctrl[0, knee - 7] += command
+        be.set_ctrl(ctrl)
+        for _ in range(calls):
+            be.step(2)  # 10 ms per call.
+        be.close()
+        return float(be.read().qpos[0, knee])
+
+    for calls in (1, 2):  # 10 and 20 ms: the command has not arrived, the drive holds the pose.
+        held = knee_after(nominal, calls, 0.0)
+        assert knee_after(delayed, calls, 0.5) == pytest.approx(held, abs=1e-9)
+    assert knee_after(delayed, 5, 0.5) - knee_after(delayed, 5, 0.0) > 1e-3  # 50 ms: it has.
+    assert knee_after(nominal, 1, 0.5) - knee_after(nominal, 1, 0.0) > 1e-4
