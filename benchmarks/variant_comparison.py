@@ -101,7 +101,8 @@ def main() -> None:
         "seconds": time.perf_counter() - t0,
     }
     (args.out / "comparison.json").write_text(json.dumps(out, indent=2) + "\n")
-    lines = ["| policy | iterations | " + " | ".join(c for c, _, _ in conditions) + " |",
+    lines = ["Cells: mean steps survived / success / global MPJPE mm / joint error rad", "",
+             "| policy | iterations | " + " | ".join(c for c, _, _ in conditions) + " |",
              "|---|---|" + "---|" * len(conditions)]  # fmt: skip
     for name in [*policies, "open loop"]:
         cells = []
@@ -109,8 +110,8 @@ def main() -> None:
         for cond, _, _ in conditions:
             row = next(r for r in rows if r["policy"] == name and r["physics"] == cond)
             its = str(row.get("iterations", "-"))
-            cells.append(f"{100 * row['success_rate']:.0f}% / {row['mpjpe_global_mm']:.0f} mm / "
-                         f"{row['joint_error_rad']:.3f}")  # fmt: skip
+            cells.append(f"{row['mean_steps']:.1f} / {100 * row['success_rate']:.0f}% / "
+                         f"{row['mpjpe_global_mm']:.0f} / {row['joint_error_rad']:.3f}")  # fmt: skip
         lines.append(f"| {name} | {its} | " + " | ".join(cells) + " |")
     table = "\n".join(lines) + "\n"
     (args.out / "comparison.md").write_text(table)

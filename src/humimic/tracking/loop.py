@@ -191,6 +191,10 @@ def loop(settings: LoopSettings) -> dict:
     return report
 
 
+def _done(finetune: dict) -> str:
+    return str(finetune["last"].get("iteration", "?"))
+
+
 def _markdown(r: dict) -> str:
     rows = [("before", r["before"]), ("after (corrected model)", r["after"])]
     if "after_nominal" in r:
@@ -198,7 +202,13 @@ def _markdown(r: dict) -> str:
     lines = [
         f"# humimic loop: {r['run']} on the real robot `{r['real']}`",
         "",
-        f"Motion `{r['motion']}`; fine-tuning {r['iterations']} iterations.",
+        f"Motion `{r['motion']}`. Fine-tuning: {_done(r['finetune'])} PPO iterations in the "
+        "corrected model"
+        + (
+            f", {_done(r['finetune_nominal'])} in the nominal model (control)."
+            if "finetune_nominal" in r
+            else "."
+        ),
         "",
         "| policy | success | mean steps | global MPJPE mm | root-relative MPJPE mm | joint error rad |",
         "|---|---|---|---|---|---|",
