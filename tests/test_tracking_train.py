@@ -167,7 +167,29 @@ def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> N
                 "--num-envs", "8", "--max-iterations", "2", "--quiet"]  # fmt: skip
     assert main(gru_args) == 0
     assert main(["eval", str(gru), "--episodes", "2"]) == 0
-    assert main(["export", str(gru), "--out", str(tmp_path / "g.onnx")]) == 2
+    # The recurrent student exports with its GRU state as input and output; fed back step by
+    # step, ONNX and torch agree.
+    from onnx.reference import ReferenceEvaluator
+
+    from humimic.tracking.export import load_policy_runner
+
+    path = tmp_path / "g.onnx"
+    assert main(["export", str(gru), "--out", str(path)]) == 0
+    runner, env, _ = load_policy_runner(gru, None)
+    try:
+        policy = runner.get_inference_policy(device="cpu")
+        obs = env.get_observations()
+        seq = [obs["policy"] + 0.2 * k for k in range(3)]
+        with torch.inference_mode():
+            expected = [policy(obs.clone().update({"policy": x})).numpy() for x in seq]
+    finally:
+        env.close()
+    onnx_policy = ReferenceEvaluator(str(path))
+    h = np.zeros((1, 1, 256), dtype=np.float32)
+    for x, want in zip(seq, expected, strict=True):
+        got, h = onnx_policy.run(None, {"obs": x.numpy(), "h_in": h})
+        np.testing.assert_allclose(np.asarray(got), want, rtol=1e-4, atol=1e-5)
+    assert not np.allclose(expected[0], expected[2])  # The state and the inputs matter.
 
 
 def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:

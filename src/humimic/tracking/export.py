@@ -5,7 +5,9 @@ input ``obs`` (the actor's observation groups concatenated in the order of the r
 ``obs_groups``, e.g. ``policy`` then ``proprio_history`` for the ``asymmetric`` variant; Shape:
 (batch, D)), output ``actions``
 (Shape: (batch, num_joints); PD targets are ``default + scale * actions``, see
-docs/tracking.md). The file is written atomically.
+docs/tracking.md). A recurrent student (``humimic distill --student gru``) also takes its GRU
+state ``h_in`` (Shape: (layers, batch, hidden); zeros at the start of an episode) and returns
+the next one as ``h_out``: feed it back at every policy step. The file is written atomically.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import contextlib
 import io
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import torch
@@ -59,19 +62,28 @@ def export(settings: ExportSettings) -> Path:
             f"{settings.run}: a teacher's actor reads the simulator's physics parameters, which "
             "a robot does not have; distill it (humimic distill) and export the student"
         )
-    if cfg.get("student", {}).get("class_name") == "RNNModel":
-        raise InputError(f"{settings.run}: exporting recurrent students is not supported yet")
     runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
     try:
         model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
         fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
         os.close(fd)
         try:
-            with contextlib.redirect_stdout(io.StringIO()), torch.no_grad():
+            batch = torch.export.Dim("batch")
+            recurrent = bool(getattr(model, "is_recurrent", False))
+            # A GRU's state has the batch on its second axis.
+            shapes = ({0: batch}, {1: batch}) if recurrent else ({0: batch},)
+            with (
+                contextlib.redirect_stdout(io.StringIO()),
+                torch.no_grad(),
+                warnings.catch_warnings(),
+            ):
+                # torch's exporter notes that a GRU's flat weights are plain attributes; the
+                # weights are exported all the same (a test compares the outputs).
+                warnings.filterwarnings("ignore", message=".*rnn._flat_weights")
                 torch.onnx.export(model, model.get_dummy_inputs(), tmp, export_params=True,
-                                  opset_version=18, input_names=["obs"],
-                                  output_names=["actions"], dynamo=True,
-                                  dynamic_shapes=({0: torch.export.Dim("batch")},))  # fmt: skip
+                                  opset_version=18, input_names=model.input_names,
+                                  output_names=model.output_names,
+                                  dynamo=True, dynamic_shapes=shapes)  # fmt: skip
             os.chmod(tmp, 0o644)
             os.replace(tmp, out)
         except OSError as e:
