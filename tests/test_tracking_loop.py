@@ -35,7 +35,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     base_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     real = tmp_path / "real.yaml"
-    real.write_text("floor_friction: 0.5\neffects:\n  - coulomb_friction:left_knee_joint=3.0\n")
+    real.write_text("floor_friction: 0.5\neffects:\n  - gain_mismatch:left_knee_joint=0.7\n")
     hidden = tmp_path / "elsewhere.yaml"
     stages: list[str] = []
 
@@ -58,8 +58,8 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
                         hide_real("sysid", report_mod.run_diagnosis))  # fmt: skip
     out = tmp_path / "loop"
     args = ["loop", "--run", str(base_run), "--real", str(real), "--out", str(out),
-            "--episodes", "2", "--iterations", "1", "--num-envs", "8",
-            "--sysid-duration", "6", "--control", "--quiet"]  # fmt: skip
+            "--episodes", "1", "--iterations", "1", "--num-envs", "8",
+            "--sysid-duration", "5", "--control", "--quiet"]  # fmt: skip
     assert main(args) == 0
     assert stages == ["sysid", "train", "train"]  # Fine-tuning in the corrected and nominal models.
 
@@ -74,9 +74,11 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     from humimic.tracking.physics import load_physics
     from humimic.tracking.train import read_run_settings
 
-    corrected = load_physics(out / "corrected.yaml")
-    assert [e.effect for e in corrected.effects]  # Sysid found the knee's friction, or a proxy.
-    assert all(t == "left_knee_joint" for e in corrected.effects for t in e.targets)
+    corrected = load_physics(out / "corrected.yaml")  # Sysid found the weak knee drive.
+    assert [(e.effect, e.targets) for e in corrected.effects] == [
+        ("gain_mismatch", ("left_knee_joint",))
+    ]
+    assert corrected.effects[0].value == pytest.approx(0.7, abs=0.03)
     tuned = read_run_settings(out / "finetune")
     assert tuned.physics == str(out / "corrected.yaml") and tuned.init_from == base_run
     assert read_run_settings(out / "finetune_nominal").physics is None
