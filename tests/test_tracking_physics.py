@@ -98,7 +98,7 @@ def test_transport_delay_holds_the_reset_pose_and_survives_steps(
     pose = nominal.key_qpos[0].copy()
     pose[knee] = 0.4  # Bent: a drive that held zeros instead would pull it straight.
 
-    def knee_after(model: mujoco.MjModel, calls: int, command: float) -> float:
+    def knee_after(model: mujoco.MjModel, calls: int, command: float, push: bool = False) -> float:
         be = build_backend(g1_tracking("none"), 1, model=model)
         assert isinstance(be, MujocoCpuBackend)
         be.set_ctrl(np.zeros((1, model.nu)))  # Whatever the previous episode commanded.
@@ -106,8 +106,10 @@ def test_transport_delay_holds_the_reset_pose_and_survives_steps(
         ctrl = pose[None, 7:].copy()
         ctrl[0, knee - 7] += command
         be.set_ctrl(ctrl)
-        for _ in range(calls):
+        for c in range(calls):
             be.step(2)  # 10 ms per call.
+            if push and c == 0:  # A push of nothing: the delay line must carry on.
+                be.push(np.array([0]), np.zeros((1, model.nv)))
         be.close()
         return float(be.read().qpos[0, knee])
 
@@ -116,3 +118,5 @@ def test_transport_delay_holds_the_reset_pose_and_survives_steps(
         assert knee_after(delayed, calls, 0.5) == pytest.approx(held, abs=1e-9)
     assert knee_after(delayed, 5, 0.5) - knee_after(delayed, 5, 0.0) > 1e-3  # 50 ms: it has.
     assert knee_after(nominal, 1, 0.5) - knee_after(nominal, 1, 0.0) > 1e-4
+    unpushed = knee_after(delayed, 5, 0.5)
+    assert knee_after(delayed, 5, 0.5, push=True) == pytest.approx(unpushed, abs=1e-6)

@@ -128,6 +128,15 @@ class PhysicsBackend(Protocol):
         """
         ...
 
+    def push(self, env_ids: np.ndarray, dqvel: np.ndarray) -> None:
+        """Add to the velocity of some envs, keeping the rest of their state (actuator
+        activations and delay lines), and recompute what ``read`` returns for them.
+
+        Args:
+            env_ids: Shape: (n,). dqvel: Shape: (n, nv).
+        """
+        ...
+
     def set_ctrl(self, ctrl: np.ndarray) -> None:
         """Set the PD position targets of all envs. Shape: (num_envs, J)."""
         ...
@@ -392,6 +401,24 @@ class MujocoCpuBackend:
             d.ctrl[:] = self._ctrl[i]
             if self._hist_acts.size:  # Delayed drives have been holding the reset pose.
                 self._init_history(m, d, qpos[k])
+            mujoco.mj_forward(m, d)
+            self._qpos[i] = d.qpos
+            self._qvel[i] = d.qvel
+            self._sens[i] = d.sensordata
+            mujoco.mj_getState(m, d, self._state[i], self._spec)
+
+    def push(self, env_ids: np.ndarray, dqvel: np.ndarray) -> None:
+        env_ids = np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        dqvel = np.asarray(dqvel, dtype=np.float64).reshape(len(env_ids), self.nv)
+        for k, i in enumerate(env_ids):
+            m = self.model_of(int(i))
+            if self._datas:  # Threads: each env's MjData holds its state.
+                d = self._datas[i]
+            else:
+                d = self._scratch[0]
+                mujoco.mj_setState(m, d, self._state[i], self._spec)
+                d.ctrl[:] = self._ctrl[i]
+            d.qvel[:] += dqvel[k]
             mujoco.mj_forward(m, d)
             self._qpos[i] = d.qpos
             self._qvel[i] = d.qvel

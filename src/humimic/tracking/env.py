@@ -515,11 +515,9 @@ class TrackingEnv(VecEnv):
         n = int(ids.numel())
         lo, hi = dr.push_interval_s
         self._push_timer[ids] = self._rand(lo, hi, (n,))
-        r = self.backend.read()
-        ids_np = ids.cpu().numpy()
-        qpos, qvel = r.qpos[ids_np].copy(), r.qvel[ids_np].copy()
-        qvel[:, :6] += self._rng.uniform(self._push_lo, self._push_hi, size=(n, 6))
-        self.backend.reset_to(ids_np, qpos, qvel)
+        dqvel = np.zeros((n, self.backend.nv))
+        dqvel[:, :6] = self._rng.uniform(self._push_lo, self._push_hi, size=(n, 6))
+        self.backend.push(ids.cpu().numpy(), dqvel)
         return True
 
     def _make_noise_scale(self) -> torch.Tensor | None:
