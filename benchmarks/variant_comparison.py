@@ -1,6 +1,7 @@
 """Training variants on one motion: nominal, DR-range and unseen physics (issue 6's table).
 
-Trains each variant (``humimic train --variant``) for the same wall-time budget, distills the
+Trains each variant (``humimic train --variant``) for the same wall-time budget (or, with
+``--iterations``, to the same number of PPO iterations, resuming runs that exist), distills the
 teacher into a student (``humimic distill``), then evaluates every policy on the same episodes
 under three kinds of physics: the nominal robot (DR ``none``), robots drawn from the training
 ranges (DR ``default``, with observation noise and pushes), and robots training never sampled
@@ -13,7 +14,7 @@ file with DR ``none`` it is the nominal value, not the file's: a teacher cannot 
 robot's physics either.
 
 Usage: .venv/bin/python benchmarks/variant_comparison.py --motion walk.npz --out runs/compare
-    [--minutes 7] [--num-envs 128] [--variants robust asymmetric teacher beyondmimic]
+    [--minutes 7 | --iterations 1000] [--num-envs 128] [--variants robust asymmetric teacher beyondmimic]
     [--distill-minutes 4] [--episodes 16] [--unseen backpack worn_knees]
 """
 
@@ -34,14 +35,22 @@ _KEYS = ("success_rate", "mean_steps", "mpjpe_global_mm", "joint_error_rad")
 
 
 def _train(args: argparse.Namespace, variant: str) -> Path:
+    """Train a variant for ``--minutes`` (a new run only), or to ``--iterations`` PPO
+    iterations (new or resumed: the same number of updates for every variant, whatever else
+    the machine does meanwhile)."""
     run = args.out / variant
-    if not (run / "config.yaml").exists():
-        code = humimic(["train", "--motion", str(args.motion), "--out", str(run),
-                        "--variant", variant, "--num-envs", str(args.num_envs),
-                        "--max-iterations", "1000000", "--max-minutes", str(args.minutes),
-                        "--checkpoint-every", "100", "--seed", str(args.seed), "--quiet"])  # fmt: skip
-        if code != 0:
-            raise SystemExit(f"training {variant} failed ({code})")
+    exists = (run / "config.yaml").exists()
+    if args.iterations is not None:
+        budget = ["--max-iterations", str(args.iterations)] + (["--resume"] if exists else [])
+    elif not exists:
+        budget = ["--max-iterations", "1000000", "--max-minutes", str(args.minutes)]
+    else:
+        return run
+    code = humimic(["train", "--motion", str(args.motion), "--out", str(run),
+                    "--variant", variant, "--num-envs", str(args.num_envs), *budget,
+                    "--checkpoint-every", "100", "--seed", str(args.seed), "--quiet"])  # fmt: skip
+    if code != 0:
+        raise SystemExit(f"training {variant} failed ({code})")
     return run
 
 
@@ -62,6 +71,9 @@ def main() -> None:
     parser.add_argument("--motion", type=Path, required=True)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--minutes", type=float, default=7.0)
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="train (or resume) every variant to this many PPO iterations "
+                        "instead of --minutes")  # fmt: skip
     parser.add_argument("--num-envs", type=int, default=128)
     parser.add_argument("--variants", nargs="+",
                         default=["robust", "asymmetric", "teacher", "beyondmimic"])  # fmt: skip
@@ -93,7 +105,8 @@ def main() -> None:
         "benchmark": "variant_comparison",
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()},
         "motion": str(args.motion),
-        "minutes_per_variant": args.minutes,
+        "minutes_per_variant": None if args.iterations is not None else args.minutes,
+        "iterations_per_variant": args.iterations,
         "distill_minutes": args.distill_minutes,
         "num_envs": args.num_envs,
         "episodes": args.episodes,

@@ -258,7 +258,20 @@ class TrackingEnv(VecEnv):
         self._history = torch.zeros(num_envs, cfg.history_length, self._policy_dim, device=dev)
         self._fresh = torch.ones(num_envs, dtype=torch.bool, device=dev)
         self._noise_scale = self._make_noise_scale()
-        self._log: dict[str, torch.Tensor] = {}
+        scale = self.step_dt if cfg.reward_dt_scale else 1.0
+        self._rew_weights = torch.tensor(
+            [tc.weight * scale for tc in cfg.rewards.values()], device=dev
+        ).unsqueeze(1)
+        self._rew_buf = torch.zeros(len(cfg.rewards), num_envs, device=dev)
+        self._term_buf = torch.zeros(len(cfg.terminations), num_envs, dtype=torch.bool, device=dev)
+        is_timeout = [tc.time_out for tc in cfg.terminations.values()]
+        self._timeout_rows = torch.tensor(
+            [k for k, t in enumerate(is_timeout) if t], dtype=torch.long, device=dev
+        )
+        self._terminal_rows = torch.tensor(
+            [k for k, t in enumerate(is_timeout) if not t], dtype=torch.long, device=dev
+        )
+        self._log_keys = [f"term_{k}" for k in cfg.terminations] + [f"rew_{k}" for k in cfg.rewards]
 
         self._reset_idx(self._arange)
         self._read_backend()
@@ -308,40 +321,23 @@ class TrackingEnv(VecEnv):
         s.frame.add_(1).clamp_(max=self.num_frames - 1)
         self._read_backend()
         self._update_reference()
-
         # Terminations and rewards, before any reset.
-        self._terminated.zero_()
-        self._time_outs.zero_()
-        log = self._log
-        for name, tc in cfg.terminations.items():
-            fired = tc.func(self, **tc.params)
-            if tc.time_out:
-                self._time_outs |= fired
-            else:
-                self._terminated |= fired
-            log[f"term_{name}"] = fired.float().mean()
-        self._rewards.zero_()
-        scale = self.step_dt if cfg.reward_dt_scale else 1.0
-        for name, tc in cfg.rewards.items():
-            value = tc.func(self, **tc.params) * (tc.weight * scale)
-            self._rewards += value
-            log[f"rew_{name}"] = value.mean()
+        log = dict(zip(self._log_keys, self._compute_terms().unbind(), strict=True))
         dones = self._terminated | self._time_outs
 
         self._update_failure_stats()
         done_ids = dones.nonzero(as_tuple=False).flatten()
-        moved = done_ids.numel() > 0
-        if moved:
+        reset = done_ids.numel() > 0
+        if reset:
             self._reset_idx(done_ids)
-        moved |= self._apply_pushes()
-        if moved:  # One read of the new states for resets and pushes together.
+        pushed = self._apply_pushes()
+        if reset or pushed:  # One read of the new states for resets and pushes together.
             self._read_backend()
-            # The relative reference serves rewards and terminations only: the next step
-            # recomputes it after physics, so observations need the rest alone.
-            self._update_reference(relative=False)
+        if reset:
+            self._update_reference()  # For the observations (rewards: next step's).
         self._compute_observations()
         log["sampling_entropy"] = self._sampling_entropy()
-        extras = {"time_outs": self._time_outs.clone(), "log": dict(log)}
+        extras = {"time_outs": self._time_outs.clone(), "log": log}
         return self.get_observations(), self._rewards.clone(), dones, extras
 
     @property
@@ -374,9 +370,7 @@ class TrackingEnv(VecEnv):
             return torch.full((n,), 1.0 / n, device=self.device)
         p = self._bin_failed + ad.uniform_ratio / n
         padded = torch.cat([p, p[-1:].expand(ad.kernel_size - 1)])
-        k = self._kernel.view(-1)
-        out = sum(k[i] * padded[i : i + n] for i in range(ad.kernel_size))
-        assert isinstance(out, torch.Tensor)
+        out = torch.nn.functional.conv1d(padded.view(1, 1, -1), self._kernel).view(n)
         return out / out.sum()
 
     def close(self) -> None:
@@ -402,7 +396,8 @@ class TrackingEnv(VecEnv):
         put(s.contact_found, r.contact_found)
         put(s.foot_force, r.foot_force)
 
-    def _update_reference(self, relative: bool = True) -> None:
+    def _update_reference(self) -> None:
+        """The reference at each env's frame (the relative reference is :meth:`_compute_terms`'s)."""
         s, f = self.state, self.state.frame
         jp, jv, bp, bq, bl, ba = self._m_packed[f].split(self._m_split, dim=1)
         s.ref_joint_pos.copy_(jp)
@@ -411,8 +406,22 @@ class TrackingEnv(VecEnv):
         s.ref_body_quat_w.copy_(bq.view(s.ref_body_quat_w.shape))
         s.ref_body_lin_vel_w.copy_(bl.view(s.ref_body_lin_vel_w.shape))
         s.ref_body_ang_vel_w.copy_(ba.view(s.ref_body_ang_vel_w.shape))
-        if relative:
-            s.update_relative()
+
+    def _compute_terms(self) -> torch.Tensor:
+        """The relative reference, then every termination and reward term into the rows of
+        one buffer each, so that sums and logged means are one operation each whatever the
+        number of terms. Returns the logged means (terminations, then rewards)."""
+        self.state.update_relative()
+        cfg, terms, values = self.cfg, self._term_buf, self._rew_buf
+        for k, tc in enumerate(cfg.terminations.values()):
+            terms[k] = tc.func(self, **tc.params)
+        for k, tc in enumerate(cfg.rewards.values()):
+            values[k] = tc.func(self, **tc.params)
+        values *= self._rew_weights
+        torch.any(terms.index_select(0, self._timeout_rows), dim=0, out=self._time_outs)
+        torch.any(terms.index_select(0, self._terminal_rows), dim=0, out=self._terminated)
+        torch.sum(values, dim=0, out=self._rewards)
+        return torch.cat([terms.mean(dim=1, dtype=torch.float32), values.mean(dim=1)])
 
     def _rand(
         self, lo: torch.Tensor | float, hi: torch.Tensor | float, shape: tuple[int, ...]
@@ -537,20 +546,28 @@ class TrackingEnv(VecEnv):
         ]
         return torch.cat(parts).to(self.device)
 
-    def _compute_observations(self) -> None:
+    def _observation_math(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The noise-free ``policy`` and ``critic`` observations (pure tensor math)."""
         s = self.state
         root_quat = s.root_quat_w
         anchor_pos_b, anchor_quat_b = subtract_frame_transforms(
             s.anchor_pos_w, s.anchor_quat_w, s.ref_anchor_pos_w, s.ref_anchor_quat_w
         )
-        root_ang_vel_b = quat_apply_inverse(root_quat, s.body_ang_vel_w[:, s.root_index])
+        # Gravity, angular and linear velocity in the root frame: one rotation of three vectors.
+        root_vecs = torch.stack(
+            [self._gravity, s.body_ang_vel_w[:, s.root_index], s.body_lin_vel_w[:, s.root_index]],
+            dim=1,
+        )
+        gravity_b, root_ang_vel_b, root_lin_vel_b = quat_apply_inverse(
+            root_quat[:, None], root_vecs
+        ).unbind(1)
         policy = torch.cat(
             [
                 s.ref_joint_pos,
                 s.ref_joint_vel,
                 anchor_pos_b,
                 rot6d_from_quat(anchor_quat_b),
-                quat_apply_inverse(root_quat, self._gravity),
+                gravity_b,
                 root_ang_vel_b,
                 s.joint_pos - s.default_joint_pos,
                 s.joint_vel,
@@ -562,20 +579,22 @@ class TrackingEnv(VecEnv):
         body_pos_b, body_quat_b = subtract_frame_transforms(
             s.anchor_pos_w[:, None], s.anchor_quat_w[:, None], s.body_pos_w, s.body_quat_w
         )
-        root_lin_vel_b = quat_apply_inverse(root_quat, s.body_lin_vel_w[:, s.root_index])
-        self._critic.copy_(
-            torch.cat(
-                [
-                    policy,
-                    self._params_e,
-                    root_lin_vel_b,
-                    body_pos_b.reshape(-1, 3 * B),
-                    rot6d_from_quat(body_quat_b).reshape(-1, 6 * B),
-                    s.foot_force,
-                ],
-                dim=-1,
-            )
+        critic = torch.cat(
+            [
+                policy,
+                self._params_e,
+                root_lin_vel_b,
+                body_pos_b.reshape(-1, 3 * B),
+                rot6d_from_quat(body_quat_b).reshape(-1, 6 * B),
+                s.foot_force,
+            ],
+            dim=-1,
         )
+        return policy, critic
+
+    def _compute_observations(self) -> None:
+        policy, critic = self._observation_math()
+        self._critic.copy_(critic)
         if self._noise_scale is not None:
             u = torch.rand(policy.shape, generator=self._gen, device=self.device)
             policy = policy + (2.0 * u - 1.0) * self._noise_scale

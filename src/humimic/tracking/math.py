@@ -65,17 +65,15 @@ def yaw_quat(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.cos(yaw / 2), zeros, zeros, torch.sin(yaw / 2)], dim=-1)
 
 
-_EXY: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
-
-
 def rot6d_from_quat(q: torch.Tensor) -> torch.Tensor:
-    """The first two columns of the rotation matrix, row-major flattened. Shape: (..., 6)."""
-    key = (q.device, q.dtype)
-    e = _EXY.get(key)
-    if e is None:
-        e = _EXY[key] = torch.eye(3, device=q.device, dtype=q.dtype)[:2]
-    cols = quat_apply(q[..., None, :], e.expand(*q.shape[:-1], 2, 3))  # R e_x, R e_y
-    return cols.transpose(-1, -2).reshape(*q.shape[:-1], 6)
+    """The first two columns of the rotation matrix, row-major flattened:
+    ``[R00, R01, R10, R11, R20, R21]``. Shape: (..., 6)."""
+    w, x, y, z = q.unbind(-1)
+    x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
+    xx, yy, zz = x * x2, y * y2, z * z2
+    xy, xz, yz = x * y2, x * z2, y * z2
+    wx, wy, wz = w * x2, w * y2, w * z2
+    return torch.stack([1.0 - yy - zz, xy - wz, xy + wz, 1.0 - xx - zz, xz - wy, yz + wx], dim=-1)
 
 
 def quat_from_euler_xyz(roll: torch.Tensor, pitch: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
