@@ -9,8 +9,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from humimic.retarget.contacts import detect_contacts, plant_segments, runs
+from humimic.retarget.interaction_mesh import build_mesh
 from humimic.retarget.limits import FloorLimit, SelfCollisionLimit
 from humimic.retarget.tasks import (
+    InteractionMeshTask,
     KeypointsTask,
     OrientationsTask,
     rotation_log,
@@ -32,12 +34,14 @@ ARM_XML = """
           <joint name="elbow" axis="0 1 0" range="-2.5 0.1"/>
           <geom name="lower_geom" type="capsule" fromto="0 0 0 0.25 0 0" size="0.025"/>
           <site name="hand" pos="0.25 0 0"/>
+          <site name="elbow_site" pos="0 0 0"/>
         </body>
       </body>
       <body name="foot" pos="0 0 -0.5">
         <joint name="hip" axis="0 1 0" range="-1 1"/>
         <geom name="sole" type="sphere" size="0.02" pos="0.05 0 -0.05"/>
         <geom name="heel" type="box" size="0.03 0.02 0.01" pos="-0.05 0 -0.05"/>
+        <site name="foot_site" pos="0 0 -0.05"/>
       </body>
     </body>
   </worldbody>
@@ -199,3 +203,22 @@ def test_plant_segments_split_on_drift() -> None:
     assert segs[0] == (0, 3) and segs[-1][1] == 10
     for a, b in segs:
         assert np.abs(xy[a:b, 0] - xy[a, 0]).max() <= 0.025
+
+
+@pytest.mark.parametrize("weighting", ["uniform", "inverse_distance"])
+def test_interaction_mesh_task_jacobian(arm: mink.Configuration, weighting: str) -> None:
+    sites = ["hand", "elbow_site", "foot_site"]
+    rng = np.random.default_rng(3)
+    robot_now = np.array([arm.data.site(s).xpos for s in sites])
+    # The source (human) mesh: the sites moved a little, and scene points around them.
+    source = robot_now + 0.05 * rng.standard_normal(robot_now.shape)
+    scene = robot_now.mean(axis=0) + 0.4 * rng.standard_normal((12, 3))
+    task = InteractionMeshTask(arm.model, sites, cost=2.0)
+    task.set_mesh(build_mesh(source, scene, weighting=weighting))
+    err = task.compute_error(arm)
+    assert err.shape == (3 * 15,) and np.abs(err).max() > 1e-3  # Deformed: a real test.
+    jac = task.compute_jacobian(arm)
+    np.testing.assert_allclose(jac, fd_jacobian(arm, task.compute_error), atol=1e-6)
+    # At the source configuration the error vanishes: the residual is relative to the source.
+    assert task.mesh is not None
+    np.testing.assert_allclose(task.mesh.residual(source), 0.0, atol=1e-12)

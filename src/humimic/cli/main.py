@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from humimic.configs import RetargetConfig, retarget_default, retarget_fast
+from humimic.configs import InteractionConfig, RetargetConfig, retarget_default, retarget_fast
 from humimic.configs.runs import (
     DistillSettings,
     EvalSettings,
@@ -66,6 +66,13 @@ class RetargetCommand:
     """Named IK settings (humimic.configs); --ik.* flags change single fields on top of it."""
     ik: RetargetConfig = field(default_factory=lambda: RETARGET_CONFIGS[_PRESET[0]]())
     """IK settings (defaults: those of --preset)."""
+    method: Literal["kinematic", "interaction-mesh"] = "kinematic"
+    """kinematic (mink IK), or interaction-mesh (keeps the contacts with --scene)."""
+    scene: Path | None = None
+    """The scene of the clips (interaction-mesh): a scene .yaml, a mesh (.obj/.stl) or a
+    folder with box_models/*.obj (holosoma's layout); 'auto': each clip's own folder."""
+    mesh: InteractionConfig = field(default_factory=InteractionConfig)
+    """Interaction-mesh settings."""
     quiet: bool = False
     """No progress bars; print only the report summary."""
 
@@ -244,10 +251,18 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     from humimic.datasets import HumanClip, load_bvh, load_clip
     from humimic.motion import save_motion
     from humimic.retarget import Retargeter
+    from humimic.retarget.scene import Scene, load_scene
     from humimic.robots import get_robot
 
     get_robot(cmd.robot)  # Unknown robot: fail before any work.
     cmd.ik.validate()
+    cmd.mesh.validate()
+    if (cmd.method == "interaction-mesh") != (cmd.scene is not None):
+        raise InputError(
+            "--method interaction-mesh needs --scene"
+            if cmd.scene is None
+            else "--scene is used by --method interaction-mesh only"
+        )
     if not cmd.inputs:
         raise InputError("give at least one input clip or folder")
     files = _clip_files(cmd.inputs, cmd.out)
@@ -269,6 +284,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
 
     # Read and check everything first.
     clips: list[HumanClip] = []
+    scenes: list[Scene | None] = []
     retargeters: dict[str, Retargeter] = {}
     for f, _ in files:
         if f.suffix.lower() == ".bvh":
@@ -286,15 +302,23 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
                 cmd.ik,
                 map_file=cmd.map,
                 menagerie_root=cmd.menagerie_root,
+                method=cmd.method,
+                mesh=cmd.mesh,
             )
         retargeters[clip.skeleton].check(clip)
         clips.append(clip)
+        if cmd.scene is None:
+            scenes.append(None)
+        else:
+            scenes.append(load_scene(f.parent if str(cmd.scene) == "auto" else cmd.scene))
 
     reports = []
-    for (f, _), clip, (motion_path, report_path) in zip(files, clips, outs, strict=True):
-        total = clip.num_frames_at(cmd.ik.fps)
+    for (f, _), clip, scene, (motion_path, report_path) in zip(
+        files, clips, scenes, outs, strict=True
+    ):
+        total = clip.num_frames_at(cmd.ik.fps) * (1 if scene is None else 2)  # Two passes.
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
-            result = retargeters[clip.skeleton].run(clip, progress=bar.update)
+            result = retargeters[clip.skeleton].run(clip, progress=bar.update, scene=scene)
         report = json_ready({**result.report, "start_frame": int(clip.meta["start_frame"])})
         save_motion(result.motion, motion_path)
         if report_path is not None:
@@ -325,6 +349,16 @@ def _print_summary(r: dict, path: Path) -> None:
         f"| self-collision frames {r['self_collision_frames']} "
         f"(max {r['max_self_penetration_mm']:.1f} mm) | jerk {r['mean_joint_jerk']:.0f} rad/s^3"
     )
+    if "max_scene_penetration_mm" in r:
+        k = r["kinematic"]
+        print(
+            f"  scene: penetration max {r['max_scene_penetration_mm']:.1f} mm in "
+            f"{r['scene_penetration_frames']} frames (kinematic: {k['max_scene_penetration_mm']:.1f}"
+            f" mm in {k['scene_penetration_frames']}) | contacts kept "
+            f"{100 * r['contact_preservation']:.0f}% of {r['human_contacts']} (kinematic: "
+            f"{100 * k['contact_preservation']:.0f}%) | skating {r['scene_foot_skating_mm_per_s']:.0f}"
+            f" mm/s | interaction {r['interaction_frames_per_second']:.0f} frames/s"
+        )
 
 
 def run_demo(cmd: DemoCommand) -> dict:

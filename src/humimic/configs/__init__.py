@@ -1,5 +1,10 @@
 """Configuration dataclasses and their named variants (factory functions)."""
 
-from humimic.configs.retarget import RetargetConfig, retarget_default, retarget_fast
+from humimic.configs.retarget import (
+    InteractionConfig,
+    RetargetConfig,
+    retarget_default,
+    retarget_fast,
+)
 
-__all__ = ["RetargetConfig", "retarget_default", "retarget_fast"]
+__all__ = ["InteractionConfig", "RetargetConfig", "retarget_default", "retarget_fast"]

@@ -104,3 +104,71 @@ def retarget_default() -> RetargetConfig:
 def retarget_fast() -> RetargetConfig:
     """Fewer iterations per frame, for previews."""
     return RetargetConfig(stage1_iters=1, stage2_iters=2, first_frame_iters=5)
+
+
+@dataclass(frozen=True, kw_only=True)
+class InteractionConfig:
+    """Settings of interaction-mesh retargeting (on top of the kinematic ones).
+
+    Attributes:
+        mesh_weight: Cost of the interaction mesh's deformation, per metre of Laplacian
+            coordinate error and mesh vertex.
+        weighting: Laplacian weights, ``uniform`` or ``inverse_distance``
+            (:mod:`humimic.retarget.interaction_mesh`).
+        keypoint_scale: Key-point position costs, relative to the kinematic method's: a weak
+            anchor (the mesh alone does not fix the body's place where no scene is near).
+        scene_spacing: Spacing of the points sampled on the scene's surfaces [m, robot scale].
+        scene_radius: Scene points closer than this to a human key point join the frame's
+            mesh [m, robot scale].
+        max_scene_points: Most scene points in one frame's mesh (the nearest are kept).
+        iterations: Most QP iterations per frame.
+        tol: Stop a frame's iterations when the objective improves by less than this fraction.
+        penetration_margin: Distance kept between the robot's collision geoms and the scene [m].
+        collision_detection: Robot-scene pairs closer than this are constrained [m].
+        collision_gain: Fraction of a robot-scene gap that may close per iteration.
+        stick_weight: Cost [1/m] holding a foot point where it was in the previous frame
+            while the human's foot point is in contact.
+        contact_weight: Cost [1/m] of the distance between a body and the scene object its
+            human key point touches (:func:`humimic.retarget.scene.human_contacts`).
+        contact_distance: A robot body within this distance of a surface touches it, for the
+            contact-preservation metric [m].
+        smooth_weight: Cost [1/rad] of moving the joints away from the previous frame's
+            solution (the kinematic method's ``smooth_weight``, for this stage).
+    """
+
+    mesh_weight: float = 20.0
+    weighting: str = "uniform"
+    keypoint_scale: float = 0.1
+    scene_spacing: float = 0.05
+    scene_radius: float = 0.25
+    max_scene_points: int = 120
+    iterations: int = 5
+    tol: float = 1e-3
+    penetration_margin: float = 0.0
+    collision_detection: float = 0.05
+    collision_gain: float = 0.85
+    stick_weight: float = 1000.0
+    contact_weight: float = 1000.0
+    contact_distance: float = 0.02
+    smooth_weight: float = 5.0
+
+    def validate(self) -> None:
+        """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""
+        for name in ("scene_spacing", "scene_radius", "collision_detection", "contact_distance"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"mesh.{name}: must be a positive number, got {v}")
+        non_negative = ("mesh_weight", "keypoint_scale", "tol", "penetration_margin",
+                        "stick_weight", "contact_weight", "smooth_weight")  # fmt: skip
+        for name in non_negative:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"mesh.{name}: must be a number >= 0, got {v}")
+        if self.iterations < 1 or self.max_scene_points < 0:
+            raise InputError("mesh.iterations must be >= 1 and mesh.max_scene_points >= 0")
+        if self.weighting not in ("uniform", "inverse_distance"):
+            raise InputError(f"mesh.weighting: uniform or inverse_distance, got {self.weighting!r}")
+        if not 0 < self.collision_gain <= 1:
+            raise InputError(f"mesh.collision_gain: must be in (0, 1], got {self.collision_gain}")
+        if self.penetration_margin >= self.collision_detection:
+            raise InputError("mesh.penetration_margin must be below mesh.collision_detection")

@@ -11,17 +11,27 @@ from typing import Any
 
 import numpy as np
 
-from humimic.configs.retarget import RetargetConfig
+from humimic.configs.retarget import InteractionConfig, RetargetConfig
 from humimic.datasets.clip import HumanClip
+from humimic.errors import InputError
 from humimic.motion import Motion, motion_from_qpos
+from humimic.retarget.interaction import (
+    InteractionMeshRetargeter,
+    InteractionResult,
+    contact_bodies,
+)
 from humimic.retarget.kinematic import (
     KEYPOINT_SITE_PREFIX,
     KinematicRetargeter,
     self_collision_geoms,
 )
-from humimic.retarget.metrics import evaluate
+from humimic.retarget.metrics import evaluate, evaluate_scene
+from humimic.retarget.scene import Scene, scene_arrays
 from humimic.robots.maps import RetargetMap, get_map, load_map_file
 from humimic.robots.registry import get_robot
+
+METHODS = ("kinematic", "interaction-mesh")
+"""Retargeting methods (``humimic retarget --method``)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -45,14 +55,28 @@ class Retargeter:
         cfg: RetargetConfig,
         map_file: str | Path | None = None,
         menagerie_root: str | Path | None = None,
+        *,
+        method: str = "kinematic",
+        mesh: InteractionConfig | None = None,
     ) -> None:
         t0 = time.perf_counter()
+        if method not in METHODS:
+            raise InputError(f"method {method!r}: expected one of {', '.join(METHODS)}")
+        self.method = method
         self.robot = get_robot(robot)
         self.map: RetargetMap = (
             load_map_file(map_file) if map_file is not None else get_map(skeleton, robot)
         )
         self.cfg = cfg
-        self.ik = KinematicRetargeter(self.robot, self.map, cfg, menagerie_root=menagerie_root)
+        self.interaction: InteractionMeshRetargeter | None = None
+        if method == "interaction-mesh":
+            self.interaction = InteractionMeshRetargeter(
+                self.robot, self.map, cfg, mesh or InteractionConfig(),
+                menagerie_root=menagerie_root,
+            )  # fmt: skip
+            self.ik = self.interaction.kin
+        else:
+            self.ik = KinematicRetargeter(self.robot, self.map, cfg, menagerie_root=menagerie_root)
         self.setup_seconds = time.perf_counter() - t0
 
     def validate(self, clip: HumanClip) -> None:
@@ -67,18 +91,43 @@ class Retargeter:
         self.validate(clip)
         self.ik.targets(clip)
 
-    def run(self, clip: HumanClip, progress: Callable[[int], Any] | None = None) -> RetargetOutput:
-        """Retarget one clip; the report holds the speed and the quality metrics."""
+    def run(
+        self,
+        clip: HumanClip,
+        progress: Callable[[int], Any] | None = None,
+        scene: Scene | None = None,
+    ) -> RetargetOutput:
+        """Retarget one clip; the report holds the speed and the quality metrics.
+
+        Args:
+            clip: The human clip.
+            progress: Called with the number of frames done (the interaction-mesh method
+                makes two passes over the clip: kinematic, then interaction).
+            scene: The clip's scene (required by, and only used by, ``interaction-mesh``).
+        """
         self.validate(clip)
+        if (scene is None) != (self.interaction is None):
+            raise InputError(
+                f"{clip.source}: the {self.method} method "
+                + ("needs a scene (--scene)" if scene is None else "takes no scene")
+            )
         t0 = time.perf_counter()
-        res = self.ik.run(clip, progress=progress)
+        extras: dict[str, np.ndarray] = {}
+        scene_part: dict[str, Any] = {}
+        if self.interaction is not None and scene is not None:
+            ires = self.interaction.run(clip, scene, progress=progress)
+            res, qpos, model = ires.kinematic, ires.qpos, ires.model
+            scene_part, extras = self._scene_report(ires)
+        else:
+            res = self.ik.run(clip, progress=progress)
+            qpos, model = res.qpos, self.ik.model
         tg = res.targets
         motion = motion_from_qpos(
-            self.ik.model,
-            res.qpos,
+            model,
+            qpos,
             tg.fps,
             self.robot.name,
-            extras={"human_contacts": tg.contacts, "keypoint_targets": tg.scaled},
+            extras={"human_contacts": tg.contacts, "keypoint_targets": tg.scaled, **extras},
             info={
                 "source": str(Path(clip.source).resolve())
                 if Path(clip.source).exists()
@@ -96,8 +145,8 @@ class Retargeter:
         )
         seconds = time.perf_counter() - t0
         quality, per_frame = evaluate(
-            self.ik.model,
-            res.qpos,
+            model,
+            qpos,
             tg.fps,
             keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
             keypoint_targets=tg.scaled,
@@ -112,7 +161,7 @@ class Retargeter:
             "robot": self.robot.name,
             "skeleton": clip.skeleton,
             "map": self.map.source,
-            "method": "kinematic",
+            "method": self.method,
             "frames": T,
             "fps": tg.fps,
             "source_frames": clip.num_frames,
@@ -128,7 +177,39 @@ class Retargeter:
             "human_ground_m": tg.human_ground,
             "leg_scale": tg.scale,
             **dataclasses.asdict(quality),
+            **scene_part,
         }
         extras = {**(motion.extras or {}), **{f"metric_{k}": v for k, v in per_frame.items()}}
         motion = dataclasses.replace(motion, extras=extras)
         return RetargetOutput(motion=motion, report=report)
+
+    def _scene_report(
+        self, ires: InteractionResult
+    ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        """The scene metrics of the result and of its kinematic warm start (side by side), and
+        the motion file's scene arrays (object tracks and meshes, per-frame metrics)."""
+        assert self.interaction is not None
+        tg, icfg = ires.kinematic.targets, self.interaction.icfg
+        args = {
+            "keypoint_bodies": contact_bodies(self.map),
+            "human_contacts": ires.human_contacts,
+            "foot_bodies": [f.body for f in self.map.feet.values()],
+            "contact_distance": icfg.contact_distance,
+        }
+        mine, frames = evaluate_scene(ires.model, ires.qpos, ires.scene, tg.fps, **args)
+        kin, _ = evaluate_scene(ires.model, ires.kinematic.qpos, ires.scene, tg.fps, **args)
+        T = ires.qpos.shape[0]
+        part: dict[str, Any] = {
+            **dataclasses.asdict(mine),
+            "kinematic": dataclasses.asdict(kin),
+            "interaction_seconds": ires.solve_seconds,
+            "interaction_frames_per_second": T / ires.solve_seconds,
+            "kinematic_seconds": ires.kinematic.solve_seconds,
+            "interaction_qp_iterations_per_frame": float(np.mean(ires.iterations)),
+            "interaction_relaxed_qp_iterations": ires.relaxed_iterations,
+            "mesh_scene_points_mean": float(np.mean(ires.mesh_scene_points)),
+            "scene": ires.scene.source,
+            "scene_objects": [o.name for o in ires.scene.objects],
+        }
+        extras = {**scene_arrays(ires.scene, T), **{f"metric_{k}": v for k, v in frames.items()}}
+        return part, extras

@@ -21,13 +21,14 @@ import numpy as np
 
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip
-from humimic.errors import MapError, RetargetError
+from humimic.errors import InputError, MapError, RetargetError
 from humimic.retarget.limits import (
     FloorLimit,
     SelfCollisionLimit,
     contact_point_heights,
     foot_contact_points,
 )
+from humimic.retarget.scene import Scene
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask
 from humimic.robots.maps import RetargetMap
@@ -37,10 +38,19 @@ from humimic.robots.registry import RobotConfig
 KEYPOINT_SITE_PREFIX = "humimic_kp_"
 
 
+SCENE_BODY_PREFIX = "humimic_scene_"
+
+
 def ik_model(
-    robot: RobotConfig, m: RetargetMap, *, menagerie_root: str | Path | None = None
+    robot: RobotConfig,
+    m: RetargetMap,
+    *,
+    menagerie_root: str | Path | None = None,
+    scene: Scene | None = None,
 ) -> tuple[mujoco.MjModel, dict[str, float]]:
-    """The nominal model plus one site per key point (sites change no physics).
+    """The nominal model plus one site per key point (sites change no physics), and the
+    scene's objects, each a mesh geom on a mocap body ``humimic_scene_<name>`` (moved per
+    frame with ``data.mocap_pos``/``mocap_quat``; posed at its first frame).
 
     Returns:
         The model and each actuated joint's speed limit [rad/s].
@@ -53,7 +63,39 @@ def ik_model(
                 f"{m.source}: keypoints.{name}.body: robot {robot.name} has no body {kp.body!r}"
             )
         body.add_site(name=KEYPOINT_SITE_PREFIX + name, pos=list(kp.offset), group=5)
-    return spec.compile(), {j: a.velocity_limit for j, a in acts.items()}
+    for obj in scene.objects if scene is not None else ():
+        mesh_name = SCENE_BODY_PREFIX + obj.name
+        spec.add_mesh(name=mesh_name, uservert=obj.vertices.ravel().tolist(),
+                      userface=obj.faces.ravel().tolist())  # fmt: skip
+        body = spec.worldbody.add_body(name=mesh_name, mocap=True, pos=obj.poses[0, :3].tolist(),
+                                       quat=obj.poses[0, 3:].tolist())  # fmt: skip
+        body.add_geom(name=mesh_name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name,
+                      contype=1, conaffinity=1, group=2, rgba=[0.55, 0.6, 0.7, 0.6])  # fmt: skip
+    try:
+        model = spec.compile()
+    except ValueError as e:
+        raise InputError(f"the scene cannot be added to the robot model: {e}") from None
+    return model, {j: a.velocity_limit for j, a in acts.items()}
+
+
+def scene_geoms(model: mujoco.MjModel) -> list[int]:
+    """Geom ids of the scene's objects in a model of :func:`ik_model`."""
+    return [
+        g
+        for g in range(model.ngeom)
+        if (name := model.geom(g).name) and name.startswith(SCENE_BODY_PREFIX)
+    ]
+
+
+def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
+    """Geom ids of the robot's collision geoms (not the floor's, not the scene's)."""
+    return [
+        g
+        for g in range(model.ngeom)
+        if model.geom_bodyid[g] != 0
+        and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
+        and not model.geom(g).name.startswith(SCENE_BODY_PREFIX)
+    ]
 
 
 def self_collision_geoms(
@@ -114,12 +156,13 @@ class KinematicRetargeter:
         cfg: RetargetConfig,
         *,
         menagerie_root: str | Path | None = None,
+        scene: Scene | None = None,
     ) -> None:
         cfg.validate()
         self.robot = robot
         self.map = m
         self.cfg = cfg
-        self.model, speed = ik_model(robot, m, menagerie_root=menagerie_root)
+        self.model, speed = ik_model(robot, m, menagerie_root=menagerie_root, scene=scene)
         model = self.model
         m.validate(None, {model.body(b).name for b in range(model.nbody)})
         for side, foot in m.feet.items():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -80,14 +81,10 @@ def evaluate(
     T = qpos.shape[0]
     site_ids = np.array([model.site(s).id for s in keypoint_sites])
     ids, pts, rad = foot_contact_points(model, foot_bodies)
+    from humimic.retarget.kinematic import robot_collision_geoms
+
     floor = model.geom(floor_geom).id
-    robot_geoms = [
-        g
-        for g in range(model.ngeom)
-        if g != floor
-        and model.geom_bodyid[g] != 0
-        and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
-    ]
+    robot_geoms = robot_collision_geoms(model)  # Not the floor's, not a scene's.
     pairs = [(a, b) for ga, gb in self_collision for a in ga for b in gb]
     pair_a = np.array([p[0] for p in pairs], dtype=int)
     pair_b = np.array([p[1] for p in pairs], dtype=int)
@@ -159,3 +156,122 @@ def evaluate(
         "foot_touching": touching,
     }
     return report, frames
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneReport:
+    """How a motion respects its scene. Lengths in mm.
+
+    Attributes:
+        max_scene_penetration_mm: Deepest penetration of a robot collision geom into a scene
+            object, over all frames.
+        mean_scene_penetration_mm: Mean over frames of each frame's deepest penetration (0 in
+            frames without).
+        scene_penetration_frames: Frames with a penetration deeper than 1 mm.
+        human_contacts: (frame, key point) pairs in which the scaled human's key point touches
+            a scene object (:func:`~humimic.retarget.scene.human_contacts`).
+        contact_preservation: Share of those in which the robot's body of that key point (any
+            of its geoms, visual ones included) is within ``contact_distance`` of the same
+            object (1.0 when there are none).
+        scene_foot_skating_mm_per_s: Mean horizontal speed of the feet's contact points while
+            they rest (lowest point within 10 mm) on the floor or an object, in two
+            consecutive frames.
+    """
+
+    max_scene_penetration_mm: float
+    mean_scene_penetration_mm: float
+    scene_penetration_frames: int
+    human_contacts: int
+    contact_preservation: float
+    scene_foot_skating_mm_per_s: float
+
+
+def evaluate_scene(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    scene: Any,
+    fps: float,
+    *,
+    keypoint_bodies: list[list[str]],
+    human_contacts: np.ndarray,
+    foot_bodies: list[str],
+    contact_distance: float = 0.02,
+) -> tuple[SceneReport, dict[str, np.ndarray]]:
+    """Measure a motion against its scene (a :class:`~humimic.retarget.scene.Scene` in the
+    robot's frame, whose objects are the mocap bodies of ``model``, see
+    :func:`~humimic.retarget.kinematic.ik_model`).
+
+    Args:
+        model: Robot model with the scene.
+        qpos: Configurations. Shape: (T, nq).
+        scene: The scene, posed per output frame.
+        fps: Frame rate.
+        keypoint_bodies: The robot bodies that make each key point's contacts (K,)
+            (:func:`~humimic.retarget.interaction.contact_bodies`).
+        human_contacts: The scene object each human key point touches, -1 for none
+            (:func:`~humimic.retarget.scene.human_contacts`). Shape: (T, K).
+        foot_bodies: Foot bodies (their collision geoms give the contact points).
+        contact_distance: Touching distance [m].
+
+    Returns:
+        The report, and per-frame arrays ``scene_penetration`` (T,) [m] and
+        ``contact_preserved`` (T, K) (1 preserved, 0 lost, -1 no human contact).
+    """
+    from humimic.retarget.interaction import body_geoms, set_scene_pose
+    from humimic.retarget.interaction_mesh import point_triangle_distance
+    from humimic.retarget.kinematic import robot_collision_geoms, scene_geoms
+
+    data = mujoco.MjData(model)
+    T, K = human_contacts.shape
+    robot = robot_collision_geoms(model)
+    objs = scene_geoms(model)
+    geoms_of = body_geoms(model, keypoint_bodies)
+    ids, pts, rad = foot_contact_points(model, foot_bodies)
+    fromto = np.zeros(6)
+    pen = np.zeros(T)
+    preserved = np.full((T, K), -1, dtype=np.int8)
+    foot_xy = np.zeros((T, len(ids), 2))
+    resting = np.zeros((T, len(ids)), dtype=bool)
+    reach = 0.1  # Distance queries beyond this are not needed [m].
+    for t in range(T):
+        data.qpos[:] = qpos[t]
+        set_scene_pose(model, data, scene, t)
+        mujoco.mj_kinematics(model, data)
+        tris = [o.world_vertices(t)[o.faces] for o in scene.objects]
+        worst = 0.0
+        for o in objs:
+            near = np.linalg.norm(data.geom_xpos[robot] - data.geom_xpos[o], axis=1) <= (
+                model.geom_rbound[robot] + model.geom_rbound[o] + reach
+            )
+            for g in np.asarray(robot)[near]:
+                worst = max(worst, -mujoco.mj_geomDistance(model, data, int(g), o, reach, fromto))
+        pen[t] = worst
+        # Whether the robot's body touches the object its human key point touches.
+        for k in np.flatnonzero(human_contacts[t] >= 0):
+            o = objs[human_contacts[t, k]]
+            d_r = min(
+                (mujoco.mj_geomDistance(model, data, g, o, reach, fromto) for g in geoms_of[k]),
+                default=np.inf,
+            )
+            preserved[t, k] = int(d_r <= contact_distance)
+        world, bottom = contact_point_heights(data, ids, pts, rad)
+        foot_xy[t] = world[:, :2]
+        low = world - np.array([0.0, 0.0, 1.0]) * rad[:, None]
+        d_scene = (
+            np.min([point_triangle_distance(low, tri).min(axis=1) for tri in tris], axis=0)
+            if tris
+            else np.full(len(ids), np.inf)
+        )
+        resting[t] = (bottom < CONTACT_HEIGHT) | (d_scene < CONTACT_HEIGHT)
+    both = resting[1:] & resting[:-1]
+    speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
+    contacts = int(np.sum(preserved >= 0))
+    report = SceneReport(
+        max_scene_penetration_mm=float(pen.max() * 1e3) if T else 0.0,
+        mean_scene_penetration_mm=float(pen.mean() * 1e3) if T else 0.0,
+        scene_penetration_frames=int(np.sum(pen > 1e-3)),
+        human_contacts=contacts,
+        contact_preservation=float(np.sum(preserved == 1) / contacts) if contacts else 1.0,
+        scene_foot_skating_mm_per_s=float(speed[both].mean() * 1e3) if both.any() else 0.0,
+    )
+    return report, {"scene_penetration": pen, "contact_preserved": preserved}

@@ -11,7 +11,9 @@ from __future__ import annotations
 import mink
 import mujoco
 import numpy as np
+from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
 
+from humimic.retarget.interaction_mesh import InteractionMesh
 from humimic.transforms import matrix_to_quat, quat_to_rotvec
 
 
@@ -140,3 +142,108 @@ class OrientationsTask(mink.Task):
         """The objective from one evaluation of the error and the Jacobian (one log each)."""
         e, jac = self._error_and_jacobian(configuration)
         return self._assemble_qp(e, jac, configuration._eye_nv)
+
+
+class InteractionMeshTask(mink.Task):
+    """Deformation of an interaction mesh: ``e = L [P_sites(q); P_scene] - delta*``.
+
+    The mesh (:class:`~humimic.retarget.interaction_mesh.InteractionMesh`) holds the operator
+    ``L`` built from the human side, the target Laplacian coordinates and the fixed scene
+    points; its first ``K`` vertices are this task's sites, in order. Error shape: (3N,) for a
+    mesh of N vertices; the Jacobian is ``(L_k kron I_3) J_sites``, exact (``L`` is fixed).
+    Set a new mesh every frame with :meth:`set_mesh`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, sites: list[str], cost: float = 1.0) -> None:
+        self.model = model
+        self.site_ids = np.array([model.site(s).id for s in sites], dtype=int)
+        super().__init__(cost=np.ones(3))
+        self.weight = float(cost)
+        self.mesh: InteractionMesh | None = None
+        self._op_k = np.zeros((0, len(sites)))
+        self._jac = np.zeros((3 * len(sites), model.nv))
+        self.last_error = np.zeros(0)
+
+    def set_mesh(self, mesh: InteractionMesh) -> None:
+        """The mesh of the frame being solved (its first K vertices are the task's sites)."""
+        if mesh.num_keypoints != len(self.site_ids):
+            raise ValueError(
+                f"the mesh has {mesh.num_keypoints} key points, the task {len(self.site_ids)} sites"
+            )
+        self.mesh = mesh
+        self._op_k = mesh.op_keypoints.toarray()
+        self.cost = np.full(3 * mesh.target.shape[0], self.weight)
+
+    def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
+        if self.mesh is None:
+            raise ValueError("InteractionMeshTask: no mesh set")
+        e = self.mesh.residual(configuration.data.site_xpos[self.site_ids]).ravel()
+        self.last_error = e
+        return e
+
+    def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
+        data, nv = configuration.data, self.model.nv
+        for i, s in enumerate(self.site_ids):
+            mujoco.mj_jacSite(self.model, data, self._jac[3 * i : 3 * i + 3], None, int(s))
+        k = len(self.site_ids)
+        out = self._op_k @ self._jac.reshape(k, 3 * nv)  # (N, 3 nv)
+        return out.reshape(-1, nv)
+
+
+class SceneContactTask(mink.Task):
+    """Bodies onto scene surfaces: ``e_i = d_i(q)``, the signed distance between a body (the
+    nearest of its geoms) and a scene object, for each contact the human makes in this frame.
+
+    The Jacobian is the contact normal's (as in mink's collision avoidance), so the task and
+    the non-penetration limit act along the same direction: the body is drawn onto the
+    surface, the limit keeps it out of the object.
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, body_geoms: list[list[int]], cost: float, reach: float = 0.3
+    ) -> None:
+        self.model = model
+        self.body_geoms = body_geoms
+        self.weight = float(cost)
+        self.reach = float(reach)
+        super().__init__(cost=np.ones(1))
+        self.pairs: list[tuple[int, int]] = []
+        self._fromto = np.zeros(6)
+        self._normal = np.zeros(3)
+        self._jac1 = np.zeros((3, model.nv))
+        self._jac2 = np.zeros((3, model.nv))
+
+    def set_contacts(
+        self, pairs: list[tuple[int, int]], firmness: np.ndarray | None = None
+    ) -> None:
+        """(body index into ``body_geoms``, scene geom id) of each contact to keep, and how
+        firmly each holds (a factor on the cost, default 1)."""
+        self.pairs = list(pairs)
+        f = np.ones(len(self.pairs)) if firmness is None else np.asarray(firmness, dtype=float)
+        self.cost = self.weight * f
+
+    def _nearest(self, data: mujoco.MjData, k: int, obj: int) -> tuple[float, int]:
+        best, best_g = np.inf, -1
+        for g in self.body_geoms[k]:
+            d = mujoco.mj_geomDistance(self.model, data, g, obj, self.reach, self._fromto)
+            if d < best:
+                best, best_g = d, g
+        return best, best_g
+
+    def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
+        data = configuration.data
+        return np.array([self._nearest(data, k, o)[0] for k, o in self.pairs])
+
+    def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
+        data = configuration.data
+        out = np.zeros((len(self.pairs), self.model.nv))
+        for i, (k, o) in enumerate(self.pairs):
+            d, g = self._nearest(data, k, o)
+            if g < 0 or d >= self.reach:
+                continue  # Out of reach: no gradient (the key-point anchors bring it near).
+            mujoco.mj_geomDistance(self.model, data, g, o, self.reach, self._fromto)
+            row = compute_contact_normal_jacobian(
+                self.model, data, g, o, self._fromto, self._normal, self._jac1, self._jac2
+            )
+            out[i] = row if d >= 0 else -row  # The witness normal flips inside.
+        return out

@@ -1,0 +1,321 @@
+"""Interaction-mesh retargeting: keep the body's spatial relations to boxes, terrain, objects.
+
+After OmniRetarget (Yang et al., "OmniRetarget: Interaction-Preserving Data Generation for
+Humanoid Whole-Body Loco-Manipulation and Scene Interaction", 2025), which builds on the
+interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
+
+1. The kinematic result (:class:`~humimic.retarget.kinematic.KinematicRetargeter`, on the
+   same targets) is the warm start.
+2. The frame's interaction mesh is the Delaunay tetrahedralization of the scaled human's key
+   points and the scene points near them (the scene is mapped into the robot's frame with the
+   human's heading, origin, scale and height calibration); its Laplacian coordinates are the
+   target (:mod:`humimic.retarget.interaction_mesh`).
+3. A few QPs, each solved directly with daqp: minimize the mesh's deformation, weak key-point
+   anchors, the body orientations, posture and smoothness to the previous frame, and hold a
+   foot point still while the human's is in contact; subject to joint ranges and speeds, a
+   trust region, the floor under the feet, self-collision, and no penetration of the robot's
+   collision geoms into the scene (MuJoCo distance queries, linearized with the contact
+   normal's Jacobian).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mink
+import mujoco
+import numpy as np
+
+from humimic.configs.retarget import InteractionConfig, RetargetConfig
+from humimic.datasets.clip import HumanClip
+from humimic.errors import RetargetError
+from humimic.retarget.interaction_mesh import build_mesh
+from humimic.retarget.kinematic import (
+    KEYPOINT_SITE_PREFIX,
+    SCENE_BODY_PREFIX,
+    KinematicResult,
+    KinematicRetargeter,
+    _Frame,
+    robot_collision_geoms,
+    scene_geoms,
+)
+from humimic.retarget.limits import SelfCollisionLimit
+from humimic.retarget.scene import Scene, human_contacts
+from humimic.retarget.targets import RobotGeometry
+from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
+from humimic.robots.maps import RetargetMap
+from humimic.robots.registry import RobotConfig
+
+
+@dataclass(frozen=True, kw_only=True)
+class InteractionResult:
+    """Output of :meth:`InteractionMeshRetargeter.run`.
+
+    Attributes:
+        qpos: Robot configurations. Shape: (T, nq).
+        kinematic: The kinematic result it started from.
+        scene: The scene in the robot's frame, one pose per output frame for moving objects.
+        model: The robot model with the scene's objects (mocap bodies).
+        solve_seconds: Wall time of the interaction stage alone.
+        iterations: QPs per frame. Shape: (T,).
+        relaxed_iterations: QPs whose conflicting limits had to be made soft.
+        mesh_scene_points: Scene points in each frame's mesh. Shape: (T,).
+        human_contacts: The scene object each human key point touches (-1: none), from
+            :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
+        contact_radius: The contact radius of each key point [m]. Shape: (K,).
+    """
+
+    qpos: np.ndarray
+    kinematic: KinematicResult
+    scene: Scene
+    model: mujoco.MjModel
+    solve_seconds: float
+    iterations: np.ndarray
+    relaxed_iterations: int
+    mesh_scene_points: np.ndarray
+    human_contacts: np.ndarray
+    contact_radius: np.ndarray
+
+
+REPAIR_DEPTH = 1e-3
+"""A frame ends with repair steps while a robot geom is deeper than this in an object [m]."""
+
+HAND_CONTACT_RADIUS = 0.05
+"""Contact radius of key points that are not foot points [m] (a joint centre inside a limb)."""
+
+
+def contact_radii(m: RetargetMap, geometry: RobotGeometry) -> np.ndarray:
+    """How far each key point sits from a surface it rests on: its height in the robot's
+    standing pose for the feet's ankle and toe points, :data:`HAND_CONTACT_RADIUS` for the
+    others. Shape: (K,)."""
+    feet = {n for f in m.feet.values() for n in (f.ankle, f.toe)}
+    return np.array(
+        [geometry.keypoints[k, 2] if n in feet else HAND_CONTACT_RADIUS
+         for k, n in enumerate(m.keypoints)]
+    )  # fmt: skip
+
+
+def contact_bodies(m: RetargetMap) -> list[list[str]]:
+    """The robot bodies that may make each key point's contact: a foot point's own body; for
+    the others, the body and its parent key point's body (the limb segment that ends at the
+    joint: a hip's contact when sitting is the pelvis's as much as the thigh's)."""
+    feet = {n for f in m.feet.values() for n in (f.ankle, f.toe)}
+    out = []
+    for name, kp in m.keypoints.items():
+        bodies = [kp.body]
+        if name not in feet and kp.parent is not None:
+            parent = m.keypoints[kp.parent].body
+            if parent != kp.body:
+                bodies.append(parent)
+        out.append(bodies)
+    return out
+
+
+def body_geoms(model: mujoco.MjModel, bodies: list[list[str]]) -> list[list[int]]:
+    """All geoms (collision and visual: the real surface) of each set of bodies."""
+    out = []
+    for names in bodies:
+        ids = {model.body(b).id for b in names}
+        out.append([g for g in range(model.ngeom) if model.geom_bodyid[g] in ids])
+    return out
+
+
+def set_scene_pose(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, t: int) -> None:
+    """Move the scene's mocap bodies to frame ``t``."""
+    for obj in scene.objects:
+        mocap = int(model.body(SCENE_BODY_PREFIX + obj.name).mocapid[0])
+        p = obj.poses[min(t, obj.poses.shape[0] - 1)]
+        data.mocap_pos[mocap] = p[:3]
+        data.mocap_quat[mocap] = p[3:]
+
+
+class InteractionMeshRetargeter:
+    """Retarget clips with a scene to one robot with one map (see the module doc)."""
+
+    def __init__(
+        self,
+        robot: RobotConfig,
+        m: RetargetMap,
+        cfg: RetargetConfig,
+        icfg: InteractionConfig,
+        *,
+        menagerie_root: str | Path | None = None,
+    ) -> None:
+        icfg.validate()
+        self.robot, self.map, self.cfg, self.icfg = robot, m, cfg, icfg
+        self.menagerie_root = menagerie_root
+        # Targets only depend on the robot's geometry: this scene-less retargeter builds them.
+        self.kin = KinematicRetargeter(robot, m, cfg, menagerie_root=menagerie_root)
+        self.model = self.kin.model
+        feet = list(m.feet.values())
+        self._foot_keys = [[f.ankle, f.toe] for f in feet]  # (2, 2) key-point names
+
+    def robot_scene(self, clip: HumanClip, scene: Scene) -> Scene:
+        """The scene in the robot's frame at the output frame rate, mapped as ``clip`` is."""
+        tg = self.kin.targets(clip)
+        start_s = float(clip.meta.get("start_frame", 0)) / clip.fps
+        return scene.resample(tg.fps, tg.positions.shape[0], start_s=start_s).to_robot(
+            scale=tg.scale, yaw=tg.yaw, origin=tg.origin, ground=tg.human_ground,
+            z_offset=tg.z_offset,
+        )  # fmt: skip
+
+    def run(
+        self, clip: HumanClip, scene: Scene, progress: Callable[[int], Any] | None = None
+    ) -> InteractionResult:
+        """Retarget ``clip`` in ``scene`` (both in the clip's world frame). ``progress(n)`` is
+        called after every frame of each of the two passes (kinematic, then interaction)."""
+        icfg = self.icfg
+        scene_r = self.robot_scene(clip, scene)
+        kin = KinematicRetargeter(self.robot, self.map, self.cfg,
+                                  menagerie_root=self.menagerie_root, scene=scene_r)  # fmt: skip
+        model, conf = kin.model, kin.configuration
+        set_scene_pose(model, conf.data, scene_r, 0)
+        kres = kin.run(clip, progress=progress)
+        tg = kres.targets
+        T = tg.positions.shape[0]
+
+        robot_geoms, obj_geoms = robot_collision_geoms(model), scene_geoms(model)
+        if not robot_geoms or not obj_geoms:
+            raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
+        scene_limit = SelfCollisionLimit(
+            model,
+            [(robot_geoms, [*obj_geoms, model.geom(self.robot.floor_geom).id])],  # type: ignore[list-item]
+            gain=icfg.collision_gain,
+            minimum_distance_from_collisions=icfg.penetration_margin,
+            collision_detection_distance=icfg.collision_detection,
+        )
+        limits = [*kin.limits, scene_limit]
+        sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
+        mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
+        names = list(self.map.keypoints)
+        foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
+        stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
+        samples = scene_r.surface_points(icfg.scene_spacing)
+        radius = contact_radii(self.map, kin.geometry)
+        contacts, firm = human_contacts(scene_r, tg.scaled, radius, icfg.contact_distance)
+        # A foot point is planted on the floor (the kinematic targets' contacts) or on an
+        # object (a scene contact while the human's point moves slower than contact_speed).
+        feet_flat = foot_idx.ravel()
+        speed = np.zeros((T, feet_flat.size))
+        speed[1:] = np.linalg.norm(np.diff(tg.scaled[:, feet_flat, :2], axis=0), axis=-1) * tg.fps
+        planted = tg.contacts.reshape(T, -1) | (
+            (contacts[:, feet_flat] >= 0) & (speed < self.cfg.contact_speed)
+        )
+        smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
+        touch = SceneContactTask(
+            model, body_geoms(model, contact_bodies(self.map)),
+            cost=icfg.contact_weight,
+        )  # fmt: skip
+
+        out = np.zeros((T, model.nq))
+        iters = np.zeros(T, dtype=int)
+        n_scene = np.zeros(T, dtype=int)
+        frame = _Frame(source=clip.source)
+        step = (
+            kin.speed_limits * self.cfg.velocity_limit_scale / tg.fps
+            if self.cfg.velocity_limit_scale > 0
+            else None
+        )
+        t0 = time.perf_counter()
+        for t in range(T):
+            set_scene_pose(model, conf.data, scene_r, t)
+            conf.update(kres.qpos[t])
+            pts = self._scene_points(scene_r, samples, tg.scaled[t], t)
+            n_scene[t] = len(pts)
+            mesh_task.set_mesh(build_mesh(tg.scaled[t], pts, weighting=icfg.weighting))
+            kin._set_targets(tg, t)
+            kin._set_stage_costs(tg, t, 2)
+            # Weak anchors, except for planted foot points: they keep the kinematic weight.
+            costs = tg.position_weights[t] * icfg.keypoint_scale
+            costs[feet_flat] = np.where(planted[t], tg.position_weights[t, feet_flat],
+                                        costs[feet_flat])  # fmt: skip
+            kin.keypoints.set_costs(costs)
+            tasks = [mesh_task, kin.keypoints, kin.orientations, kin.posture]
+            touching = np.flatnonzero(contacts[t] >= 0)
+            if touching.size and icfg.contact_weight > 0:
+                touch.set_contacts(
+                    [(int(k), obj_geoms[contacts[t, k]]) for k in touching], firm[t, touching]
+                )
+                tasks.append(touch)
+            if t > 0:
+                smooth.set_target(out[t - 1])
+                tasks.append(smooth)
+                held = planted[t] & planted[t - 1]  # (4,) per foot point
+                if held.any():
+                    prev = mujoco.MjData(model)  # Site positions of the previous output frame.
+                    prev.qpos[:] = out[t - 1]
+                    prev.mocap_pos[:], prev.mocap_quat[:] = (
+                        conf.data.mocap_pos,
+                        conf.data.mocap_quat,
+                    )
+                    mujoco.mj_kinematics(model, prev)
+                    stick.targets = prev.site_xpos[stick.site_ids].copy()
+                    stick.set_costs(np.where(held, icfg.stick_weight, 0.0))
+                    tasks.append(stick)
+            frame.t, frame.tasks = t, tasks
+            frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
+            frame.step = step
+            n = 0
+            for _ in range(icfg.iterations):
+                dq = kin._solve(frame, limits)
+                conf.integrate_inplace(dq, 1.0)
+                n += 1
+                if float(np.abs(dq).max()) < icfg.tol:
+                    break
+            # Repair: the limits are linearized, so the last step can end inside an object;
+            # step again without the pull onto surfaces while it does.
+            frame.tasks = [task for task in tasks if task is not touch]
+            for _ in range(self.cfg.repair_iters):
+                if scene_limit.active_min_distance(conf) >= -REPAIR_DEPTH:
+                    break
+                conf.integrate_inplace(kin._solve(frame, limits), 1.0)
+                n += 1
+            q = conf.q.copy()
+            q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
+            out[t] = q
+            iters[t] = n
+            if progress is not None:
+                progress(1)
+        return InteractionResult(
+            qpos=out,
+            kinematic=kres,
+            scene=scene_r,
+            model=model,
+            solve_seconds=time.perf_counter() - t0,
+            iterations=iters,
+            relaxed_iterations=frame.relaxed,
+            mesh_scene_points=n_scene,
+            human_contacts=contacts,
+            contact_radius=radius,
+        )
+
+    def _scene_points(
+        self, scene: Scene, samples: list[np.ndarray], keypoints: np.ndarray, t: int
+    ) -> np.ndarray:
+        """The scene points of frame ``t`` within ``scene_radius`` of a key point, nearest
+        first, at most ``max_scene_points``. Shape: (S, 3)."""
+        icfg = self.icfg
+        world = []
+        for obj, local in zip(scene.objects, samples, strict=True):
+            rot, pos = obj.pose(t)
+            world.append(local @ rot.T + pos)
+        pts = np.concatenate(world) if world else np.zeros((0, 3))
+        d = np.sqrt(((pts[:, None, :] - keypoints[None]) ** 2).sum(-1)).min(axis=1)
+        near = np.flatnonzero(d < icfg.scene_radius)
+        near = near[np.argsort(d[near])[: icfg.max_scene_points]]
+        return pts[near]
+
+
+__all__ = [
+    "HAND_CONTACT_RADIUS",
+    "InteractionMeshRetargeter",
+    "InteractionResult",
+    "body_geoms",
+    "contact_bodies",
+    "contact_radii",
+    "set_scene_pose",
+]

@@ -1,0 +1,366 @@
+"""Scenes a human interacts with: boxes, terrain, objects (for interaction-mesh retargeting).
+
+A :class:`Scene` is a set of rigid objects, each a triangle mesh in its own frame with a pose
+per frame (or one pose: static). Scenes are in the clip's world frame: metres, z up, the same
+frame as the human clip's joint positions. :meth:`Scene.to_robot` maps a scene into the
+robot's frame with the same heading, origin, scale and height calibration the kinematic
+targets use (:class:`~humimic.retarget.targets.Targets`).
+
+Inputs (:func:`load_scene`):
+
+- a scene file (``.yaml``), schema version 1::
+
+      schema_version: 1
+      fps: 120                    # only needed when an object has a trajectory
+      objects:
+        - name: step
+          box: [1.0, 0.8, 0.18]   # full extents x, y, z [m], centred on the pose
+          pos: [0.6, 0.0, 0.09]
+          quat: [1, 0, 0, 0]      # wxyz
+        - name: crate
+          mesh: crate.obj         # OBJ or STL, relative to the scene file
+          scale: 1.0
+          trajectory: crate.npy   # optional: (T, 7) poses, pos + wxyz quat, at `fps`
+
+- a folder in the layout of holosoma's climbing demo (``box_models/*.obj`` at human scale, in
+  the world frame): the folder of a clip of ``../shared/data/holosoma_climb`` loads as-is;
+- a single ``.obj`` / ``.stl`` file: one static object, in the world frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from humimic.errors import InputError
+from humimic.retarget.interaction_mesh import point_triangle_distance
+from humimic.transforms import axis_angle_matrix, quat_mul, quat_to_matrix
+
+SCENE_SCHEMA_VERSION = 1
+_MESH_SUFFIXES = (".obj", ".stl")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneObject:
+    """One rigid object.
+
+    Attributes:
+        name: Unique within the scene.
+        vertices: In the object's frame [m]. Shape: (V, 3).
+        faces: Triangles, vertex indices. Shape: (F, 3).
+        poses: Object-to-world poses, position and wxyz quaternion; one row for a static
+            object, else one per frame of the scene's ``fps``. Shape: (1 or T, 7).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    poses: np.ndarray
+
+    @property
+    def static(self) -> bool:
+        return self.poses.shape[0] == 1
+
+    def pose(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Rotation (3, 3) and position (3,) at frame ``t`` (the last pose after the end)."""
+        p = self.poses[min(t, self.poses.shape[0] - 1)]
+        return quat_to_matrix(p[3:]), p[:3]
+
+    def world_vertices(self, t: int = 0) -> np.ndarray:
+        """Vertices in the world frame at frame ``t``. Shape: (V, 3)."""
+        rot, pos = self.pose(t)
+        return self.vertices @ rot.T + pos
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scene:
+    """Rigid objects in the clip's world frame.
+
+    Attributes:
+        objects: The objects.
+        fps: Frame rate of the objects' trajectories (``None`` if all are static).
+        source: Where it was read from.
+    """
+
+    objects: tuple[SceneObject, ...]
+    fps: float | None = None
+    source: str = ""
+
+    @property
+    def static(self) -> bool:
+        return all(o.static for o in self.objects)
+
+    def resample(self, fps: float, num_frames: int, start_s: float = 0.0) -> Scene:
+        """Trajectories at ``fps`` for ``num_frames`` frames from ``start_s`` seconds on
+        (linear positions, normalized linear quaternions between neighbouring samples);
+        static objects unchanged."""
+        if self.static or self.fps is None:
+            return self
+        t = (start_s + np.arange(num_frames) / fps) * self.fps
+        objects = []
+        for o in self.objects:
+            if o.static:
+                objects.append(o)
+                continue
+            n = o.poses.shape[0]
+            i0 = np.clip(np.floor(t).astype(int), 0, n - 1)
+            i1 = np.clip(i0 + 1, 0, n - 1)
+            u = np.clip(t - i0, 0.0, 1.0)[:, None]
+            pos = (1 - u) * o.poses[i0, :3] + u * o.poses[i1, :3]
+            q0, q1 = o.poses[i0, 3:], o.poses[i1, 3:]
+            q1 = np.where(np.sum(q0 * q1, axis=1, keepdims=True) < 0, -q1, q1)
+            q = (1 - u) * q0 + u * q1
+            q /= np.linalg.norm(q, axis=1, keepdims=True)
+            objects.append(replace(o, poses=np.concatenate([pos, q], axis=1)))
+        return replace(self, objects=tuple(objects), fps=fps)
+
+    def to_robot(
+        self, *, scale: float, yaw: float, origin: np.ndarray, ground: float, z_offset: float
+    ) -> Scene:
+        """The scene in the robot's frame, mapped as the human is
+        (:func:`~humimic.retarget.targets.build_targets`): turned by ``yaw`` about z after
+        moving ``origin`` to the world origin, scaled by ``scale`` about it, and a height
+        ``z`` above the human ground ``ground`` put at ``scale * z + z_offset``.
+
+        Vertices are scaled in the object's frame and poses are mapped; the result is again
+        rigid objects with poses.
+        """
+        rot = axis_angle_matrix("z", np.asarray(yaw))
+        shift = np.array([0.0, 0.0, z_offset - scale * ground])
+        qz = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+        objects = []
+        for o in self.objects:
+            pos = scale * ((o.poses[:, :3] - origin) @ rot.T) + shift
+            quat = quat_mul(np.broadcast_to(qz, o.poses[:, 3:].shape), o.poses[:, 3:])
+            objects.append(
+                replace(o, vertices=scale * o.vertices, poses=np.concatenate([pos, quat], axis=1))
+            )
+        return replace(self, objects=tuple(objects))
+
+    def surface_points(self, spacing: float) -> list[np.ndarray]:
+        """Points on each object's surface in its own frame, about ``spacing`` apart: the
+        vertices plus a regular sampling of every triangle. One array per object, Shape: (N, 3)."""
+        if not spacing > 0:
+            raise InputError(f"surface spacing must be positive, got {spacing}")
+        return [_sample_triangles(o.vertices, o.faces, spacing) for o in self.objects]
+
+
+def _sample_triangles(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
+    pts = [vertices]
+    for f in faces:
+        a, b, c = vertices[f]
+        n = max(math.ceil(max(np.linalg.norm(b - a), np.linalg.norm(c - a)) / spacing), 1)
+        if n < 2:
+            continue
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = i + j <= n
+        u, v = i[keep] / n, j[keep] / n
+        pts.append(a + u[:, None] * (b - a) + v[:, None] * (c - a))
+    out = np.concatenate(pts)
+    return np.unique(np.round(out, 6), axis=0)
+
+
+def human_contacts(
+    scene: Scene, keypoints: np.ndarray, radius: np.ndarray, distance: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which object each key point touches in each frame: the nearest object whose surface is
+    closer than the key point's contact ``radius`` plus ``distance`` (-1: none).
+
+    Args:
+        scene: Posed per frame, in the key points' frame.
+        keypoints: Shape: (T, K, 3).
+        radius: How far each key point sits from a surface it rests on (a joint centre is
+            inside the limb) [m]. Shape: (K,).
+        distance: Touching tolerance [m].
+
+    Returns:
+        Object indices, Shape: (T, K); and how firmly each contact holds, 1 at the contact
+        radius falling linearly to 0 at ``radius + distance`` (0 where there is none),
+        Shape: (T, K).
+    """
+    T, K = keypoints.shape[:2]
+    out = np.full((T, K), -1, dtype=np.int64)
+    firm = np.zeros((T, K))
+    if not scene.objects:
+        return out, firm
+    for t in range(T):
+        d = np.stack(
+            [point_triangle_distance(keypoints[t], o.world_vertices(t)[o.faces]).min(axis=1)
+             for o in scene.objects]
+        )  # fmt: skip
+        near, best = d.min(axis=0), d.argmin(axis=0)
+        out[t] = np.where(near < radius + distance, best, -1)
+        firm[t] = np.clip((radius + distance - near) / distance, 0.0, 1.0)
+    return out, firm
+
+
+def scene_arrays(scene: Scene, num_frames: int) -> dict[str, np.ndarray]:
+    """The motion file's per-frame scene arrays: ``scene_poses``, each object's pose (position,
+    wxyz quaternion) in every frame, in scene order. Shape: (T, O, 7)."""
+    frames = np.arange(num_frames)
+    rows = [o.poses[np.minimum(frames, o.poses.shape[0] - 1)] for o in scene.objects]
+    poses = np.stack(rows, axis=1) if rows else np.zeros((num_frames, 0, 7))
+    return {"scene_poses": poses}
+
+
+# ------------------------------------------------------------------------------ loading
+
+
+def box_mesh(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A box of full extents ``size`` centred at the origin: vertices (8, 3), faces (12, 3),
+    outward counter-clockwise."""
+    h = 0.5 * np.asarray(size, dtype=np.float64)
+    v = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * h
+    f = np.array(
+        [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    )  # fmt: skip
+    return v, f
+
+
+def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (V, 3) and triangles (F, 3) of an OBJ or STL file."""
+    import trimesh
+
+    if not path.is_file():
+        raise InputError(f"{path}: no such mesh file")
+    if path.suffix.lower() not in _MESH_SUFFIXES:
+        raise InputError(f"{path}: unknown mesh type; expected one of {_MESH_SUFFIXES}")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as e:  # trimesh raises many types on bad files.
+        raise InputError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[0] < 4 or f.ndim != 2 or f.shape[0] < 4:
+        raise InputError(f"{path}: a mesh needs at least 4 vertices and 4 triangles")
+    if not np.isfinite(v).all():
+        raise InputError(f"{path}: vertices hold NaN or inf")
+    return v, f
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load a scene file, a holosoma-style folder or one mesh file (see the module doc).
+
+    Raises:
+        InputError: Missing or unreadable files, bad fields (named).
+    """
+    p = Path(path)
+    if p.is_dir():
+        meshes = sorted((p / "box_models").glob("*.obj")) if (p / "box_models").is_dir() else []
+        if not meshes:
+            raise InputError(
+                f"{p}: a scene folder needs box_models/*.obj (holosoma's layout); "
+                "or give a scene .yaml file"
+            )
+        identity = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
+        objs = [
+            SceneObject(name=m.stem, vertices=v, faces=f, poses=identity)
+            for m in meshes
+            for v, f in [read_mesh(m)]
+        ]
+        return Scene(objects=tuple(objs), source=str(p))
+    if p.suffix.lower() in _MESH_SUFFIXES:
+        v, f = read_mesh(p)
+        pose = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
+        return Scene(objects=(SceneObject(name=p.stem, vertices=v, faces=f, poses=pose),),
+                     source=str(p))  # fmt: skip
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        raise InputError(f"{p}: expected a scene .yaml, a mesh (.obj/.stl) or a scene folder")
+    if not p.is_file():
+        raise InputError(f"{p}: no such scene file")
+    try:
+        raw = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as e:
+        raise InputError(f"{p}: not valid YAML ({e})") from None
+    return _parse_scene(p, raw)
+
+
+def _parse_scene(p: Path, raw: Any) -> Scene:
+    if not isinstance(raw, dict):
+        raise InputError(f"{p}: expected a mapping with schema_version and objects")
+    if raw.get("schema_version") != SCENE_SCHEMA_VERSION:
+        raise InputError(
+            f"{p}: schema_version: expected {SCENE_SCHEMA_VERSION}, got {raw.get('schema_version')!r}"
+        )
+    unknown = set(raw) - {"schema_version", "fps", "objects"}
+    if unknown:
+        raise InputError(f"{p}: unknown keys {sorted(unknown)}")
+    items = raw.get("objects")
+    if not isinstance(items, list) or not items:
+        raise InputError(f"{p}: objects: expected a non-empty list")
+    fps = raw.get("fps")
+    if fps is not None and not (isinstance(fps, int | float) and fps > 0):
+        raise InputError(f"{p}: fps: expected a positive number, got {fps!r}")
+    objects: list[SceneObject] = []
+    for k, it in enumerate(items):
+        where = f"{p}: objects[{k}]"
+        if not isinstance(it, dict):
+            raise InputError(f"{where}: expected a mapping")
+        unknown = set(it) - {"name", "box", "mesh", "scale", "pos", "quat", "trajectory"}
+        if unknown:
+            raise InputError(f"{where}: unknown keys {sorted(unknown)}")
+        name = str(it.get("name", f"object{k}"))
+        if any(o.name == name for o in objects):
+            raise InputError(f"{where}.name: {name!r} repeats")
+        if ("box" in it) == ("mesh" in it):
+            raise InputError(f"{where}: give exactly one of box (extents) or mesh (file)")
+        if "box" in it:
+            size = _vector(where + ".box", it["box"], 3)
+            if (size <= 0).any():
+                raise InputError(f"{where}.box: extents must be positive, got {size.tolist()}")
+            v, f = box_mesh(size)
+        else:
+            v, f = read_mesh(p.parent / str(it["mesh"]))
+        scale = it.get("scale", 1.0)
+        if not (isinstance(scale, int | float) and scale > 0):
+            raise InputError(f"{where}.scale: expected a positive number, got {scale!r}")
+        v = v * float(scale)
+        if "trajectory" in it:
+            if fps is None:
+                raise InputError(f"{where}.trajectory: the scene needs fps for trajectories")
+            tp = p.parent / str(it["trajectory"])
+            try:
+                poses = np.load(tp, allow_pickle=False)
+            except (OSError, ValueError) as e:
+                raise InputError(f"{tp}: not a readable .npy array ({e})") from None
+            if poses.ndim != 2 or poses.shape[1] != 7 or poses.shape[0] < 1:
+                raise InputError(f"{tp}: expected poses of shape (T, 7), got {poses.shape}")
+            poses = poses.astype(np.float64)
+        else:
+            pos = _vector(where + ".pos", it.get("pos", [0, 0, 0]), 3)
+            quat = _vector(where + ".quat", it.get("quat", [1, 0, 0, 0]), 4)
+            poses = np.concatenate([pos, quat])[None]
+        if not np.isfinite(poses).all():
+            raise InputError(f"{where}: poses hold NaN or inf")
+        norms = np.linalg.norm(poses[:, 3:], axis=1)
+        if (norms < 1e-9).any():
+            raise InputError(f"{where}: a quaternion is zero")
+        poses[:, 3:] /= norms[:, None]
+        objects.append(SceneObject(name=name, vertices=v, faces=f, poses=poses))
+    return Scene(objects=tuple(objects), fps=None if fps is None else float(fps), source=str(p))
+
+
+def _vector(where: str, value: Any, n: int) -> np.ndarray:
+    ok = isinstance(value, list | tuple) and len(value) == n
+    ok = ok and all(isinstance(x, int | float) and math.isfinite(x) for x in value)
+    if not ok:
+        raise InputError(f"{where}: expected {n} numbers, got {value!r}")
+    return np.asarray(value, dtype=np.float64)
+
+
+__all__ = [
+    "SCENE_SCHEMA_VERSION",
+    "Scene",
+    "SceneObject",
+    "box_mesh",
+    "human_contacts",
+    "load_scene",
+    "read_mesh",
+    "scene_arrays",
+]

@@ -1,0 +1,92 @@
+"""Interaction-mesh retargeting on a real walk with a synthetic scene, and on the CLI."""
+
+from __future__ import annotations
+
+import json
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.cli.main import main
+from humimic.configs import InteractionConfig, RetargetConfig
+from humimic.datasets import load_clip
+from humimic.motion import load_motion
+from humimic.retarget import Retargeter, RetargetOutput
+from humimic.retarget.scene import Scene, SceneObject, box_mesh
+
+PAD_HEIGHT = 0.08  # Human scale [m].
+
+
+def _pad_under_feet(shared_data: Path) -> tuple[Path, Scene]:
+    """The CMU walk (0.8 s) and a pad that covers every footfall: the human walks *through*
+    it (its feet are on the floor, the pad's top is 8 cm higher), so the robot must step onto
+    it to keep out."""
+    path = shared_data / "cmu" / "35_01.bvh"
+    clip = load_clip(path).slice(1, 97)
+    feet = np.concatenate([clip.position(n) for n in ("LeftFoot", "RightFoot", "LeftToeBase")])
+    lo, hi = feet[:, :2].min(axis=0) - 0.4, feet[:, :2].max(axis=0) + 0.4
+    v, f = box_mesh(np.array([*(hi - lo), PAD_HEIGHT]))
+    pose = np.array([[*(lo + hi) / 2, PAD_HEIGHT / 2, 1.0, 0.0, 0.0, 0.0]])
+    return path, Scene(objects=(SceneObject(name="pad", vertices=v, faces=f, poses=pose),),
+                       source="pad")  # fmt: skip
+
+
+@cache
+def _walk_on_pad(root: Path) -> RetargetOutput:
+    path, scene = _pad_under_feet(root)
+    clip = load_clip(path).slice(1, 97)
+    r = Retargeter("g1", "cmu", RetargetConfig(fps=30.0), method="interaction-mesh",
+                   mesh=InteractionConfig())  # fmt: skip
+    return r.run(clip, scene=scene)
+
+
+def test_kinematic_walks_through_the_pad_interaction_mesh_steps_onto_it(shared_data: Path) -> None:
+    r = _walk_on_pad(shared_data).report
+    kin = r["kinematic"]
+    # The kinematic warm start ignores the pad: its feet sink through the scaled 8 cm.
+    assert kin["max_scene_penetration_mm"] > 25.0, kin
+    assert kin["scene_penetration_frames"] >= r["frames"] // 2
+    assert r["max_scene_penetration_mm"] <= 10.0, r
+    assert r["scene_penetration_frames"] <= 1
+    assert r["joint_limit_violations"] == 0 and r["max_ground_penetration_mm"] <= 5.0
+    # Feet stay on the pad's top. (The human's swing foot passes through the pad too, which
+    # counts as a contact the robot, stepping over the pad, does not keep.)
+    assert r["human_contacts"] > 0 and r["contact_preservation"] >= 0.75
+
+
+def test_motion_file_has_the_scene_tracks(shared_data: Path, tmp_path: Path) -> None:
+    out = _walk_on_pad(shared_data)
+    poses = out.motion.extras["scene_poses"]  # type: ignore[index]
+    assert poses.shape == (out.motion.num_frames, 1, 7)
+    contacts = out.motion.extras["metric_contact_preserved"]  # type: ignore[index]
+    assert contacts.shape[0] == out.motion.num_frames and (contacts >= 0).any()
+
+
+def test_cli_interaction_mesh_with_a_scene_file(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, scene = _pad_under_feet(shared_data)
+    obj = scene.objects[0]
+    size = obj.vertices.max(axis=0) - obj.vertices.min(axis=0)
+    (tmp_path / "pad.yaml").write_text(
+        f"schema_version: 1\nobjects:\n  - name: pad\n    box: {size.tolist()}\n"
+        f"    pos: {obj.poses[0, :3].tolist()}\n"
+    )
+    src = shared_data / "cmu" / "35_01.bvh"
+    argv = ["retarget", str(src), "--out", str(tmp_path / "m.npz"), "--ik.fps", "30"]
+    # The method and the scene go together: either alone is an error, and nothing is written.
+    assert main([*argv, "--method", "interaction-mesh"]) == 2
+    assert "needs --scene" in capsys.readouterr().err
+    assert main([*argv, "--scene", str(tmp_path / "pad.yaml")]) == 2
+    assert "interaction-mesh only" in capsys.readouterr().err
+    assert not (tmp_path / "m.npz").exists()
+    code = main([*argv, "--start", "1", "--method", "interaction-mesh", "--scene",
+                 str(tmp_path / "pad.yaml"), "--report", str(tmp_path / "m.json"), "--quiet"])  # fmt: skip
+    assert code == 0
+    report = json.loads((tmp_path / "m.json").read_text())
+    assert report["method"] == "interaction-mesh" and report["scene_objects"] == ["pad"]
+    assert report["max_scene_penetration_mm"] <= 10.0
+    assert "scene: penetration" in capsys.readouterr().out
+    assert load_motion(tmp_path / "m.npz").extras["scene_poses"].shape[1] == 1  # type: ignore[index]
