@@ -115,3 +115,33 @@ def test_scene_errors(tmp_path: Path, bad: str) -> None:
         (tmp_path / bad).mkdir()
     with pytest.raises(InputError, match=bad):
         load_scene_meshes(tmp_path / bad)
+
+
+def test_moving_scene_objects_follow_the_motions_scene_poses(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    import dataclasses
+
+    from humimic.viewer import load_scene_meshes
+
+    motion, _ = _walk(shared_data)
+    T = motion.num_frames
+    (tmp_path / "s.yaml").write_text(
+        "schema_version: 1\nobjects:\n  - {name: crate, box: [0.3, 0.3, 0.3], pos: [1, 0, 0.15]}\n"
+    )
+    poses = np.zeros((T, 1, 7))
+    poses[:, 0, 0] = np.linspace(0.0, 1.0, T)  # Slides along x, in the robot's frame.
+    poses[:, 0, 3] = 1.0
+    extras = {**(motion.extras or {}), "scene_poses": poses,
+              "metric_scene_penetration": np.full(T, 0.002)}  # fmt: skip
+    motion = dataclasses.replace(motion, extras=extras)
+    scene = load_scene_meshes(tmp_path / "s.yaml")
+    assert scene[0].local_vertices is not None
+    viewer = Viewer(motion, nominal_model(get_robot("g1")), scene=scene, port=free_port())
+    viewer.start(frame=0)
+    try:
+        viewer.set_frame(T - 1)
+        np.testing.assert_allclose(viewer._scene_handles[0].position, [1.0, 0.0, 0.0])
+        assert "Scene penetration: 2.0 mm" in viewer.metrics_text(T - 1)
+    finally:
+        viewer.stop()

@@ -98,7 +98,8 @@ class ViewCommand:
     human: Path | None = None
     """The human clip it was retargeted from (.bvh, .npy, .npz), drawn as a skeleton."""
     scene: Path | None = None
-    """Scene objects: a mesh file (.obj, .stl, .ply) or a folder of them, in the clip's frame."""
+    """Scene objects, in the clip's frame: a scene file (.yaml; moving objects follow the
+    motion's scene_poses), a mesh file (.obj, .stl, .ply) or a folder of them."""
     rollout: Path | None = None
     """A rollout or robot log (.mcap with /qpos, or /base_pose and /joint_states). Default: the
     motion file's own /qpos when it is an MCAP that has one (``humimic eval --mcap``)."""

@@ -33,13 +33,26 @@ class SceneMesh:
     name: str
     vertices: np.ndarray
     faces: np.ndarray
+    local_vertices: np.ndarray | None = None
+    """The vertices in the object's own frame (scene files), for objects that move: the
+    motion's ``scene_poses`` (interaction-mesh retargeting) place them frame by frame."""
 
 
 def load_scene_meshes(path: str | Path) -> list[SceneMesh]:
-    """Scene objects from a mesh file (.obj, .stl, .ply) or a folder of them (trimesh)."""
+    """Scene objects from a scene file (.yaml, :func:`humimic.retarget.scene.load_scene`), a
+    mesh file (.obj, .stl, .ply) or a folder of them (trimesh)."""
     import trimesh
 
     p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        from humimic.retarget.scene import load_scene
+
+        return [
+            SceneMesh(
+                name=o.name, vertices=o.world_vertices(0), faces=o.faces, local_vertices=o.vertices
+            )
+            for o in load_scene(p).objects
+        ]
     if p.is_dir():
         files = sorted(f for f in p.rglob("*") if f.suffix.lower() in (".obj", ".stl", ".ply"))
         if not files:
@@ -93,7 +106,12 @@ def align_scene(motion: Motion, meshes: list[SceneMesh]) -> list[SceneMesh]:
     origin = np.asarray(info.get("human_origin", [0.0, 0.0, 0.0]), dtype=np.float64)
     origin[2] = float(info.get("human_ground", 0.0))
     return [
-        SceneMesh(name=m.name, vertices=(m.vertices - origin) @ rot.T, faces=m.faces)
+        SceneMesh(
+            name=m.name,
+            vertices=(m.vertices - origin) @ rot.T,
+            faces=m.faces,
+            local_vertices=m.local_vertices,
+        )
         for m in meshes
     ]
 
@@ -129,6 +147,13 @@ class Viewer:
         self.kp_error = extras.get("metric_keypoint_error")
         self.penetration = extras.get("metric_ground_penetration")
         self.contacts = extras.get("human_contacts")
+        self.scene_penetration = extras.get("metric_scene_penetration")
+        poses = extras.get("scene_poses")  # (T, objects, 7), the robot's frame.
+        moving = poses is not None and poses.shape[1] == len(self.scene)
+        self.scene_poses = poses if moving and all(
+            m.local_vertices is not None for m in self.scene
+        ) else None  # fmt: skip
+        self._scene_handles: list[Any] = []
         self.host, self.port = host, port
         self.frame = 0
         self._lock = threading.Lock()
@@ -173,9 +198,12 @@ class Viewer:
         self._targets = None
         if self.targets is not None:
             self._targets = server.scene.add_point_cloud(
-                "/robot_targets", self.targets[0], colors=(230, 40, 40), point_size=0.025,
+                "/robot_targets",
+                self.targets[0],
+                colors=(230, 40, 40),
+                point_size=0.025,
                 point_shape="circle",
-            )  # fmt: skip
+            )
         # The human and its scene move aside together in "beside" mode.
         self._human_handles: list[Any] = []
         self._human_bones = self._human_joints = None
@@ -185,9 +213,12 @@ class Viewer:
                 "/human/bones", segs, colors=(40, 110, 230), thickness=0.015
             )
             self._human_joints = server.scene.add_point_cloud(
-                "/human/joints", self.human[0], colors=(20, 60, 160), point_size=0.03,
+                "/human/joints",
+                self.human[0],
+                colors=(20, 60, 160),
+                point_size=0.03,
                 point_shape="circle",
-            )  # fmt: skip
+            )
             self._human_handles += [self._human_bones, self._human_joints]
         info = self.motion.info or {}
         scale = float(info.get("human_scale", 1.0))
@@ -196,15 +227,27 @@ class Viewer:
             # With the human, at its scale...
             self._human_handles.append(
                 server.scene.add_mesh_simple(
-                    f"/human_scene/{i}_{m.name}", m.vertices, m.faces, color=(90, 120, 220),
+                    f"/human_scene/{i}_{m.name}",
+                    m.vertices,
+                    m.faces,
+                    color=(90, 120, 220),
                     opacity=0.5,
                 )
-            )  # fmt: skip
-            # ...and at the robot's scale, where the retargeted motion uses it.
-            server.scene.add_mesh_simple(
-                f"/scene/{i}_{m.name}", m.vertices * scale + lift, m.faces, color=(170, 150, 120),
-                opacity=0.8,
-            )  # fmt: skip
+            )
+            # ...and at the robot's scale, where the retargeted motion uses it: posed per
+            # frame from the motion's scene_poses when it has them.
+            if self.scene_poses is not None and m.local_vertices is not None:
+                self._scene_handles.append(
+                    server.scene.add_mesh_simple(
+                        f"/scene/{i}_{m.name}", m.local_vertices * scale, m.faces,
+                        color=(170, 150, 120), opacity=0.8,
+                    )
+                )  # fmt: skip
+            else:
+                server.scene.add_mesh_simple(
+                    f"/scene/{i}_{m.name}", m.vertices * scale + lift, m.faces,
+                    color=(170, 150, 120), opacity=0.8,
+                )  # fmt: skip
         self._build_gui(server)
         self.set_frame(frame)
 
@@ -285,6 +328,9 @@ class Viewer:
                         h.position, h.wxyz = p, q
                 if self._targets is not None and self.targets is not None:
                     self._targets.points = self.targets[t]
+                if self.scene_poses is not None:
+                    for h, pose in zip(self._scene_handles, self.scene_poses[t], strict=True):
+                        h.position, h.wxyz = pose[:3], pose[3:]
                 if self.human is not None and self._human_bones is not None:
                     offset = HUMAN_BESIDE_OFFSET if self._beside.value else np.zeros(3)
                     joints = self.human[t] + offset
@@ -312,6 +358,8 @@ class Viewer:
             lines.append(f"Human foot contact: {', '.join(feet) or 'none'}")
         if self.penetration is not None:
             lines.append(f"Ground penetration: {self.penetration[t] * 1e3:.1f} mm")
+        if self.scene_penetration is not None:
+            lines.append(f"Scene penetration: {self.scene_penetration[t] * 1e3:.1f} mm")
         return "  \n".join(lines)
 
     def step(self, dt: float) -> None:
