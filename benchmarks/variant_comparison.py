@@ -54,6 +54,17 @@ def _train(args: argparse.Namespace, variant: str) -> Path:
     return run
 
 
+def _checkpoint(args: argparse.Namespace, run: Path) -> Path | None:
+    """With ``--iterations``, the checkpoint at that many iterations (a run that went further
+    is compared at the same point); else the newest."""
+    if args.iterations is None or run.name == "student":
+        return None
+    path = run / "checkpoints" / f"model_{args.iterations:06d}.pt"
+    if not path.is_file():
+        raise SystemExit(f"{run}: no checkpoint at {args.iterations} iterations ({path})")
+    return path
+
+
 def _distill(args: argparse.Namespace, teacher: Path) -> Path:
     run = args.out / "student"
     if not (run / "config.yaml").exists():
@@ -94,7 +105,7 @@ def main() -> None:
     for name, run in policies.items():
         for cond, dr, physics in conditions:
             r = evaluate(EvalSettings(run=run, episodes=args.episodes, dr=dr, physics=physics,
-                                      seed=args.seed + 1))  # fmt: skip
+                                      seed=args.seed + 1, checkpoint=_checkpoint(args, run)))  # fmt: skip
             rows.append({"policy": name, "physics": cond, "iterations": r["iterations"],
                          **{k: r["policy"][k] for k in _KEYS}})  # fmt: skip
             if name == next(iter(policies)):

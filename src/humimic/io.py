@@ -1,4 +1,5 @@
-"""Atomic file writes: an interrupted run never leaves a half file that looks whole."""
+"""File helpers: atomic writes (an interrupted run never leaves a half file that looks whole)
+and reading YAML with errors that name the file."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from humimic.errors import OutputPathError
+from humimic.errors import InputError, OutputPathError
 
 
 def check_writable(path: str | os.PathLike[str]) -> Path:
@@ -78,3 +79,22 @@ def json_ready(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [json_ready(v) for v in value]
     return value
+
+
+def read_yaml(path: str | os.PathLike[str]) -> Any:
+    """The parsed contents of a YAML file (``None`` for an empty one).
+
+    Raises:
+        InputError: The file is missing, unreadable or not valid YAML (names the file).
+    """
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    try:
+        return yaml.safe_load(p.read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{p}: cannot read: {e}") from None
+    except yaml.YAMLError as e:
+        raise InputError(f"{p}: not valid YAML ({e})") from None

@@ -35,9 +35,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from humimic.errors import InputError
+from humimic.io import read_yaml
 from humimic.retarget.interaction_mesh import point_triangle_distance
 from humimic.transforms import axis_angle_matrix, quat_mul, quat_to_matrix
 
@@ -272,13 +272,7 @@ def load_scene(path: str | Path) -> Scene:
                      source=str(p))  # fmt: skip
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"{p}: expected a scene .yaml, a mesh (.obj/.stl) or a scene folder")
-    if not p.is_file():
-        raise InputError(f"{p}: no such scene file")
-    try:
-        raw = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({e})") from None
-    return _parse_scene(p, raw)
+    return _parse_scene(p, read_yaml(p))
 
 
 def _parse_scene(p: Path, raw: Any) -> Scene:

@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import torch
-import yaml
 
 from humimic.errors import InputError, UnknownNameError
+from humimic.io import read_yaml
 from humimic.tracking import rewards as rew
 from humimic.tracking import terminations as term
 from humimic.tracking.physics import Physics
@@ -204,12 +204,7 @@ def load_dr_profile(path: str | os.PathLike[str]) -> DomainRandomization:
         InputError: Naming the file and the field, for unknown keys and bad values.
     """
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
-    try:
-        raw = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({e})") from None
+    raw = read_yaml(p)
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):

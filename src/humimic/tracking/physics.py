@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 from humimic.errors import InputError
+from humimic.io import read_yaml
 from humimic.real2sim.effects import Injection, apply_to_spec, parse_injection
 
 _KEYS = (
@@ -246,11 +247,7 @@ def load_physics(name_or_path: str | os.PathLike[str]) -> Physics:
         InputError: For a missing file, bad YAML or a bad field (named).
     """
     path = physics_path(name_or_path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise InputError(f"{path}: cannot read the physics file: {e}") from None
-    return parse_physics(data, path.stem, str(path))
+    return parse_physics(read_yaml(path), path.stem, str(path))
 
 
 def write_physics(physics: Physics, path: str | os.PathLike[str]) -> Path:
