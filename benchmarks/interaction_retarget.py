@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from humimic.configs import InteractionConfig, RetargetConfig
 from humimic.datasets import load_clip
 from humimic.retarget import Retargeter
@@ -52,7 +54,8 @@ def main() -> None:
         clip = load_clip(next(folder.glob("*.npy")))
         scene = load_scene(folder)
         t = time.perf_counter()
-        r = rt.run(clip, scene=scene).report
+        result = rt.run(clip, scene=scene)
+        r = result.report
         total = time.perf_counter() - t
         row = {
             "clip": folder.name,
@@ -73,7 +76,8 @@ def main() -> None:
             },
         }
         if args.peer_python is not None:
-            row["holosoma"] = _peer(args.peer_python, folder)
+            contacts = (result.motion.extras or {})["scene_contacts"]
+            row["holosoma"] = _peer(args.peer_python, folder, rt, contacts)
         rows.append(row)
         print(json.dumps(row), flush=True)
     out = {
@@ -87,15 +91,50 @@ def main() -> None:
     print(json.dumps(out, indent=2))
 
 
-def _peer(python: Path, folder: Path) -> dict:
-    """holosoma's retargeter on the same clip (``benchmarks/peer_holosoma.py``)."""
+def _peer(python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> dict:
+    """holosoma's retargeter on the same clip (``benchmarks/peer_holosoma.py``), its own
+    evaluation, and its result measured with our scene metrics."""
     out = Path("/tmp") / f"humimic_peer_{folder.name}"
     cmd = [sys.executable, str(ROOT / "benchmarks" / "peer_holosoma.py"),
            "--peer-python", str(python), "--clip", str(folder), "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if res.returncode != 0:
         return {"error": res.stderr.strip()[-2000:]}
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    peer = json.loads(res.stdout)
+    peer.pop("eval_raw", None)
+    peer["our_metrics"] = _our_metrics_of_peer(Path(peer["output_npz"]), folder, rt, contacts)
+    return peer
+
+
+HOLOSOMA_SCALE = 1.32 / 1.78
+"""holosoma's fixed human and scene scale (G1 height over human height)."""
+
+
+def _our_metrics_of_peer(result: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> dict:
+    """Our scene metrics on holosoma's result, in holosoma's own frame (its scene: the boxes
+    scaled by 0.7416 about the origin; its human: the capture, toes' lowest point moved to 0,
+    scaled the same), on our G1 model (same joints; our hands are meshes, its are spheres).
+    The human's contacts are ours (``contacts``, from our run on the same frames), so both
+    results are scored on the same (frame, key point, object) contacts."""
+    from humimic.retarget.interaction import contact_bodies
+    from humimic.retarget.kinematic import ik_model
+    from humimic.retarget.metrics import evaluate_scene
+
+    with np.load(result) as z:
+        qpos = z["qpos"]
+    m = rt.map
+    scene = load_scene(folder).to_robot(scale=HOLOSOMA_SCALE, yaw=0.0, origin=np.zeros(3),
+                                        ground=0.0, z_offset=0.0)  # fmt: skip
+    model, _ = ik_model(rt.robot, m, scene=scene)
+    report, _ = evaluate_scene(model, qpos, scene, 30.0, keypoint_bodies=contact_bodies(m),
+                               human_contacts=contacts,
+                               foot_bodies=[f.body for f in m.feet.values()])  # fmt: skip
+    lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
+    out = {k: getattr(report, k) for k in _KEYS}
+    out["joint_limit_violations"] = int(
+        np.sum((qpos[:, 7:] < lo - 1e-6) | (qpos[:, 7:] > hi + 1e-6))
+    )
+    return out
 
 
 if __name__ == "__main__":

@@ -211,5 +211,9 @@ class Retargeter:
             "scene": ires.scene.source,
             "scene_objects": [o.name for o in ires.scene.objects],
         }
-        extras = {**scene_arrays(ires.scene, T), **{f"metric_{k}": v for k, v in frames.items()}}
+        extras = {
+            **scene_arrays(ires.scene, T),
+            "scene_contacts": ires.human_contacts,
+            **{f"metric_{k}": v for k, v in frames.items()},
+        }
         return part, extras
