@@ -149,7 +149,7 @@ def run_logged(cmd: list[str], cwd: Path, log: Path, nice: int) -> tuple[float, 
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--peer-python", default="/work/peer_venv/bin/python", help="holosoma venv")
     ap.add_argument("--clip", type=Path, required=True, help="a holosoma_climb clip folder")
     ap.add_argument("--out", type=Path, required=True, help="staged data, result npz, logs")
