@@ -66,7 +66,6 @@ class InteractionResult:
         mesh_scene_points: Scene points in each frame's mesh. Shape: (T,).
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
-        contact_radius: The contact radius of each key point [m]. Shape: (K,).
     """
 
     qpos: np.ndarray
@@ -78,7 +77,6 @@ class InteractionResult:
     relaxed_iterations: int
     mesh_scene_points: np.ndarray
     human_contacts: np.ndarray
-    contact_radius: np.ndarray
 
 
 REPAIR_DEPTH = 1e-3
@@ -150,7 +148,6 @@ class InteractionMeshRetargeter:
         self.menagerie_root = menagerie_root
         # Targets only depend on the robot's geometry: this scene-less retargeter builds them.
         self.kin = KinematicRetargeter(robot, m, cfg, menagerie_root=menagerie_root)
-        self.model = self.kin.model
         feet = list(m.feet.values())
         self._foot_keys = [[f.ankle, f.toe] for f in feet]  # (2, 2) key-point names
 
@@ -211,6 +208,7 @@ class InteractionMeshRetargeter:
             cost=icfg.contact_weight,
         )  # fmt: skip
 
+        prev = mujoco.MjData(model)  # The previous output frame, for its foot sites.
         out = np.zeros((T, model.nq))
         iters = np.zeros(T, dtype=int)
         n_scene = np.zeros(T, dtype=int)
@@ -246,7 +244,6 @@ class InteractionMeshRetargeter:
                 tasks.append(smooth)
                 held = planted[t] & planted[t - 1]  # (4,) per foot point
                 if held.any():
-                    prev = mujoco.MjData(model)  # Site positions of the previous output frame.
                     prev.qpos[:] = out[t - 1]
                     prev.mocap_pos[:], prev.mocap_quat[:] = (
                         conf.data.mocap_pos,
@@ -290,7 +287,6 @@ class InteractionMeshRetargeter:
             relaxed_iterations=frame.relaxed,
             mesh_scene_points=n_scene,
             human_contacts=contacts,
-            contact_radius=radius,
         )
 
     def _scene_points(

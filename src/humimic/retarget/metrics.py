@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import mujoco
 import numpy as np
 
 from humimic.retarget.limits import contact_point_heights, foot_contact_points
+from humimic.retarget.scene import Scene
 
 CONTACT_HEIGHT = 0.010
 """A foot contact point touches the ground when its lowest point is below this [m]."""
@@ -189,7 +189,7 @@ class SceneReport:
 def evaluate_scene(
     model: mujoco.MjModel,
     qpos: np.ndarray,
-    scene: Any,
+    scene: Scene,
     fps: float,
     *,
     keypoint_bodies: list[list[str]],
