@@ -9,13 +9,18 @@ error, jerk, and time per frame. Prints one JSON object per clip, then a summary
 The peer, holosoma's own retargeter, runs in its own virtual environment: see
 ``benchmarks/peer_holosoma.py``; ``--peer-python`` runs it on the same clips in the same run.
 
+With ``--peer-python``, the clips are retargeted at holosoma's fixed scale (1.32 / 1.78; ours
+is otherwise the clip's leg ratio, about 1.8% larger), so that holosoma's own evaluation can
+score our result in its scene (moved into its frame) beside its own result.
+
 Usage: .venv/bin/python benchmarks/interaction_retarget.py [--clips DIR ...] [--fps 30]
-    [--peer-python /path/to/peer/venv/bin/python]
+    [--peer-python /path/to/peer/venv/bin/python] [--scale holosoma|NUMBER]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -43,12 +48,32 @@ def main() -> None:
                         default=sorted(p for p in DATA.glob("mocap_climb_seq_*") if p.is_dir()))  # fmt: skip
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--peer-python", type=Path, default=None)
+    parser.add_argument("--scale", default=None,
+                        help="human-to-robot scale: a number, or 'holosoma' (1.32 / 1.78, "
+                             "holosoma's); default: the leg ratio, or holosoma's with --peer-python")  # fmt: skip
+    parser.add_argument(
+        "--no-peer-retarget",
+        action="store_true",
+        help="with --peer-python: only holosoma's evaluation of our result",
+    )
+    parser.add_argument(
+        "--still-speed",
+        type=float,
+        default=None,
+        help="--mesh.still_speed for our retargeter (default: its default)",
+    )
     args = parser.parse_args()
     if not args.clips:
         raise SystemExit(f"no clips: expected holosoma_climb clip folders under {DATA}")
+    if args.scale is None and args.peer_python is not None:
+        args.scale = "holosoma"  # holosoma's evaluation scores a result in its own scene.
+    scale = HOLOSOMA_SCALE if args.scale == "holosoma" else args.scale and float(args.scale)
+    mesh = InteractionConfig()
+    if args.still_speed is not None:
+        mesh = dataclasses.replace(mesh, still_speed=args.still_speed)
     t0 = time.perf_counter()
-    rt = Retargeter("g1", "holosoma", RetargetConfig(fps=args.fps), method="interaction-mesh",
-                    mesh=InteractionConfig())  # fmt: skip
+    rt = Retargeter("g1", "holosoma", RetargetConfig(fps=args.fps, scale=scale),
+                    method="interaction-mesh", mesh=mesh)  # fmt: skip
     rows = []
     for folder in args.clips:
         clip = load_clip(next(folder.glob("*.npy")))
@@ -76,8 +101,12 @@ def main() -> None:
             },
         }
         if args.peer_python is not None:
-            contacts = (result.motion.extras or {})["scene_contacts"]
-            row["holosoma"] = _peer(args.peer_python, folder, rt, contacts)
+            extras = result.motion.extras or {}
+            row["interaction_mesh"]["holosoma_evaluation"] = _peer_evaluation(
+                args.peer_python, folder, result.motion.qpos, extras["scene_poses"]
+            )
+            if not args.no_peer_retarget:
+                row["holosoma"] = _peer(args.peer_python, folder, rt, extras["scene_contacts"])
         rows.append(row)
         print(json.dumps(row), flush=True)
     out = {
@@ -85,6 +114,8 @@ def main() -> None:
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()},
         "robot": "g1",
         "fps": args.fps,
+        "scale": scale if scale is not None else "leg ratio",
+        "mesh_config": dataclasses.asdict(mesh),
         "clips": rows,
         "seconds": time.perf_counter() - t0,
     }
@@ -108,6 +139,39 @@ def _peer(python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> d
 
 HOLOSOMA_SCALE = 1.32 / 1.78
 """holosoma's fixed human and scene scale (G1 height over human height)."""
+
+
+def _to_holosoma_frame(qpos: np.ndarray, scene_poses: np.ndarray, folder: Path) -> np.ndarray:
+    """Our result moved into holosoma's world frame (its scene: the boxes scaled by
+    ``HOLOSOMA_SCALE`` about the capture's origin). Retargeted at that scale, our frame differs
+    from it by a turn about z and a shift: the one that takes our first box onto its."""
+    from humimic.transforms import matrix_to_quat, quat_mul, quat_to_matrix
+
+    theirs = load_scene(folder).to_robot(scale=HOLOSOMA_SCALE, yaw=0.0, origin=np.zeros(3),
+                                         ground=0.0, z_offset=0.0).objects[0].poses[0]  # fmt: skip
+    ours = scene_poses[0, 0]
+    rot = quat_to_matrix(theirs[3:]) @ quat_to_matrix(ours[3:]).T
+    if not np.allclose(rot[2], [0.0, 0.0, 1.0], atol=1e-9):
+        raise SystemExit(f"{folder.name}: our frame and holosoma's differ by more than a yaw")
+    out = qpos.copy()
+    out[:, :3] = qpos[:, :3] @ rot.T + (theirs[:3] - rot @ ours[:3])
+    out[:, 3:7] = quat_mul(np.broadcast_to(matrix_to_quat(rot), qpos[:, 3:7].shape), qpos[:, 3:7])
+    return out
+
+
+def _peer_evaluation(python: Path, folder: Path, qpos: np.ndarray, scene_poses: np.ndarray) -> dict:
+    """holosoma's own evaluation of our result (``peer_holosoma.py --evaluate``), in its frame."""
+    out = Path("/tmp") / f"humimic_ours_{folder.name}"
+    out.mkdir(parents=True, exist_ok=True)
+    npz = out / "ours.npz"
+    np.savez(npz, qpos=_to_holosoma_frame(qpos, scene_poses, folder))
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "peer_holosoma.py"), "--peer-python",
+           str(python), "--clip", str(folder), "--out", str(out / "eval"), "--evaluate", str(npz)]  # fmt: skip
+    res = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if res.returncode != 0:
+        return {"error": res.stderr.strip()[-2000:]}
+    report = json.loads(res.stdout)
+    return {"metrics": report["metrics"], "eval_wall_s": report["eval_wall_s"]}
 
 
 def _our_metrics_of_peer(result: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> dict:

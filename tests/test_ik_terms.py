@@ -15,6 +15,7 @@ from humimic.retarget.tasks import (
     InteractionMeshTask,
     KeypointsTask,
     OrientationsTask,
+    SceneContactTask,
     rotation_log,
     so3_right_jacobian_inverse,
 )
@@ -222,3 +223,21 @@ def test_interaction_mesh_task_jacobian(arm: mink.Configuration, weighting: str)
     # At the source configuration the error vanishes: the residual is relative to the source.
     assert task.mesh is not None
     np.testing.assert_allclose(task.mesh.residual(source), 0.0, atol=1e-12)
+
+
+def test_scene_contact_task_error_gap_and_jacobian(arm: mink.Configuration) -> None:
+    """The signed distance of a body to a surface, minus the gap aimed for; its Jacobian."""
+    model = arm.model
+    lower, torso = model.geom("lower_geom").id, model.geom("torso").id
+    task = SceneContactTask(model, [[lower], [torso]], cost=3.0, reach=1.0)
+    task.set_contacts([(0, model.geom("floor").id), (1, model.geom("floor").id)])
+    d = task.compute_error(arm)
+    # The torso capsule's lowest point (half-length 0.2, radius 0.08) over the floor plane.
+    axis_z = arm.data.geom_xmat[torso].reshape(3, 3)[2, 2]
+    lowest = arm.data.geom_xpos[torso][2] - 0.2 * abs(axis_z) - 0.08
+    assert d[1] == pytest.approx(lowest, abs=1e-9)
+    task.gap = 0.01
+    np.testing.assert_allclose(task.compute_error(arm), d - 0.01, atol=1e-12)
+    jac = task.compute_jacobian(arm)
+    assert np.abs(jac).max() > 0.5  # The base's height moves both distances one to one.
+    np.testing.assert_allclose(jac, fd_jacobian(arm, task.compute_error), atol=1e-6)

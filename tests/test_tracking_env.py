@@ -15,6 +15,7 @@ from rsl_rl.runners import OnPolicyRunner
 
 from humimic.errors import InputError
 from humimic.motion import Motion, motion_from_qpos
+from humimic.tracking import dr as dr_mod
 from humimic.tracking import rewards as rew
 from humimic.tracking import terminations as term
 from humimic.tracking.backend import MujocoCpuBackend
@@ -282,6 +283,18 @@ def test_dr_default_varies_within_ranges(model: mujoco.MjModel, motion: Motion) 
     p = obs["policy"]
     assert not torch.equal(p, obs["critic"][:, : p.shape[1]])  # Noisy policy observations.
     assert torch.equal(obs["critic"][:, p.shape[1] : p.shape[1] + e.shape[1]], e)
+
+
+def test_sample_pool_serves_fresh_rows_with_their_normalization() -> None:
+    dr = dr_default()
+    pool = dr_mod.SamplePool(dr, num_bodies=5, num_joints=3, rng=np.random.default_rng(0), block=4)
+    rows = [pool.take(k) for k in (3, 1, 2, 6)]  # The third and the fourth start new blocks.
+    friction = np.concatenate([smp.physics.friction for smp, _ in rows])
+    assert len(friction) == 12 and len(np.unique(friction)) == 12
+    for smp, e in rows:
+        assert e.shape == (len(smp.physics.friction), dr_mod.param_dim(5, 3))
+        np.testing.assert_allclose(e, dr_mod.normalize(dr, smp))
+        assert smp.physics.mass_scale.shape == (len(e), 5) and smp.joint_offset.shape == (len(e), 3)
 
 
 def test_yaml_profile(tmp_path: Path) -> None:

@@ -72,3 +72,15 @@ def test_angles_and_euler(quats: tuple[np.ndarray, ...]) -> None:
     heading = np.einsum("...ij,j->...i", tf.quat_to_matrix(a), [1.0, 0.0, 0.0])
     want = np.arctan2(heading[..., 1], heading[..., 0])
     np.testing.assert_allclose(2 * np.arctan2(yaw[..., 3], yaw[..., 0]), want, atol=1e-9)
+
+
+def test_error_magnitude_small_and_half_turn_angles() -> None:
+    """The chord form keeps float32 precision near zero and handles opposite hemispheres."""
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    angles = np.array([1e-5, 1e-3, 0.5, np.pi - 1e-3, np.pi])
+    b = np.concatenate([np.cos(angles / 2)[:, None], np.sin(angles / 2)[:, None] * axis], axis=1)
+    a = np.tile([1.0, 0.0, 0.0, 0.0], (len(angles), 1))
+    got = tm.quat_error_magnitude(*(torch.as_tensor(x, dtype=torch.float32) for x in (a, b)))
+    np.testing.assert_allclose(got.numpy(), angles, rtol=1e-3, atol=2e-6)
+    flipped = tm.quat_error_magnitude(_t(a), _t(-b)).numpy()  # -q is the same rotation
+    np.testing.assert_allclose(flipped, angles, rtol=1e-9, atol=1e-12)

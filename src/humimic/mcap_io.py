@@ -602,9 +602,14 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
         joint_names=joint_names,
         body_names=body_names,
         qpos=qpos,
+        joint_pos=fields["joint_pos"],
+        joint_vel=fields["joint_vel"],
+        body_pos_w=fields["body_pos_w"],
+        body_quat_w=fields["body_quat_w"],
+        body_lin_vel_w=fields["body_lin_vel_w"],
+        body_ang_vel_w=fields["body_ang_vel_w"],
         extras=extras or None,
         info=info or None,
-        **fields,
     )
 
 

@@ -56,6 +56,10 @@ class Motion:
         body_lin_vel_w: Shape: (T, B, 3). body_ang_vel_w: Shape: (T, B, 3), world frame.
         extras: Further per-frame named arrays (first axis T), e.g. ``human_contacts``.
         info: Free-form metadata (JSON-able), e.g. the source clip and how it was aligned.
+        dynamics: The dynamic section of a dynamically feasible motion (``humimic refine``):
+            ``initial_state`` (``mjSTATE_FULLPHYSICS`` of the training model at frame 0),
+            ``ctrl`` (S, nu) the PD targets of every physics step, the states they produce,
+            ``qpos`` (S, nq) and ``qvel`` (S, nv), and ``physics_dt`` (a scalar).
     """
 
     robot: str
@@ -71,6 +75,7 @@ class Motion:
     body_ang_vel_w: np.ndarray
     extras: dict[str, np.ndarray] | None = None
     info: dict[str, Any] | None = None
+    dynamics: dict[str, np.ndarray] | None = None
 
     @property
     def num_frames(self) -> int:
@@ -178,6 +183,8 @@ def save_motion(motion: Motion, path: str | os.PathLike[str]) -> Path:
         arrays[f"extra_{k}"] = np.asarray(v)
     if motion.info:
         arrays["info_json"] = np.array(json.dumps(motion.info))
+    for k, v in (motion.dynamics or {}).items():
+        arrays[f"dynamics_{k}"] = np.asarray(v)
     buf = io.BytesIO()
     np.savez_compressed(buf, **arrays)  # type: ignore[arg-type]
     with atomic_write(p, "wb") as f:
@@ -229,6 +236,8 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
         body_ang_vel_w=data["body_ang_vel_w"],
         extras={k[len("extra_") :]: v for k, v in data.items() if k.startswith("extra_")},
         info=_info(p, data),
+        dynamics={k[len("dynamics_") :]: v for k, v in data.items() if k.startswith("dynamics_")}
+        or None,
     )
 
 

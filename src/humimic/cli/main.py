@@ -11,7 +11,13 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from humimic.configs import InteractionConfig, RetargetConfig, retarget_default, retarget_fast
+from humimic.configs import (
+    DynamicsConfig,
+    InteractionConfig,
+    RetargetConfig,
+    retarget_default,
+    retarget_fast,
+)
 from humimic.configs.runs import (
     DistillSettings,
     EvalSettings,
@@ -75,6 +81,36 @@ class RetargetCommand:
     """Interaction-mesh settings."""
     quiet: bool = False
     """No progress bars; print only the report summary."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefineCommand:
+    """Make a motion dynamically feasible: sampling MPC in MuJoCo, so that its stored controls
+    replay open-loop on the simulated robot (humimic.retarget.dynamics)."""
+
+    motion: Annotated[Path, tyro.conf.Positional]
+    """A robot motion (.npz), e.g. from humimic retarget."""
+    out: Path
+    """The refined motion (.npz), with its dynamic section."""
+    report: Path | None = None
+    """Report (JSON): open-loop replays of the input and of the result, robustness, compute."""
+    dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
+    """Sampler settings."""
+    robustness: int = 8
+    """Replays of the result on perturbed physics, for the report."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayCommand:
+    """Replay a refined motion's controls open-loop and check that they reproduce its
+    stored states (exit code 1 if they differ by more than --tol)."""
+
+    motion: Annotated[Path, tyro.conf.Positional]
+    """A motion with a dynamic section (humimic refine)."""
+    tol: float = 1e-9
+    """Largest accepted difference of qpos and qvel."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -392,6 +428,60 @@ def read_any_motion(path: Path):
     raise InputError(f"{path}: a motion must be .npz or .mcap")
 
 
+def run_refine(cmd: RefineCommand) -> dict:
+    """Run ``humimic refine``; returns the report."""
+    from tqdm import tqdm
+
+    from humimic.motion import load_motion, save_motion
+    from humimic.retarget.dynamics import refine
+
+    cmd.dyn.validate()
+    if cmd.out.suffix != ".npz":
+        raise InputError(f"{cmd.out}: the refined motion must end in .npz")
+    if cmd.robustness < 0:
+        raise InputError(f"--robustness: must be >= 0, got {cmd.robustness}")
+    check_writable(cmd.out)
+    if cmd.report is not None:
+        check_writable(cmd.report)
+    motion = load_motion(cmd.motion)
+    with tqdm(total=motion.num_frames - 1, desc=cmd.motion.name, unit="frame",
+              disable=cmd.quiet, leave=False) as bar:  # fmt: skip
+        refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=bar.update)
+    report = json_ready(report)
+    save_motion(refined, cmd.out)
+    if cmd.report is not None:
+        try:
+            atomic_write_text(cmd.report, json.dumps(report, indent=2, allow_nan=False) + "\n")
+        except BaseException:
+            cmd.out.unlink(missing_ok=True)  # No motion without its report.
+            raise
+    k, d = report["kinematic_replay"], report["dynamics_replay"]
+    print(f"open-loop replay, kinematic: {'fell at ' + format(k['seconds_until_fall'], '.2f') + ' s' if k['fell'] else 'stayed up'}, "
+          f"MPJPE {k['mpjpe_mm']:.0f} mm; refined: {'fell at ' + format(d['seconds_until_fall'], '.2f') + ' s' if d['fell'] else 'stayed up'}, "
+          f"MPJPE {d['mpjpe_mm']:.0f} mm")  # fmt: skip
+    rob = report["robustness"]
+    if rob["stayed_up"] is not None:
+        print(
+            f"perturbed physics: {100 * rob['stayed_up']:.0f}% of {rob['replays']} replays stayed up"
+        )
+    print(
+        f"compute: {report['cpu_seconds_per_motion_second']:.0f} CPU s per second of motion; wrote {cmd.out}"
+    )
+    return report
+
+
+def run_replay(cmd: ReplayCommand) -> int:
+    """Run ``humimic replay``; returns the exit code."""
+    from humimic.motion import load_motion
+    from humimic.retarget.dynamics import check_replay
+
+    r = check_replay(load_motion(cmd.motion))
+    ok = max(r["max_qpos_error"], r["max_qvel_error"]) <= cmd.tol
+    print(f"{int(r['steps'])} physics steps replayed: max |qpos| error {r['max_qpos_error']:.2e}, "
+          f"max |qvel| error {r['max_qvel_error']:.2e} ({'reproduced' if ok else 'DIFFERENT'})")  # fmt: skip
+    return 0 if ok else 1
+
+
 def run_convert(cmd: ConvertCommand) -> None:
     """Run ``humimic convert``."""
     from humimic.mcap_io import write_motion_mcap
@@ -612,6 +702,8 @@ def run_loop(cmd: LoopSettings) -> None:
 
 Commands = (
     Annotated[RetargetCommand, tyro.conf.subcommand("retarget")]
+    | Annotated[RefineCommand, tyro.conf.subcommand("refine")]
+    | Annotated[ReplayCommand, tyro.conf.subcommand("replay")]
     | Annotated[DemoCommand, tyro.conf.subcommand("demo")]
     | Annotated[ViewCommand, tyro.conf.subcommand("view")]
     | Annotated[ConvertCommand, tyro.conf.subcommand("convert")]
@@ -640,6 +732,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if isinstance(cmd, RetargetCommand):
             run_retarget(cmd)
+        elif isinstance(cmd, RefineCommand):
+            run_refine(cmd)
+        elif isinstance(cmd, ReplayCommand):
+            return run_replay(cmd)
         elif isinstance(cmd, DemoCommand):
             run_demo(cmd)
         elif isinstance(cmd, ViewCommand):

@@ -42,6 +42,8 @@ class RetargetConfig:
             linearized collision limits are not tunnelled through).
         repair_iters: Extra iterations when a self-collision pair ends a frame closer than
             half the margin.
+        scale: Human-to-robot scale of positions (root path, ground, scene); ``None``: the
+            robot's leg length over the human's, measured on the clip.
     """
 
     fps: float = 50.0
@@ -68,6 +70,7 @@ class RetargetConfig:
     smooth_weight: float = 0.5
     max_step: float = 0.3
     repair_iters: int = 4
+    scale: float | None = None
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--ik.<field>`` on the CLI)."""
@@ -94,6 +97,8 @@ class RetargetConfig:
             raise InputError("ik.stage1_iters + ik.stage2_iters: at least one QP per frame")
         if not 0 < self.collision_gain <= 1:
             raise InputError(f"ik.collision_gain: must be in (0, 1], got {self.collision_gain}")
+        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0):
+            raise InputError(f"ik.scale: must be a positive number, got {self.scale}")
 
 
 def retarget_default() -> RetargetConfig:
@@ -134,6 +139,16 @@ class InteractionConfig:
             contact-preservation metric [m].
         smooth_weight: Cost [1/rad] of moving the joints away from the previous frame's
             solution (the kinematic method's ``smooth_weight``, for this stage).
+        reattach_iterations: Most extra QP iterations per frame that bring back onto their
+            surfaces the bodies that a frame's penetration repair moved farther than
+            ``contact_distance``; a step is kept only if nothing then lies inside the scene.
+        contact_gap: Distance off the surface that those iterations aim for [m] (pulling to
+            zero fights the linearized non-penetration limit).
+        still_speed: A human foot point slower than this horizontally [m/s, robot scale] has
+            the robot's held in x and y where it was in the previous frame, in the air too
+            (holosoma's notion of foot sticking). Off by default (0): on the climbing clips it
+            raises joint jerk by 60% (BENCHMARKS.md). Planted points are held in all three
+            axes whatever this is.
     """
 
     mesh_weight: float = 20.0
@@ -151,6 +166,9 @@ class InteractionConfig:
     contact_weight: float = 1000.0
     contact_distance: float = 0.02
     smooth_weight: float = 5.0
+    reattach_iterations: int = 3
+    contact_gap: float = 0.01
+    still_speed: float = 0.0
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""
@@ -159,16 +177,119 @@ class InteractionConfig:
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"mesh.{name}: must be a positive number, got {v}")
         non_negative = ("mesh_weight", "keypoint_scale", "tol", "penetration_margin",
-                        "stick_weight", "contact_weight", "smooth_weight")  # fmt: skip
+                        "stick_weight", "contact_weight", "smooth_weight", "contact_gap",
+                        "still_speed")  # fmt: skip
         for name in non_negative:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"mesh.{name}: must be a number >= 0, got {v}")
-        if self.iterations < 1 or self.max_scene_points < 0:
-            raise InputError("mesh.iterations must be >= 1 and mesh.max_scene_points >= 0")
+        if self.iterations < 1 or self.max_scene_points < 0 or self.reattach_iterations < 0:
+            raise InputError(
+                "mesh.iterations must be >= 1, mesh.max_scene_points and "
+                "mesh.reattach_iterations >= 0"
+            )
+        if self.contact_gap >= self.contact_distance:
+            raise InputError(
+                f"mesh.contact_gap ({self.contact_gap}) must be below mesh.contact_distance "
+                f"({self.contact_distance}): the reattached bodies would not count as touching"
+            )
         if self.weighting not in ("uniform", "inverse_distance"):
             raise InputError(f"mesh.weighting: uniform or inverse_distance, got {self.weighting!r}")
         if not 0 < self.collision_gain <= 1:
             raise InputError(f"mesh.collision_gain: must be in (0, 1], got {self.collision_gain}")
         if self.penetration_margin >= self.collision_detection:
             raise InputError("mesh.penetration_margin must be below mesh.collision_detection")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DynamicsConfig:
+    """Settings of sampling-based dynamics retargeting (:mod:`humimic.retarget.dynamics`).
+
+    The decision variables are offsets added to the reference's joint targets, at knots
+    ``knot_dt`` apart over a ``horizon_s`` window, linearly interpolated to the control rate
+    (the reference's frame rate) and held over the physics steps of each control step.
+
+    Attributes:
+        samples: Rollouts per iteration (the current mean is one of them).
+        horizon_s: Planning window [s].
+        knot_dt: Spacing of the knots [s].
+        commit_s: How much of the best plan is kept before the window moves on [s].
+        iterations: Most sampling iterations per window.
+        min_improvement: Stop a window's iterations after two in a row improve its best
+            cost by less than this fraction.
+        noise: Standard deviation of the knot offsets [rad], for the legs, at the window's
+            start, in the first iteration; it grows to ``horizon_noise`` times that at the
+            window's end, and shrinks by ``anneal`` per iteration (DIAL-MPC's annealing).
+        horizon_noise: See ``noise``.
+        anneal: See ``noise``.
+        upper_body_noise: Noise of the waist and arm joints relative to the legs'.
+        temperature: MPPI temperature on costs normalized by the elites' spread.
+        elites: The lowest-cost samples that the MPPI mean averages.
+        body_weight: Cost of the mean squared tracked-body position error, per (10 cm)^2.
+        root_weight: Cost of the pelvis height error per (10 cm)^2 and of its tilt against
+            the reference's per (0.3 rad)^2.
+        joint_weight: Cost of the mean squared joint error, per (0.3 rad)^2.
+        velocity_weight: Cost of the pelvis velocity error, per (1 m/s)^2.
+        foot_weight: Cost of a foot's horizontal speed while the reference's foot is on the
+            ground (low and slow), per (0.3 m/s)^2.
+        effort_weight: Cost of the mean squared torque, relative to the motors' limits.
+        fall_height: The robot has fallen when its pelvis is lower than this fraction of the
+            reference's pelvis height, or tilted more than ``fall_tilt`` [rad] from it.
+        fall_tilt: See ``fall_height``.
+        fall_cost: Added for every control step from a fall on.
+        ensemble: Perturbed physics models every sample is also scored on (0: nominal
+            only): friction, masses and PD gains drawn from the ``default`` domain
+            randomization ranges, halved.
+        robust: ``mean`` or ``worst`` of the costs over the ensemble.
+        seed: Seed of the sampling noise and of the ensemble's draws.
+    """
+
+    samples: int = 128
+    horizon_s: float = 0.5
+    knot_dt: float = 0.1
+    commit_s: float = 0.1
+    iterations: int = 8
+    min_improvement: float = 0.01
+    noise: float = 0.15
+    horizon_noise: float = 2.0
+    anneal: float = 0.8
+    upper_body_noise: float = 0.5
+    temperature: float = 0.1
+    elites: int = 16
+    body_weight: float = 1.0
+    root_weight: float = 1.0
+    joint_weight: float = 0.1
+    velocity_weight: float = 0.05
+    foot_weight: float = 0.2
+    effort_weight: float = 0.01
+    fall_height: float = 0.6
+    fall_tilt: float = 0.8
+    fall_cost: float = 100.0
+    ensemble: int = 0
+    robust: str = "mean"
+    seed: int = 0
+
+    def validate(self) -> None:
+        """Check the values; :class:`InputError` names the field (``--dyn.<field>``)."""
+        positive = ("horizon_s", "knot_dt", "commit_s", "temperature", "fall_height")
+        for name in positive:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"dyn.{name}: must be a positive number, got {v}")
+        non_negative = ("min_improvement", "noise", "horizon_noise", "upper_body_noise",
+                        "body_weight", "root_weight", "joint_weight", "velocity_weight",
+                        "effort_weight", "fall_cost", "fall_tilt", "foot_weight")  # fmt: skip
+        for name in non_negative:
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"dyn.{name}: must be a number >= 0, got {v}")
+        if self.samples < 2 or self.iterations < 1 or self.elites < 1 or self.ensemble < 0:
+            raise InputError(
+                "dyn.samples must be >= 2, dyn.iterations and dyn.elites >= 1, dyn.ensemble >= 0"
+            )
+        if not 0 < self.anneal <= 1:
+            raise InputError(f"dyn.anneal: must be in (0, 1], got {self.anneal}")
+        if self.commit_s > self.horizon_s or self.knot_dt > self.horizon_s:
+            raise InputError("dyn.commit_s and dyn.knot_dt must not exceed dyn.horizon_s")
+        if self.robust not in ("mean", "worst"):
+            raise InputError(f"dyn.robust: mean or worst, got {self.robust!r}")

@@ -122,6 +122,20 @@ def body_geoms(model: mujoco.MjModel, bodies: list[list[str]]) -> list[list[int]
     return out
 
 
+def _attached(touch: SceneContactTask, conf: mink.Configuration, distance: float) -> np.ndarray:
+    """Which of ``touch``'s contacts are within ``distance`` of their surfaces. Shape: (P,)."""
+    return touch.compute_error(conf) + touch.gap <= distance
+
+
+def _deepest(model: mujoco.MjModel, data: mujoco.MjData, pairs: list[tuple[int, int]]) -> float:
+    """The smallest signed distance among ``pairs`` of geoms, capped at 1 cm [m]."""
+    fromto = np.zeros(6)
+    return min(
+        (mujoco.mj_geomDistance(model, data, g1, g2, 0.01, fromto) for g1, g2 in pairs),
+        default=0.01,
+    )
+
+
 def set_scene_pose(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, t: int) -> None:
     """Move the scene's mocap bodies to frame ``t``."""
     for obj in scene.objects:
@@ -186,6 +200,8 @@ class InteractionMeshRetargeter:
             collision_detection_distance=icfg.collision_detection,
         )
         limits = [*kin.limits, scene_limit]
+        floor = model.geom(self.robot.floor_geom).id
+        scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         names = list(self.map.keypoints)
@@ -202,6 +218,8 @@ class InteractionMeshRetargeter:
         planted = tg.contacts.reshape(T, -1) | (
             (contacts[:, feet_flat] >= 0) & (speed < self.cfg.contact_speed)
         )
+        # A foot point the human does not move horizontally: the robot's stays put in x, y.
+        still = speed < icfg.still_speed
         smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
         touch = SceneContactTask(
             model, body_geoms(model, contact_bodies(self.map)),
@@ -234,6 +252,7 @@ class InteractionMeshRetargeter:
             kin.keypoints.set_costs(costs)
             tasks = [mesh_task, kin.keypoints, kin.orientations, kin.posture]
             touching = np.flatnonzero(contacts[t] >= 0)
+            touch.gap = 0.0
             if touching.size and icfg.contact_weight > 0:
                 touch.set_contacts(
                     [(int(k), obj_geoms[contacts[t, k]]) for k in touching], firm[t, touching]
@@ -243,7 +262,8 @@ class InteractionMeshRetargeter:
                 smooth.set_target(out[t - 1])
                 tasks.append(smooth)
                 held = planted[t] & planted[t - 1]  # (4,) per foot point
-                if held.any():
+                slow = still[t] & ~held  # Held in x and y only.
+                if held.any() or slow.any():
                     prev.qpos[:] = out[t - 1]
                     prev.mocap_pos[:], prev.mocap_quat[:] = (
                         conf.data.mocap_pos,
@@ -251,7 +271,10 @@ class InteractionMeshRetargeter:
                     )
                     mujoco.mj_kinematics(model, prev)
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
-                    stick.set_costs(np.where(held, icfg.stick_weight, 0.0))
+                    cost = np.zeros((held.size, 3))
+                    cost[held] = icfg.stick_weight
+                    cost[slow, :2] = icfg.stick_weight
+                    stick.cost = cost.ravel()
                     tasks.append(stick)
             frame.t, frame.tasks = t, tasks
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
@@ -271,6 +294,25 @@ class InteractionMeshRetargeter:
                     break
                 conf.integrate_inplace(kin._solve(frame, limits), 1.0)
                 n += 1
+            # Reattach: the repair may have moved a touching body off its surface. Step again
+            # with the pull aiming contact_gap off the surface (at zero gap it fights the
+            # linearized limit), keeping a step only if it reattaches more contacts than it
+            # loses and nothing ends inside the scene.
+            if touch in tasks and icfg.reattach_iterations > 0:
+                frame.tasks, touch.gap = tasks, icfg.contact_gap
+                attached = _attached(touch, conf, icfg.contact_distance)
+                for _ in range(icfg.reattach_iterations):
+                    if attached.all():
+                        break
+                    before = conf.q.copy()
+                    conf.integrate_inplace(kin._solve(frame, limits), 1.0)
+                    n += 1
+                    now = _attached(touch, conf, icfg.contact_distance)
+                    deep = _deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
+                    if deep or now.sum() <= attached.sum():
+                        conf.update(before)
+                        break
+                    attached = now
             q = conf.q.copy()
             q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
             out[t] = q

@@ -158,7 +158,10 @@ def build_targets(
             a, k, h = idx[foot.ankle], idx[knee], idx[hip]
             leg_h.append(np.median(bone(human, a, k)) + np.median(bone(human, k, h)))
             leg_r.append(bone(robot.keypoints, a, k) + bone(robot.keypoints, k, h))
-    scale = float(np.mean(leg_r) / np.mean(leg_h)) if leg_h else 1.0
+    if cfg.scale is not None:
+        scale = float(cfg.scale)
+    else:
+        scale = float(np.mean(leg_r) / np.mean(leg_h)) if leg_h else 1.0
 
     # Robot-frame offsets measured in the zero pose.
     frame_names = list(m.frames)

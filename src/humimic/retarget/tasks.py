@@ -208,6 +208,7 @@ class SceneContactTask(mink.Task):
         self.reach = float(reach)
         super().__init__(cost=np.ones(1))
         self.pairs: list[tuple[int, int]] = []
+        self.gap = 0.0
         self._fromto = np.zeros(6)
         self._normal = np.zeros(3)
         self._jac1 = np.zeros((3, model.nv))
@@ -232,7 +233,7 @@ class SceneContactTask(mink.Task):
 
     def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
         data = configuration.data
-        return np.array([self._nearest(data, k, o)[0] for k, o in self.pairs])
+        return np.array([self._nearest(data, k, o)[0] for k, o in self.pairs]) - self.gap
 
     def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
         data = configuration.data

@@ -220,6 +220,12 @@ def training_model(
         geom.contype, geom.conaffinity = 0, 1
     for mesh in list(spec.meshes):
         spec.delete(mesh)
+    # Textures (the G1 scene's skybox and floor grid: 5 MB) serve rendering only, and every
+    # per-env copy of the model would carry them: 5 GB at 1024 envs, and caches evicted.
+    for mat in spec.materials:
+        mat.textures = [""] * len(mat.textures)
+    for tex in list(spec.textures):
+        spec.delete(tex)
 
     spec.option.timestep = timestep
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -464,6 +470,59 @@ class MujocoCpuBackend:
         self._qpos[:] = self._state[:, 1 : 1 + self.nq]
         self._qvel[:] = self._state[:, 1 + self.nq : 1 + self.nq + self.nv]
         self._sens[:] = self._out_sens[:, -1]
+
+    @property
+    def state_size(self) -> int:
+        """Length of a full physics state (``mjSTATE_FULLPHYSICS``)."""
+        return self._nstate
+
+    @property
+    def sensor_slices(self) -> dict[str, slice]:
+        """Where the read-out sensors sit in a row of sensor data: ``pos``, ``quat``,
+        ``lin``, ``ang`` (Shape: (3B,) / (4B,) / (3B,) / (3B,)), ``found`` and ``force``."""
+        return dict(self._sl)
+
+    def env_state(self, env_id: int) -> np.ndarray:
+        """Env ``env_id``'s full physics state (a copy). Shape: (state_size,)."""
+        return self._state[env_id].copy()
+
+    def rollout(self, state: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Open-loop rollouts of every env from given full physics states, each on its env's
+        model, under a control per physics step; the envs' own states stay as they were.
+
+        Args:
+            state: Start states (``mjSTATE_FULLPHYSICS``). Shape: (num_envs, state_size).
+            controls: PD targets of every physics step. Shape: (num_envs, nstep, nu).
+
+        Returns:
+            The state after each step, Shape: (num_envs, nstep, state_size), and the sensor
+            data after each step, Shape: (num_envs, nstep, nsensordata).
+
+        Raises:
+            InputError: If the backend steps with the thread pool, or on wrong shapes.
+        """
+        if self._rollout is None:
+            raise InputError("rollout needs the backend's 'rollout' stepping method")
+        n, nstep = self.num_envs, int(controls.shape[1])
+        if state.shape != (n, self._nstate) or controls.shape != (n, nstep, self.nu):
+            raise InputError(
+                f"rollout: expected states ({n}, {self._nstate}) and controls ({n}, nstep, "
+                f"{self.nu}), got {state.shape} and {controls.shape}"
+            )
+        out_state = np.zeros((n, nstep, self._nstate))
+        out_sens = np.zeros((n, nstep, self._model.nsensordata))
+        self._rollout.rollout(
+            self._models if self._per_env else [self._model] * n,
+            self._scratch,
+            np.ascontiguousarray(state),
+            np.ascontiguousarray(controls),
+            control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+            skip_checks=True,
+            nstep=nstep,
+            state=out_state,
+            sensordata=out_sens,
+        )
+        return out_state, out_sens
 
     def _step_threads(self, n_substeps: int) -> None:
         assert self._pool is not None

@@ -7,7 +7,7 @@ knows the physics the actor must cope with (asymmetric actor-critic).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -99,3 +99,48 @@ def normalize(dr: DomainRandomization, s: DrSample) -> np.ndarray:
         )[:, None],
     ]
     return np.concatenate(parts, axis=-1)
+
+
+class SamplePool:
+    """Draws of :func:`sample`, with their :func:`normalize` vectors, served in blocks.
+
+    A reset step resets a few envs; drawing for each such step costs dozens of small numpy
+    calls whatever the number of envs. The pool draws ``block`` envs' parameters at once and
+    hands out consecutive rows: the same distribution, independent rows, a fixed sequence for
+    a given generator.
+    """
+
+    def __init__(
+        self,
+        dr: DomainRandomization,
+        *,
+        num_bodies: int,
+        num_joints: int,
+        rng: np.random.Generator,
+        block: int = 256,
+    ) -> None:
+        self._dr, self._rng, self._block = dr, rng, block
+        self._dims = {"num_bodies": num_bodies, "num_joints": num_joints}
+        self._sample: DrSample | None = None
+        self._e = np.zeros((0, param_dim(num_bodies, num_joints)))
+        self._next = 0
+
+    def take(self, n: int) -> tuple[DrSample, np.ndarray]:
+        """The next ``n`` envs' parameters and their normalized vectors ``e``."""
+        if self._sample is None or self._next + n > len(self._e):
+            self._sample = sample(self._dr, max(n, self._block), rng=self._rng, **self._dims)
+            self._e = normalize(self._dr, self._sample)
+            self._next = 0
+        rows, smp = slice(self._next, self._next + n), self._sample
+        self._next += n
+        physics = PhysicsParams(
+            **{f.name: getattr(smp.physics, f.name)[rows] for f in fields(PhysicsParams)}
+        )
+        return (
+            DrSample(
+                physics=physics,
+                joint_offset=smp.joint_offset[rows],
+                action_delay=smp.action_delay[rows],
+            ),
+            self._e[rows],
+        )

@@ -221,11 +221,32 @@ class TrackingEnv(VecEnv):
         )
         self.state.default_joint_pos.copy_(self.default_joint_pos)
         self.state.soft_joint_limits.copy_(soft)
+        # The reference fields are views of one buffer that a single gather of the packed
+        # table fills (see _update_reference).
+        st, Bs = self.state, len(cfg.body_names)
+        self._ref_buf = torch.zeros(num_envs, self._m_packed.shape[1], device=dev)
+        jp, jv, bp, bq, bl, ba = self._ref_buf.split(self._m_split, dim=1)
+        st.ref_joint_pos, st.ref_joint_vel = jp, jv
+        st.ref_body_pos_w, st.ref_body_quat_w = bp.view(-1, Bs, 3), bq.view(-1, Bs, 4)
+        st.ref_body_lin_vel_w, st.ref_body_ang_vel_w = bl.view(-1, Bs, 3), ba.view(-1, Bs, 3)
+        st.ref_body_quat_w[..., 0] = 1.0
+        # Likewise the simulator's state: one float64 -> float32 copy per read.
+        nb, C, F = len(be.body_names), len(be.contact_body_names), len(be.foot_body_names)
+        self._read_split = [J, J, 3 * nb, 4 * nb, 3 * nb, 3 * nb, C, F]
+        self._read_np = np.zeros((num_envs, sum(self._read_split)))
+        self._read_buf = torch.zeros(num_envs, sum(self._read_split), device=dev)
+        jp, jv, bp, bq, bl, ba, cf, ff = self._read_buf.split(self._read_split, dim=1)
+        st.joint_pos, st.joint_vel, st.contact_found, st.foot_force = jp, jv, cf, ff
+        st.body_pos_w, st.body_quat_w = bp.view(-1, nb, 3), bq.view(-1, nb, 4)
+        st.body_lin_vel_w, st.body_ang_vel_w = bl.view(-1, nb, 3), ba.view(-1, nb, 3)
 
         # Buffers (written in place: rsl_rl steps under torch.inference_mode()).
         self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=dev)
         self._gen = torch.Generator(device=dev).manual_seed(cfg.seed)
         self._rng = np.random.default_rng(cfg.seed)
+        self._dr_pool = dr_mod.SamplePool(
+            cfg.dr, num_bodies=be.num_bodies_total, num_joints=J, rng=self._rng
+        )
         max_delay = int(cfg.dr.action_delay[1])
         self._act_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
         self._delay = torch.zeros(num_envs, dtype=torch.long, device=dev)
@@ -382,30 +403,20 @@ class TrackingEnv(VecEnv):
     # -------------------------------------------------------------------------- internals
 
     def _read_backend(self) -> None:
-        r, s = self.backend.read(), self.state
-
-        def put(dst: torch.Tensor, src: np.ndarray) -> None:
-            dst.copy_(torch.from_numpy(src))  # copy_ converts to float32 and moves to dev.
-
-        put(s.body_pos_w, r.body_pos_w)
-        put(s.body_quat_w, r.body_quat_w)
-        put(s.body_lin_vel_w, r.body_lin_vel_w)
-        put(s.body_ang_vel_w, r.body_ang_vel_w)
-        put(s.joint_pos, r.qpos[:, 7:])
-        put(s.joint_vel, r.qvel[:, 6:])
-        put(s.contact_found, r.contact_found)
-        put(s.foot_force, r.foot_force)
+        """The backend's state into the buffer the state's fields view: one numpy
+        concatenation in float64, one conversion to float32 on the env's device."""
+        r, n = self.backend.read(), self.num_envs
+        parts = (
+            r.qpos[:, 7:], r.qvel[:, 6:], r.body_pos_w, r.body_quat_w, r.body_lin_vel_w,
+            r.body_ang_vel_w, r.contact_found, r.foot_force,
+        )  # fmt: skip
+        np.concatenate([p.reshape(n, -1) for p in parts], axis=1, out=self._read_np)
+        self._read_buf.copy_(torch.from_numpy(self._read_np))
 
     def _update_reference(self) -> None:
-        """The reference at each env's frame (the relative reference is :meth:`_compute_terms`'s)."""
-        s, f = self.state, self.state.frame
-        jp, jv, bp, bq, bl, ba = self._m_packed[f].split(self._m_split, dim=1)
-        s.ref_joint_pos.copy_(jp)
-        s.ref_joint_vel.copy_(jv)
-        s.ref_body_pos_w.copy_(bp.view(s.ref_body_pos_w.shape))
-        s.ref_body_quat_w.copy_(bq.view(s.ref_body_quat_w.shape))
-        s.ref_body_lin_vel_w.copy_(bl.view(s.ref_body_lin_vel_w.shape))
-        s.ref_body_ang_vel_w.copy_(ba.view(s.ref_body_ang_vel_w.shape))
+        """The reference at each env's frame: one gather into the buffer the state's
+        reference fields view (the relative reference is :meth:`_compute_terms`'s)."""
+        torch.index_select(self._m_packed, 0, self.state.frame, out=self._ref_buf)
 
     def _compute_terms(self) -> torch.Tensor:
         """The relative reference, then every termination and reward term into the rows of
@@ -463,23 +474,19 @@ class TrackingEnv(VecEnv):
     def _reset_idx(self, ids: torch.Tensor) -> None:
         """Reset some envs in the backend and in the env's buffers. The caller reads the
         backend's new state (:meth:`_read_backend`, :meth:`_update_reference`) afterwards."""
-        cfg, s, n, J = self.cfg, self.state, int(ids.numel()), self.num_actions
+        cfg, s, n = self.cfg, self.state, int(ids.numel())
         frames = self._sample_frames(n)
         s.frame[ids] = frames
 
         # Domain randomization.
-        smp = dr_mod.sample(
-            cfg.dr, n, num_bodies=self.backend.num_bodies_total, num_joints=J, rng=self._rng
-        )
+        smp, e = self._dr_pool.take(n)
         ids_np = ids.cpu().numpy()
         if cfg.dr.randomizes_model:
             self.backend.set_params(ids_np, smp.physics)
         dev = self.device
         self._joint_offset[ids] = torch.as_tensor(smp.joint_offset, dtype=torch.float32, device=dev)
         self._delay[ids] = torch.as_tensor(smp.action_delay, dtype=torch.long, device=dev)
-        self._params_e[ids] = torch.as_tensor(
-            dr_mod.normalize(cfg.dr, smp), dtype=torch.float32, device=dev
-        )
+        self._params_e[ids] = torch.as_tensor(e, dtype=torch.float32, device=dev)
 
         # Reference state initialization with noise, in float64 for the backend: a few envs
         # per step, where numpy's small-array calls cost a fraction of torch's.

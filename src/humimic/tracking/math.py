@@ -52,9 +52,15 @@ def quat_apply_inverse(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 
 
 def quat_error_magnitude(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Angle [rad] of the rotation between ``a`` and ``b``, in [0, pi]. Shape: (...,)."""
-    d = quat_conj_mul(a, b)
-    return 2.0 * torch.atan2(torch.linalg.norm(d[..., 1:], dim=-1), d[..., 0].abs())
+    """Angle [rad] of the rotation between unit quaternions ``a`` and ``b``, in [0, pi].
+
+    From the chord between them on the same hemisphere, ``angle = 4 asin(|a - s b| / 2)`` with
+    ``s = sign(a . b)``: no quaternion product, and accurate at small angles (unlike ``acos``
+    of the dot product). Shape: (...,).
+    """
+    s = torch.where((a * b).sum(-1, keepdim=True) < 0.0, -1.0, 1.0)
+    chord = torch.linalg.vector_norm(a - s * b, dim=-1)
+    return 4.0 * torch.asin((0.5 * chord).clamp(max=1.0))
 
 
 def yaw_quat(q: torch.Tensor) -> torch.Tensor:
@@ -65,15 +71,37 @@ def yaw_quat(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.cos(yaw / 2), zeros, zeros, torch.sin(yaw / 2)], dim=-1)
 
 
+_ROT6D: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
+
+
+def _rot6d_form(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """The six entries of ``rot6d_from_quat`` as quadratic forms of ``q``: a (16, 6) matrix
+    acting on the flattened outer product ``q q^T`` (indices ``4 i + j``, wxyz)."""
+    form = _ROT6D.get((device, dtype))
+    if form is None:
+        w, x, y, z = range(4)
+        terms = (
+            ((w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)),  # R00
+            ((x, y, 2), (w, z, -2)),  # R01
+            ((x, y, 2), (w, z, 2)),  # R10
+            ((w, w, 1), (x, x, -1), (y, y, 1), (z, z, -1)),  # R11
+            ((x, z, 2), (w, y, -2)),  # R20
+            ((y, z, 2), (w, x, 2)),  # R21
+        )
+        form = torch.zeros(16, 6, dtype=dtype)
+        for col, entries in enumerate(terms):
+            for i, j, c in entries:
+                form[4 * i + j, col] = c
+        form = _ROT6D[(device, dtype)] = form.to(device)
+    return form
+
+
 def rot6d_from_quat(q: torch.Tensor) -> torch.Tensor:
-    """The first two columns of the rotation matrix, row-major flattened:
-    ``[R00, R01, R10, R11, R20, R21]``. Shape: (..., 6)."""
-    w, x, y, z = q.unbind(-1)
-    x2, y2, z2 = 2.0 * x, 2.0 * y, 2.0 * z
-    xx, yy, zz = x * x2, y * y2, z * z2
-    xy, xz, yz = x * y2, x * z2, y * z2
-    wx, wy, wz = w * x2, w * y2, w * z2
-    return torch.stack([1.0 - yy - zz, xy - wz, xy + wz, 1.0 - xx - zz, xz - wy, yz + wx], dim=-1)
+    """The first two columns of the rotation matrix of a unit quaternion, row-major
+    flattened: ``[R00, R01, R10, R11, R20, R21]``. One outer product and one matrix product
+    (each entry is a quadratic form of ``q``). Shape: (..., 6)."""
+    outer = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
+    return outer @ _rot6d_form(q.device, q.dtype)
 
 
 def quat_from_euler_xyz(roll: torch.Tensor, pitch: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:

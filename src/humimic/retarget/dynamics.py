@@ -1,0 +1,597 @@
+"""Sampling-based dynamics retargeting: a reference the simulated robot can replay open-loop.
+
+A kinematic reference can be physically impossible: replay its joint positions as PD targets
+and the robot falls. Following SPIDER (Pan et al., "SPIDER: Scalable Physics-Informed
+Dexterous Retargeting", 2025) and DIAL-MPC (Xue et al., "Full-Order Sampling-Based MPC for
+Torque-Level Locomotion Control via Diffusion-Style Annealing", 2024), retargeting becomes
+optimal control solved by sampling in the simulator:
+
+* decision variables: offsets added to the reference's joint targets at knots ``knot_dt``
+  apart over a ``horizon_s`` window, linearly interpolated to the control rate (the
+  reference's frame rate) and held over each control step's physics steps; the first knot is
+  the previous window's plan (continuity of the targets);
+* each iteration draws ``samples`` plans around the current mean (the mean itself is one of
+  them) with noise that grows along the window and shrinks across iterations, rolls every one
+  out in MuJoCo from the window's start state (``mujoco.rollout`` threads, through the
+  tracking backend's :meth:`~humimic.tracking.backend.MujocoCpuBackend.rollout`), scores it,
+  and moves the mean to the MPPI average of the elites;
+* cost per control step: tracked-body positions, pelvis height and tilt, joint angles and
+  pelvis velocity against the reference, effort, and a fall penalty; the last step counts
+  twice;
+* receding horizon: the best plan evaluated (not the unevaluated mean) is committed for
+  ``commit_s``; its rollout's states are the output, so the stored trajectory is exactly
+  what an open-loop replay of the stored controls produces (:func:`replay`);
+* robust option: every sample is also scored on ``ensemble`` perturbed models, and the
+  mean or the worst cost counts.
+
+The physics is the tracking env's training model (:func:`humimic.tracking.env.tracking_model`):
+the same actuators, contacts and time step as the tracking policy will see.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from humimic.configs.retarget import DynamicsConfig
+from humimic.errors import InputError
+from humimic.motion import Motion
+from humimic.tracking import dr as dr_mod
+from humimic.tracking.backend import MujocoCpuBackend
+from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
+from humimic.tracking.env import build_backend, tracking_model
+
+_UPPER = ("waist", "shoulder", "elbow", "wrist")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DynamicsResult:
+    """A dynamically feasible motion: initial state, controls, and the states they produce.
+
+    Attributes:
+        initial_state: ``mjSTATE_FULLPHYSICS`` state at frame 0. Shape: (state_size,).
+        ctrl: PD targets of every physics step. Shape: (S, nu).
+        qpos: Generalized positions after each physics step. Shape: (S, nq).
+        qvel: Generalized velocities after each physics step. Shape: (S, nv).
+        physics_dt: Physics step [s].
+        decimation: Physics steps per frame of the reference.
+        seconds: Wall-clock time of the optimization [s].
+        cpu_seconds: Process CPU time of the optimization, all threads [s].
+        rollouts: Physics steps simulated, all samples and iterations.
+        iterations: Sampling iterations of each window. Shape: (windows,).
+        best_cost: Best cost of each window. Shape: (windows,).
+    """
+
+    initial_state: np.ndarray
+    ctrl: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    physics_dt: float
+    decimation: int
+    seconds: float
+    cpu_seconds: float
+    rollouts: int
+    iterations: np.ndarray
+    best_cost: np.ndarray
+
+    def frame_qpos(self) -> np.ndarray:
+        """The state at each reference frame: the start, then every ``decimation``-th step.
+        Shape: (T, nq)."""
+        start = self.initial_state[1 : 1 + self.qpos.shape[1]]
+        return np.concatenate([start[None], self.qpos[self.decimation - 1 :: self.decimation]])
+
+
+def knot_weights(num_steps: int, step_dt: float, knot_dt: float) -> np.ndarray:
+    """Linear interpolation of knots at ``0, knot_dt, 2 knot_dt, ...`` to control steps at
+    ``0, step_dt, ...``: row j holds the weights of the knots at ``j * step_dt``.
+
+    Returns:
+        Shape: (num_steps, K) with ``K = ceil((num_steps - 1) step_dt / knot_dt) + 1``; rows
+        sum to 1.
+    """
+    t = np.arange(num_steps) * step_dt / knot_dt
+    k = math.ceil(t[-1] - 1e-9) + 1 if num_steps > 1 else 1
+    w = np.zeros((num_steps, max(k, 2)))
+    lo = np.minimum(np.floor(t + 1e-9).astype(int), w.shape[1] - 2)
+    frac = t - lo
+    w[np.arange(num_steps), lo] = 1.0 - frac
+    w[np.arange(num_steps), lo + 1] += frac
+    return w
+
+
+class DynamicsRetargeter:
+    """Receding-horizon sampling MPC that turns a kinematic reference into a dynamically
+    feasible one (see the module docstring).
+
+    Args:
+        motion: The kinematic reference (its frame rate is the control rate; the physics
+            step must divide the frame period).
+        cfg: The sampler's settings.
+        task: The tracking task whose training model and tracked bodies are used (default:
+            the robot's registered task, without domain randomization).
+        nthread: Rollout threads (default: all cores).
+
+    Raises:
+        InputError: If the settings or the motion do not fit.
+    """
+
+    def __init__(
+        self,
+        motion: Motion,
+        cfg: DynamicsConfig | None = None,
+        *,
+        task: TrackingConfig | None = None,
+        nthread: int | None = None,
+    ) -> None:
+        cfg = cfg or DynamicsConfig()
+        cfg.validate()
+        task = task or tracking_task(motion.robot, dr="none")
+        if task.robot != motion.robot:
+            raise InputError(f"the motion is for {motion.robot!r}, the task for {task.robot!r}")
+        if motion.num_frames < 3:
+            raise InputError(f"the motion has {motion.num_frames} frames; at least 3 needed")
+        ratio = 1.0 / (motion.fps * task.sim_dt)
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise InputError(
+                f"the motion's {motion.fps} fps is not a whole number of {task.sim_dt} s "
+                "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
+            )
+        self.motion, self.cfg, self.decimation = motion, cfg, round(ratio)
+        self.step_dt = 1.0 / motion.fps
+        self.physics_dt = task.sim_dt
+        model = tracking_model(task)
+        members = cfg.ensemble + 1
+        n = cfg.samples * members
+        dr = _ensemble_ranges(dr_default()) if cfg.ensemble else task.dr
+        bcfg = replace(task, dr=dr, num_threads=nthread)
+        self.backend: MujocoCpuBackend = build_backend(bcfg, n, model=model)
+        self.model = model
+        if cfg.ensemble:
+            rng = np.random.default_rng(cfg.seed + 1)
+            smp = dr_mod.sample(bcfg.dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
+                                num_joints=self.backend.nu, rng=rng)  # fmt: skip
+            for e in range(cfg.ensemble):
+                ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
+                rows = {f: np.repeat(getattr(smp.physics, f)[e : e + 1], len(ids), axis=0)
+                        for f in smp.physics.__dataclass_fields__}  # fmt: skip
+                self.backend.set_params(ids, type(smp.physics)(**rows))
+
+        be = self.backend
+        jidx = [motion.joint_names.index(j) for j in be.joint_names]
+        bidx = [motion.body_names.index(b) for b in task.body_names]
+        self.ref_joint = np.ascontiguousarray(motion.joint_pos[:, jidx])
+        self.ref_body = np.ascontiguousarray(motion.body_pos_w[:, bidx])
+        self.ref_quat_root = motion.body_quat_w[:, motion.body_names.index(task.body_names[0])]
+        self.ref_root_vel = motion.body_lin_vel_w[:, 0]
+        self.root = 0  # task.body_names[0] is the pelvis (the floating base).
+        if task.body_names[0] != motion.body_names[0]:
+            raise InputError(f"the task's first body must be the base {motion.body_names[0]!r}")
+        self.joint_lo, self.joint_hi = be.joint_range[:, 0], be.joint_range[:, 1]
+        self.kp = be.kp
+        self.kd = -model.actuator_biasprm[:, 2].copy()
+        self.effort = np.where(be.effort_limit > 0, be.effort_limit, 1.0)
+        scale = np.array(
+            [cfg.upper_body_noise if any(u in j for u in _UPPER) else 1.0 for j in be.joint_names]
+        )
+        self.joint_noise = scale
+        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
+        self.sl = be.sensor_slices
+        self.nb = len(task.body_names)
+        self.body_names = tuple(task.body_names)
+        self.foot_body_names = tuple(b for b in be.foot_body_names if b in self.body_names)
+        self.feet = [self.body_names.index(b) for b in self.foot_body_names]
+        # The reference's feet on the ground: low (within 3 cm of their lowest) and slow.
+        fz = self.ref_body[:, self.feet, 2]
+        fv = np.zeros_like(fz)
+        fv[1:] = np.linalg.norm(np.diff(self.ref_body[:, self.feet, :2], axis=0), axis=-1)
+        fv *= motion.fps
+        self.ref_planted = (fz < fz.min(axis=0) + 0.03) & (fv < 0.3)  # (T, feet)
+
+    # ------------------------------------------------------------------------------ costs
+
+    def _costs(self, states: np.ndarray, sens: np.ndarray, ctrl: np.ndarray, f0: int) -> np.ndarray:
+        """Cost of every rollout. ``states``/``sens`` after each physics step, Shape:
+        (n, S, ·); ``ctrl`` (n, S, nu); frames ``f0 + 1 ...`` are the references of the
+        control steps' ends. Returns Shape: (n,)."""
+        cfg, d = self.cfg, self.decimation
+        st, se, u = states[:, d - 1 :: d], sens[:, d - 1 :: d], ctrl[:, d - 1 :: d]
+        n, H = st.shape[:2]
+        frames = np.arange(f0 + 1, f0 + 1 + H)
+        body = se[..., self.sl["pos"]].reshape(n, H, self.nb, 3)
+        e_body = np.mean(np.sum((body - self.ref_body[frames]) ** 2, axis=-1), axis=-1)
+        root = body[:, :, self.root]
+        ref_root = self.ref_body[frames, self.root]
+        e_height = (root[..., 2] - ref_root[:, 2]) ** 2
+        quat = se[..., self.sl["quat"]].reshape(n, H, self.nb, 4)[:, :, self.root]
+        up = _up_z(quat)  # z of the pelvis's z axis
+        up_ref = _up_z(self.ref_quat_root[frames])
+        tilt = np.arccos(np.clip(up, -1.0, 1.0)) - np.arccos(np.clip(up_ref, -1.0, 1.0))
+        q = st[..., 1 + 7 : 1 + self.nq]
+        qd = st[..., 1 + self.nq + 6 : 1 + self.nq + self.nv]
+        e_joint = np.mean((q - self.ref_joint[frames]) ** 2, axis=-1)
+        vel = se[..., self.sl["lin"]].reshape(n, H, self.nb, 3)[:, :, self.root]
+        e_vel = np.sum((vel - self.ref_root_vel[frames]) ** 2, axis=-1)
+        tau = np.clip(self.kp * (u - q) - self.kd * qd, -self.effort, self.effort)
+        e_tau = np.mean((tau / self.effort) ** 2, axis=-1)
+        lin = se[..., self.sl["lin"]].reshape(n, H, self.nb, 3)[:, :, self.feet, :2]
+        e_foot = np.sum(self.ref_planted[frames] * np.sum(lin**2, axis=-1), axis=-1)
+        c = (
+            cfg.body_weight * e_body / 0.01
+            + cfg.foot_weight * e_foot / 0.09
+            + cfg.root_weight * (e_height / 0.01 + tilt**2 / 0.09)
+            + cfg.joint_weight * e_joint / 0.09
+            + cfg.velocity_weight * e_vel
+            + cfg.effort_weight * e_tau
+        )
+        fallen = (root[..., 2] < cfg.fall_height * ref_root[:, 2]) | (np.abs(tilt) > cfg.fall_tilt)
+        c = c + cfg.fall_cost * np.maximum.accumulate(fallen, axis=1)
+        c[:, -1] *= 2.0
+        return c.sum(axis=1) / (H + 1)
+
+    # ------------------------------------------------------------------------------- solve
+
+    def run(self, progress: Callable[[int], Any] | None = None) -> DynamicsResult:
+        """Optimize the whole motion. ``progress(n)`` is called with the frames committed."""
+        cfg, be, d = self.cfg, self.backend, self.decimation
+        T = self.motion.num_frames
+        members, N = cfg.ensemble + 1, cfg.samples
+        H_full = max(1, round(cfg.horizon_s / self.step_dt))
+        C = max(1, round(cfg.commit_s / self.step_dt))
+        rng = np.random.default_rng(cfg.seed)
+
+        state = self._initial_state()
+        initial = state.copy()
+        ctrl_out, qpos_out, qvel_out = [], [], []
+        f0 = 0
+        plan_prev: np.ndarray | None = None  # offsets at the control steps of the last window
+        iters, best_costs = [], []
+        steps = 0
+        t_wall, t_cpu = time.perf_counter(), time.process_time()
+        while f0 < T - 1:
+            H = min(H_full, T - 1 - f0)
+            W = knot_weights(H, self.step_dt, cfg.knot_dt)  # (H, K)
+            K = W.shape[1]
+            mean = np.zeros((K, self.nu))
+            if plan_prev is not None:  # Warm start: the last plan's remaining offsets.
+                tk = np.arange(K) * cfg.knot_dt / self.step_dt  # knot times in steps
+                src = np.arange(plan_prev.shape[0])
+                for j in range(self.nu):
+                    mean[:, j] = np.interp(tk, src, plan_prev[:, j], right=0.0)
+            ref_u = self.ref_joint[f0 + 1 : f0 + 1 + H]  # (H, J): next frame's joints
+            start = np.broadcast_to(state, (N * members, state.size))
+            ramp = 1.0 + (cfg.horizon_noise - 1.0) * np.arange(K) / max(K - 1, 1)
+            sigma0 = cfg.noise * ramp[:, None] * self.joint_noise[None]  # (K, J)
+            sigma0[0] = 0.0  # The first knot continues the committed targets.
+            best_c, best = np.inf, None
+            stall, it = 0, 0
+            for it in range(cfg.iterations):
+                sigma = sigma0 * cfg.anneal**it
+                knots = mean + rng.standard_normal((N, K, self.nu)) * sigma
+                knots[0] = mean
+                if it == 0 and plan_prev is not None:
+                    knots[1] = 0.0  # The plain reference, as a candidate.
+                offs = np.einsum("hk,nkj->nhj", W, knots)  # (N, H, J)
+                u = np.clip(ref_u + offs, self.joint_lo, self.joint_hi)
+                u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
+                ctrl = np.tile(u_steps, (members, 1, 1))
+                states, sens = be.rollout(np.ascontiguousarray(start), ctrl)
+                steps += ctrl.shape[0] * ctrl.shape[1]
+                cost_all = self._costs(states, sens, ctrl, f0).reshape(members, N)
+                cost = cost_all.mean(0) if cfg.robust == "mean" else cost_all.max(0)
+                k = int(np.argmin(cost))
+                improved = best_c - cost[k]
+                if cost[k] < best_c:
+                    best_c = float(cost[k])
+                    best = (knots[k].copy(), offs[k].copy(), u_steps[k].copy(),
+                            states[k].copy())  # fmt: skip
+                # MPPI over the elites, on costs normalized by their spread.
+                order = np.argsort(cost)[: cfg.elites]
+                ce = cost[order]
+                z = (ce - ce[0]) / (ce.std() + 1e-12)
+                w = np.exp(-z / cfg.temperature)
+                mean = np.einsum("n,nkj->kj", w / w.sum(), knots[order])
+                if it > 0 and improved < cfg.min_improvement * abs(best_c):
+                    stall += 1
+                    if stall >= 2:
+                        break
+                else:
+                    stall = 0
+            assert best is not None
+            _, offs_b, u_b, states_b = best
+            c = min(C, H)
+            ctrl_out.append(u_b[: c * d])
+            qpos_out.append(states_b[: c * d, 1 : 1 + self.nq])
+            qvel_out.append(states_b[: c * d, 1 + self.nq : 1 + self.nq + self.nv])
+            state = states_b[c * d - 1].copy()
+            plan_prev = offs_b[c:] if c < H else None
+            iters.append(it + 1)
+            best_costs.append(best_c)
+            f0 += c
+            if progress is not None:
+                progress(c)
+        return DynamicsResult(
+            initial_state=initial,
+            ctrl=np.concatenate(ctrl_out),
+            qpos=np.concatenate(qpos_out),
+            qvel=np.concatenate(qvel_out),
+            physics_dt=self.physics_dt,
+            decimation=d,
+            seconds=time.perf_counter() - t_wall,
+            cpu_seconds=time.process_time() - t_cpu,
+            rollouts=steps,
+            iterations=np.array(iters),
+            best_cost=np.array(best_costs),
+        )
+
+    def _initial_state(self) -> np.ndarray:
+        """The reference's first frame, at rest relative to its motion (its velocities)."""
+        m, be = self.motion, self.backend
+        qvel = np.zeros(self.nv)
+        qvel[:3] = m.body_lin_vel_w[0, 0]
+        rot = _quat_to_matrix(m.qpos[0, 3:7])
+        qvel[3:6] = rot.T @ m.body_ang_vel_w[0, 0]
+        jidx = [m.joint_names.index(j) for j in be.joint_names]
+        qvel[6:] = m.joint_vel[0, jidx]
+        be.set_ctrl(np.tile(self.ref_joint[0], (be.num_envs, 1)))
+        be.reset_to(np.array([0]), m.qpos[0][None], qvel[None])
+        return be.env_state(0)
+
+    def reference_controls(self) -> np.ndarray:
+        """The kinematic reference as open-loop PD targets of every physics step (the next
+        frame's joints over each frame). Shape: ((T - 1) decimation, nu)."""
+        u = np.clip(self.ref_joint[1:], self.joint_lo, self.joint_hi)
+        return np.repeat(u, self.decimation, axis=0)
+
+
+def evaluate_replay(
+    dyn: DynamicsRetargeter,
+    ctrl: np.ndarray,
+    initial_state: np.ndarray,
+    model: mujoco.MjModel | None = None,
+) -> dict[str, float]:
+    """Open-loop replay of ``ctrl`` from ``initial_state`` (on ``model``, default: the
+    nominal training model), against the reference of ``dyn``.
+
+    Returns:
+        ``seconds_until_fall`` (the clip's length if it never falls: pelvis below
+        ``fall_height`` of the reference's, or tilted ``fall_tilt`` from it),
+        ``fell`` (0 or 1), ``mpjpe_mm`` (tracked bodies' world positions against the
+        reference, mean over the frames before a fall), ``foot_skating_mm_per_s`` (mean
+        horizontal speed of a foot body below 3 cm above its lowest height in the clip's
+        reference, while the reference foot is that low too), ``effort`` (mean squared torque
+        relative to the motors' limits).
+    """
+    model = dyn.model if model is None else model
+    assert model is not None
+    cfg, d = dyn.cfg, dyn.decimation
+    states = replay(model, initial_state, ctrl)
+    nq, nv = model.nq, model.nv
+    qpos = np.concatenate([initial_state[None, 1 : 1 + nq], states[d - 1 :: d, 1 : 1 + nq]])
+    T = qpos.shape[0]
+    data = mujoco.MjData(model)
+    bodies = [model.body(b).id for b in dyn.body_names]
+    feet = [dyn.body_names.index(f) for f in dyn.foot_body_names]
+    pos = np.zeros((T, len(bodies), 3))
+    up = np.zeros(T)
+    for t in range(T):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(model, data)
+        pos[t] = data.xpos[bodies]
+        up[t] = data.xmat[bodies[0]][8]
+    ref = dyn.ref_body[:T]
+    tilt = np.abs(
+        np.arccos(np.clip(up, -1, 1)) - np.arccos(np.clip(_up_z(dyn.ref_quat_root[:T]), -1, 1))
+    )
+    fallen = (pos[:, 0, 2] < cfg.fall_height * ref[:, 0, 2]) | (tilt > cfg.fall_tilt)
+    first = int(np.argmax(fallen)) if fallen.any() else T
+    live = slice(0, max(first, 1))
+    err = np.linalg.norm(pos[live] - ref[live], axis=-1).mean()
+    fps = 1.0 / dyn.step_dt
+    skate = []
+    for f in feet:
+        low_ref = ref[:, f, 2] < ref[:, f, 2].min() + 0.03
+        low = pos[:, f, 2] < pos[live, f, 2].min() + 0.03
+        both = (low & low_ref)[1:first]
+        v = np.linalg.norm(np.diff(pos[:first, f, :2], axis=0), axis=-1) * fps
+        if both.any():
+            skate.append(v[both].mean())
+    q = states[:, 1 + 7 : 1 + nq]
+    qd = states[:, 1 + nq + 6 : 1 + nq + nv]
+    tau = np.clip(dyn.kp * (ctrl - q) - dyn.kd * qd, -dyn.effort, dyn.effort)
+    return {
+        "seconds_until_fall": first / fps if fallen.any() else (T - 1) / fps,
+        "fell": float(fallen.any()),
+        "mpjpe_mm": 1000.0 * float(err),
+        "foot_skating_mm_per_s": 1000.0 * float(np.mean(skate)) if skate else 0.0,
+        "effort": float(np.mean((tau[: first * d] / dyn.effort) ** 2)) if first else 0.0,
+    }
+
+
+def perturbed_models(
+    model: mujoco.MjModel, backend: MujocoCpuBackend, count: int, seed: int
+) -> list[mujoco.MjModel]:
+    """``count`` copies of ``model`` with friction, masses, CoM, PD gains and armature drawn
+    from the ``default`` domain-randomization ranges (robustness of a replay)."""
+    import copy
+
+    dr = dr_default()
+    rng = np.random.default_rng(seed)
+    smp = dr_mod.sample(dr, count, num_bodies=backend.num_bodies_total, num_joints=backend.nu,
+                        rng=rng)  # fmt: skip
+    out = []
+    probe = MujocoCpuBackend(model, 1, body_names=backend.body_names,
+                             contact_body_names=backend.contact_body_names,
+                             foot_body_names=backend.foot_body_names, per_env_models=True,
+                             nthread=1)  # fmt: skip
+    for i in range(count):
+        rows = {f: getattr(smp.physics, f)[i : i + 1] for f in smp.physics.__dataclass_fields__}
+        probe.set_params(np.array([0]), type(smp.physics)(**rows))
+        out.append(copy.copy(probe.model_of(0)))
+    probe.close()
+    return out
+
+
+def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
+    """Open-loop replay: ``mj_step`` from ``initial_state`` under one control per step.
+
+    Returns:
+        The full physics state after each step. Shape: (S, state_size).
+    """
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    if initial_state.shape != (mujoco.mj_stateSize(model, spec),):
+        raise InputError(
+            f"initial state has shape {initial_state.shape}, the model's is "
+            f"({mujoco.mj_stateSize(model, spec)},)"
+        )
+    if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
+        raise InputError(f"controls must be (steps, {model.nu}), got {ctrl.shape}")
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, initial_state, spec)
+    out = np.zeros((ctrl.shape[0], initial_state.size))
+    for s in range(ctrl.shape[0]):
+        data.ctrl[:] = ctrl[s]
+        mujoco.mj_step(model, data)
+        mujoco.mj_getState(model, data, out[s], spec)
+    return out
+
+
+def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
+    """Half-width ranges around nominal: friction, masses, PD gains (the ensemble's)."""
+
+    def half(r: tuple[float, float], nominal: float, log: bool) -> tuple[float, float]:
+        if log:
+            return (math.sqrt(r[0] * nominal), math.sqrt(r[1] * nominal))
+        return (0.5 * (r[0] + nominal), 0.5 * (r[1] + nominal))
+
+    return replace(
+        dr,
+        friction=half(dr.friction, 1.0, False),
+        mass_scale=half(dr.mass_scale, 1.0, True),
+        kp_scale=half(dr.kp_scale, 1.0, True),
+        kd_scale=half(dr.kd_scale, 1.0, True),
+    )
+
+
+def _up_z(q: np.ndarray) -> np.ndarray:
+    """z component of the body z axis of wxyz quaternions: ``1 - 2 (x^2 + y^2)``."""
+    return 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
+
+
+def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    from humimic.transforms import quat_to_matrix
+
+    return quat_to_matrix(q)
+
+
+def refine(
+    motion: Motion,
+    cfg: DynamicsConfig | None = None,
+    *,
+    robustness: int = 8,
+    progress: Callable[[int], Any] | None = None,
+    nthread: int | None = None,
+) -> tuple[Motion, dict[str, Any]]:
+    """``humimic refine``: the dynamically feasible version of ``motion`` and its report.
+
+    The refined motion's frames are the optimized rollout's states at the reference's frame
+    times (its kinematics recomputed from them); its ``dynamics`` section holds the initial
+    state, the controls and the states of every physics step. The report compares the
+    open-loop replay of the kinematic reference (its next frame's joints as PD targets) with
+    that of the result (:func:`evaluate_replay`), and replays the result on ``robustness``
+    perturbed models (``default`` domain-randomization ranges).
+    """
+    from humimic.motion import motion_from_qpos
+
+    dyn = DynamicsRetargeter(motion, cfg, nthread=nthread)
+    res = dyn.run(progress=progress)
+    kin = evaluate_replay(dyn, dyn.reference_controls(), res.initial_state)
+    mine = evaluate_replay(dyn, res.ctrl, res.initial_state)
+    perturbed = [
+        evaluate_replay(dyn, res.ctrl, res.initial_state, m)
+        for m in perturbed_models(dyn.model, dyn.backend, robustness, dyn.cfg.seed + 2)
+    ]
+    seconds = (motion.num_frames - 1) / motion.fps
+    report: dict[str, Any] = {
+        "robot": motion.robot,
+        "frames": motion.num_frames,
+        "motion_seconds": seconds,
+        "kinematic_replay": kin,
+        "dynamics_replay": mine,
+        "robustness": {
+            "replays": robustness,
+            "stayed_up": float(np.mean([1.0 - p["fell"] for p in perturbed]))
+            if perturbed
+            else None,
+            "mpjpe_mm_mean": float(np.mean([p["mpjpe_mm"] for p in perturbed]))
+            if perturbed
+            else None,
+        },
+        "wall_seconds": res.seconds,
+        "cpu_seconds": res.cpu_seconds,
+        "cpu_seconds_per_motion_second": res.cpu_seconds / seconds,
+        "physics_steps": res.rollouts,
+        "samples": dyn.cfg.samples * (dyn.cfg.ensemble + 1),
+        "mean_iterations_per_window": float(np.mean(res.iterations)),
+        "threads": dyn.backend.nthread,
+    }
+    frames = res.frame_qpos()
+    out = motion_from_qpos(
+        dyn.model, frames, motion.fps, motion.robot, extras=motion.extras,
+        info={**(motion.info or {}), "refined": {"config": dataclasses.asdict(dyn.cfg),
+                                                  "report": report}},
+    )  # fmt: skip
+    if out.body_names != motion.body_names:
+        raise InputError("the training model's bodies differ from the motion's")
+    dynamics = {
+        "initial_state": res.initial_state,
+        "ctrl": res.ctrl,
+        "qpos": res.qpos,
+        "qvel": res.qvel,
+        "physics_dt": np.array(res.physics_dt),
+    }
+    return replace(out, dynamics=dynamics), report
+
+
+def check_replay(motion: Motion) -> dict[str, float]:
+    """Replay a refined motion's stored controls from its stored initial state on the
+    training model it was optimized on, and compare with its stored states.
+
+    Raises:
+        InputError: If the motion has no dynamic section, or the model's state size differs.
+    """
+    dyn = motion.dynamics
+    need = ("initial_state", "ctrl", "qpos", "qvel")
+    if not dyn or any(k not in dyn for k in need):
+        raise InputError("the motion has no dynamic section: make one with humimic refine")
+    task = tracking_task(motion.robot, dr="none")
+    if "physics_dt" in dyn and abs(float(dyn["physics_dt"]) - task.sim_dt) > 1e-12:
+        raise InputError(
+            f"stored physics step {float(dyn['physics_dt'])} s, model's {task.sim_dt} s"
+        )
+    model = tracking_model(task)
+    states = replay(model, np.asarray(dyn["initial_state"]), np.asarray(dyn["ctrl"]))
+    nq, nv = model.nq, model.nv
+    return {
+        "steps": float(states.shape[0]),
+        "max_qpos_error": float(np.abs(states[:, 1 : 1 + nq] - dyn["qpos"]).max()),
+        "max_qvel_error": float(np.abs(states[:, 1 + nq : 1 + nq + nv] - dyn["qvel"]).max()),
+    }
+
+
+__all__ = [
+    "DynamicsResult",
+    "DynamicsRetargeter",
+    "check_replay",
+    "evaluate_replay",
+    "knot_weights",
+    "perturbed_models",
+    "refine",
+    "replay",
+]

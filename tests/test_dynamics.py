@@ -1,0 +1,98 @@
+"""Sampling-based dynamics retargeting: knots, the stored replay, the CLI (real CMU walk)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.cli.main import main
+from humimic.configs import DynamicsConfig, RetargetConfig
+from humimic.datasets import load_clip
+from humimic.errors import InputError
+from humimic.motion import Motion, load_motion, save_motion
+from humimic.retarget import Retargeter
+from humimic.retarget.dynamics import check_replay, knot_weights, refine
+
+SMALL = DynamicsConfig(samples=24, iterations=3, horizon_s=0.3)
+
+
+@cache
+def _walk(root: Path) -> Motion:
+    """0.8 s of the CMU walk, retargeted kinematically at 50 fps."""
+    clip = load_clip(root / "cmu" / "35_01.bvh").slice(1, 97)
+    return Retargeter("g1", "cmu", RetargetConfig(fps=50.0)).run(clip).motion
+
+
+@cache
+def _refined(root: Path) -> tuple[Motion, dict]:
+    return refine(_walk(root), SMALL, robustness=2, nthread=1)
+
+
+def test_knot_weights_interpolate_linearly() -> None:
+    w = knot_weights(11, 0.02, 0.1)  # 0.2 s of 50 Hz steps, knots every 0.1 s: 3 knots
+    assert w.shape == (11, 3)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0)
+    np.testing.assert_allclose(w[[0, 5, 10]], np.eye(3), atol=1e-12)  # Exact at the knots.
+    np.testing.assert_allclose(w[2], [0.6, 0.4, 0.0], atol=1e-12)
+    values = np.array([1.0, -1.0, 3.0])
+    np.testing.assert_allclose(w @ values, np.interp(np.arange(11) * 0.02, [0, 0.1, 0.2], values))
+
+
+def test_refined_motion_replays_open_loop_and_tracks_closer(shared_data: Path) -> None:
+    motion, report = _refined(shared_data)
+    walk = _walk(shared_data)
+    assert motion.num_frames == walk.num_frames and motion.dynamics is not None
+    # The stored states are exactly what an open-loop replay of the stored controls gives.
+    r = check_replay(motion)
+    assert r["steps"] == (walk.num_frames - 1) * 4
+    assert r["max_qpos_error"] <= 1e-9 and r["max_qvel_error"] <= 1e-9
+    # The frames are the rollout's states.
+    np.testing.assert_allclose(motion.qpos[1:], motion.dynamics["qpos"][3::4], atol=1e-12)
+    kin, dyn = report["kinematic_replay"], report["dynamics_replay"]
+    assert not dyn["fell"]
+    assert dyn["mpjpe_mm"] < kin["mpjpe_mm"], report  # Sampling beats the raw reference.
+    assert report["robustness"]["replays"] == 2 and report["physics_steps"] > 0
+
+
+def test_motion_file_keeps_the_dynamic_section(shared_data: Path, tmp_path: Path) -> None:
+    motion, _ = _refined(shared_data)
+    back = load_motion(save_motion(motion, tmp_path / "r.npz"))
+    assert back.dynamics is not None and motion.dynamics is not None
+    for k, v in motion.dynamics.items():
+        np.testing.assert_array_equal(back.dynamics[k], v)
+    assert back.info is not None and "refined" in back.info
+    assert check_replay(back)["max_qpos_error"] <= 1e-9
+
+
+def test_replay_detects_changed_controls_and_missing_sections(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    motion, _ = _refined(shared_data)
+    assert motion.dynamics is not None
+    ctrl = motion.dynamics["ctrl"].copy()
+    ctrl[len(ctrl) // 2] += 0.05
+    bad = save_motion(replace(motion, dynamics={**motion.dynamics, "ctrl": ctrl}),
+                      tmp_path / "bad.npz")  # fmt: skip
+    assert main(["replay", str(bad)]) == 1
+    plain = save_motion(_walk(shared_data), tmp_path / "plain.npz")
+    assert main(["replay", str(plain)]) == 2
+    with pytest.raises(InputError, match=r"dyn\.samples"):
+        DynamicsConfig(samples=1).validate()
+
+
+def test_cli_refine_writes_motion_and_report(shared_data: Path, tmp_path: Path) -> None:
+    src = save_motion(_walk(shared_data), tmp_path / "walk.npz")
+    out, rep = tmp_path / "refined.npz", tmp_path / "refined.json"
+    args = ["refine", str(src), "--out", str(out), "--report", str(rep), "--quiet",
+            "--dyn.samples", "8", "--dyn.iterations", "1", "--robustness", "0"]  # fmt: skip
+    assert main(args) == 0
+    assert out.is_file() and rep.is_file()
+    assert main(["replay", str(out)]) == 0
+    # Bad input: exit code 2, nothing written.
+    assert main(["refine", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "x.npz")]) == 2
+    assert main(["refine", str(src), "--out", str(tmp_path / "y.npz"), "--dyn.samples", "1"]) == 2
+    assert not (tmp_path / "x.npz").exists() and not (tmp_path / "y.npz").exists()
