@@ -9,6 +9,7 @@ whether the stored controls reproduce the stored states, and CPU seconds per sec
 
 Usage: .venv/bin/python benchmarks/dynamics_retarget.py [--clips 35_01 09_01] [--seconds 3]
     [--samples 128] [--iterations 8] [--noise 0.15] [--threads N] [--robustness 8]
+    [--ensemble E] [--seed S]
 """
 
 from __future__ import annotations
@@ -36,11 +37,12 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=DynamicsConfig.iterations)
     parser.add_argument("--noise", type=float, default=DynamicsConfig.noise)
     parser.add_argument("--ensemble", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--robustness", type=int, default=8)
     args = parser.parse_args()
     cfg = DynamicsConfig(samples=args.samples, iterations=args.iterations, noise=args.noise,
-                         ensemble=args.ensemble)  # fmt: skip
+                         ensemble=args.ensemble, seed=args.seed)  # fmt: skip
     rt = Retargeter("g1", "cmu", RetargetConfig(fps=50.0))
     rows = []
     t0 = time.perf_counter()

@@ -168,6 +168,7 @@ TOPICS: dict[str, str] = {
     "/reference/joint_states": "humimic.JointState",
     "/reference/body_states": "humimic.BodyStates",
     "/reference/extras": "humimic.NamedArrays",
+    "/dynamics/step": "humimic.NamedArrays",
     "/tf": "foxglove.FrameTransforms",
 }
 """Known topics -> schema name. Other topics may be written with an explicit schema."""
@@ -544,6 +545,18 @@ def write_motion_topics(w: McapWriter, motion: Any) -> None:
         w.write(
             "/tf", t, tf_message(t, motion.body_names, motion.body_pos_w[i], motion.body_quat_w[i])
         )
+    dyn = motion.dynamics
+    if dyn:  # The dynamic section (humimic refine): a message per physics step.
+        dt = float(dyn["physics_dt"])
+        w.add_metadata(
+            "dynamics",
+            {"physics_dt": repr(dt), "initial_state": json.dumps(dyn["initial_state"].tolist())},
+        )
+        for k in range(dyn["ctrl"].shape[0]):
+            t = round((k + 1) * dt * 1e9)  # The state after step k.
+            arrays = {n: dyn[n][k].tolist() for n in ("ctrl", "qpos", "qvel")}
+            w.write("/dynamics/step", t, {"header": {"stamp": stamp(t), "frame_id": "world"},
+                                          "arrays": arrays})  # fmt: skip
 
 
 def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
@@ -551,7 +564,7 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
     from humimic.motion import SCHEMA_VERSION, Motion
 
     topics = ["/reference/qpos", "/reference/joint_states", "/reference/body_states"]
-    log = read_mcap(path, topics=[*topics, "/reference/extras"], require=topics)
+    log = read_mcap(path, topics=[*topics, "/reference/extras", "/dynamics/step"], require=topics)
     meta = log.meta("motion")
     try:
         version = int(meta["schema_version"])
@@ -596,12 +609,26 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
                 raise McapFormatError(
                     f"{log.path}: topic /reference/extras: field arrays.{k} missing"
                 ) from None
+    dynamics = None
+    if "dynamics" in log.metadata:
+        try:
+            d = log.meta("dynamics")
+            dynamics = {
+                "physics_dt": np.array(float(d["physics_dt"])),
+                "initial_state": np.array(json.loads(d["initial_state"]), dtype=np.float64),
+            }
+            steps = log.topic("/dynamics/step")
+            for n in ("ctrl", "qpos", "qvel"):
+                dynamics[n] = np.array([m["arrays"][n] for _, m in steps], dtype=np.float64)
+        except (KeyError, ValueError) as e:
+            raise McapFormatError(f"{log.path}: dynamic section: missing or bad {e}") from None
     return Motion(
         robot=robot,
         fps=fps,
         joint_names=joint_names,
         body_names=body_names,
         qpos=qpos,
+        dynamics=dynamics,
         joint_pos=fields["joint_pos"],
         joint_vel=fields["joint_vel"],
         body_pos_w=fields["body_pos_w"],

@@ -72,13 +72,16 @@ class RetargetCommand:
     """Named IK settings (humimic.configs); --ik.* flags change single fields on top of it."""
     ik: RetargetConfig = field(default_factory=lambda: RETARGET_CONFIGS[_PRESET[0]]())
     """IK settings (defaults: those of --preset)."""
-    method: Literal["kinematic", "interaction-mesh"] = "kinematic"
-    """kinematic (mink IK), or interaction-mesh (keeps the contacts with --scene)."""
+    method: Literal["kinematic", "interaction-mesh", "dynamics"] = "kinematic"
+    """kinematic (mink IK), interaction-mesh (keeps the contacts with --scene), or dynamics
+    (kinematic, then humimic refine: a motion that replays open-loop in simulation)."""
     scene: Path | None = None
     """The scene of the clips (interaction-mesh): a scene .yaml, a mesh (.obj/.stl) or a
     folder with box_models/*.obj (holosoma's layout); 'auto': each clip's own folder."""
     mesh: InteractionConfig = field(default_factory=InteractionConfig)
     """Interaction-mesh settings."""
+    dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
+    """Dynamics settings (--method dynamics; see humimic refine)."""
     quiet: bool = False
     """No progress bars; print only the report summary."""
 
@@ -108,7 +111,7 @@ class ReplayCommand:
     stored states (exit code 1 if they differ by more than --tol)."""
 
     motion: Annotated[Path, tyro.conf.Positional]
-    """A motion with a dynamic section (humimic refine)."""
+    """A motion with a dynamic section (humimic refine), .npz or .mcap."""
     tol: float = 1e-9
     """Largest accepted difference of qpos and qvel."""
 
@@ -294,6 +297,16 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     get_robot(cmd.robot)  # Unknown robot: fail before any work.
     cmd.ik.validate()
     cmd.mesh.validate()
+    if cmd.method == "dynamics":
+        from humimic.tracking.config import tracking_task
+
+        cmd.dyn.validate()
+        steps = 1.0 / (cmd.ik.fps * tracking_task(cmd.robot, dr="none").sim_dt)
+        if abs(steps - round(steps)) > 1e-6:
+            raise InputError(
+                f"--method dynamics: --ik.fps {cmd.ik.fps} is not a whole number of physics "
+                "steps per frame (50 fps is)"
+            )
     if (cmd.method == "interaction-mesh") != (cmd.scene is not None):
         raise InputError(
             "--method interaction-mesh needs --scene"
@@ -339,7 +352,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
                 cmd.ik,
                 map_file=cmd.map,
                 menagerie_root=cmd.menagerie_root,
-                method=cmd.method,
+                method="kinematic" if cmd.method == "dynamics" else cmd.method,
                 mesh=cmd.mesh,
             )
         retargeters[clip.skeleton].check(clip)
@@ -356,8 +369,17 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         total = clip.num_frames_at(cmd.ik.fps) * (1 if scene is None else 2)  # Two passes.
         with tqdm(total=total, desc=f.name, unit="frame", disable=cmd.quiet, leave=False) as bar:
             result = retargeters[clip.skeleton].run(clip, progress=bar.update, scene=scene)
-        report = json_ready({**result.report, "start_frame": int(clip.meta["start_frame"])})
-        save_motion(result.motion, motion_path)
+        motion, extra = result.motion, {}
+        if cmd.method == "dynamics":
+            from humimic.retarget.dynamics import refine
+
+            with tqdm(total=motion.num_frames - 1, desc=f"{f.name} (dynamics)", unit="frame",
+                      disable=cmd.quiet, leave=False) as bar:  # fmt: skip
+                motion, extra["dynamics"] = refine(motion, cmd.dyn, progress=bar.update)
+        report = json_ready(
+            {**result.report, **extra, "start_frame": int(clip.meta["start_frame"])}
+        )
+        save_motion(motion, motion_path)
         if report_path is not None:
             try:
                 atomic_write_text(report_path, json.dumps(report, indent=2, allow_nan=False) + "\n")
@@ -365,8 +387,26 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
                 motion_path.unlink(missing_ok=True)  # No motion without its report.
                 raise
         _print_summary(result.report, motion_path)
+        if "dynamics" in extra:
+            _print_dynamics(report["dynamics"], motion_path)
         reports.append(report)
     return reports
+
+
+def _print_dynamics(report: dict, out: Path) -> None:
+    """The summary of a dynamics refinement (humimic refine, retarget --method dynamics)."""
+    k, d = report["kinematic_replay"], report["dynamics_replay"]
+    print(f"open-loop replay, kinematic: {'fell at ' + format(k['seconds_until_fall'], '.2f') + ' s' if k['fell'] else 'stayed up'}, "
+          f"MPJPE {k['mpjpe_mm']:.0f} mm; refined: {'fell at ' + format(d['seconds_until_fall'], '.2f') + ' s' if d['fell'] else 'stayed up'}, "
+          f"MPJPE {d['mpjpe_mm']:.0f} mm")  # fmt: skip
+    rob = report["robustness"]
+    if rob["stayed_up"] is not None:
+        print(
+            f"perturbed physics: {100 * rob['stayed_up']:.0f}% of {rob['replays']} replays stayed up"
+        )
+    print(
+        f"compute: {report['cpu_seconds_per_motion_second']:.0f} CPU s per second of motion; wrote {out}"
+    )
 
 
 def _units(units: str) -> str | float:
@@ -455,27 +495,15 @@ def run_refine(cmd: RefineCommand) -> dict:
         except BaseException:
             cmd.out.unlink(missing_ok=True)  # No motion without its report.
             raise
-    k, d = report["kinematic_replay"], report["dynamics_replay"]
-    print(f"open-loop replay, kinematic: {'fell at ' + format(k['seconds_until_fall'], '.2f') + ' s' if k['fell'] else 'stayed up'}, "
-          f"MPJPE {k['mpjpe_mm']:.0f} mm; refined: {'fell at ' + format(d['seconds_until_fall'], '.2f') + ' s' if d['fell'] else 'stayed up'}, "
-          f"MPJPE {d['mpjpe_mm']:.0f} mm")  # fmt: skip
-    rob = report["robustness"]
-    if rob["stayed_up"] is not None:
-        print(
-            f"perturbed physics: {100 * rob['stayed_up']:.0f}% of {rob['replays']} replays stayed up"
-        )
-    print(
-        f"compute: {report['cpu_seconds_per_motion_second']:.0f} CPU s per second of motion; wrote {cmd.out}"
-    )
+    _print_dynamics(report, cmd.out)
     return report
 
 
 def run_replay(cmd: ReplayCommand) -> int:
     """Run ``humimic replay``; returns the exit code."""
-    from humimic.motion import load_motion
     from humimic.retarget.dynamics import check_replay
 
-    r = check_replay(load_motion(cmd.motion))
+    r = check_replay(read_any_motion(cmd.motion))
     ok = max(r["max_qpos_error"], r["max_qvel_error"]) <= cmd.tol
     print(f"{int(r['steps'])} physics steps replayed: max |qpos| error {r['max_qpos_error']:.2e}, "
           f"max |qvel| error {r['max_qvel_error']:.2e} ({'reproduced' if ok else 'DIFFERENT'})")  # fmt: skip

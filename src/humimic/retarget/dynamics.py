@@ -19,8 +19,9 @@ optimal control solved by sampling in the simulator:
   pelvis velocity against the reference, effort, and a fall penalty; the last step counts
   twice;
 * receding horizon: the best plan evaluated (not the unevaluated mean) is committed for
-  ``commit_s``; its rollout's states are the output, so the stored trajectory is exactly
-  what an open-loop replay of the stored controls produces (:func:`replay`);
+  ``commit_s``, stepped with ``mj_step`` on one ``MjData`` that runs through the motion, so
+  the stored trajectory is exactly what an open-loop replay of the stored controls produces
+  (:func:`replay`); every window's rollouts start from its state and solver warm start;
 * robust option: every sample is also scored on ``ensemble`` perturbed models, and the
   mean or the worst cost counts.
 
@@ -248,6 +249,12 @@ class DynamicsRetargeter:
 
         state = self._initial_state()
         initial = state.copy()
+        # The committed motion is stepped with mj_step on one MjData, as replay() does, so
+        # that the stored states are exactly what a replay gives; every window's rollouts
+        # start from its state and its solver warm start.
+        spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        live = mujoco.MjData(self.model)
+        mujoco.mj_setState(self.model, live, initial, spec)
         ctrl_out, qpos_out, qvel_out = [], [], []
         f0 = 0
         plan_prev: np.ndarray | None = None  # offsets at the control steps of the last window
@@ -281,7 +288,8 @@ class DynamicsRetargeter:
                 u = np.clip(ref_u + offs, self.joint_lo, self.joint_hi)
                 u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
                 ctrl = np.tile(u_steps, (members, 1, 1))
-                states, sens = be.rollout(np.ascontiguousarray(start), ctrl)
+                warm = np.broadcast_to(live.qacc_warmstart, (N * members, self.nv))
+                states, sens = be.rollout(np.ascontiguousarray(start), ctrl, warm)
                 steps += ctrl.shape[0] * ctrl.shape[1]
                 cost_all = self._costs(states, sens, ctrl, f0).reshape(members, N)
                 cost = cost_all.mean(0) if cfg.robust == "mean" else cost_all.max(0)
@@ -289,8 +297,7 @@ class DynamicsRetargeter:
                 improved = best_c - cost[k]
                 if cost[k] < best_c:
                     best_c = float(cost[k])
-                    best = (knots[k].copy(), offs[k].copy(), u_steps[k].copy(),
-                            states[k].copy())  # fmt: skip
+                    best = (offs[k].copy(), u_steps[k].copy())
                 # MPPI over the elites, on costs normalized by their spread.
                 order = np.argsort(cost)[: cfg.elites]
                 ce = cost[order]
@@ -304,12 +311,17 @@ class DynamicsRetargeter:
                 else:
                     stall = 0
             assert best is not None
-            _, offs_b, u_b, states_b = best
+            offs_b, u_b = best
             c = min(C, H)
             ctrl_out.append(u_b[: c * d])
-            qpos_out.append(states_b[: c * d, 1 : 1 + self.nq])
-            qvel_out.append(states_b[: c * d, 1 + self.nq : 1 + self.nq + self.nv])
-            state = states_b[c * d - 1].copy()
+            seg_q, seg_v = np.zeros((c * d, self.nq)), np.zeros((c * d, self.nv))
+            for s in range(c * d):
+                live.ctrl[:] = u_b[s]
+                mujoco.mj_step(self.model, live)
+                seg_q[s], seg_v[s] = live.qpos, live.qvel
+            qpos_out.append(seg_q)
+            qvel_out.append(seg_v)
+            mujoco.mj_getState(self.model, live, state, spec)
             plan_prev = offs_b[c:] if c < H else None
             iters.append(it + 1)
             best_costs.append(best_c)

@@ -486,13 +486,19 @@ class MujocoCpuBackend:
         """Env ``env_id``'s full physics state (a copy). Shape: (state_size,)."""
         return self._state[env_id].copy()
 
-    def rollout(self, state: np.ndarray, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def rollout(
+        self, state: np.ndarray, controls: np.ndarray, warmstart: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Open-loop rollouts of every env from given full physics states, each on its env's
         model, under a control per physics step; the envs' own states stay as they were.
 
         Args:
             state: Start states (``mjSTATE_FULLPHYSICS``). Shape: (num_envs, state_size).
             controls: PD targets of every physics step. Shape: (num_envs, nstep, nu).
+            warmstart: The constraint solver's warm start (``qacc_warmstart``) at the start,
+                Shape: (num_envs, nv); default zeros. A full physics state does not hold it,
+                and with a bounded number of solver iterations it changes the result: giving it
+                makes a rollout exactly reproduce ``mj_step`` from the same ``MjData``.
 
         Returns:
             The state after each step, Shape: (num_envs, nstep, state_size), and the sensor
@@ -511,6 +517,9 @@ class MujocoCpuBackend:
             )
         out_state = np.zeros((n, nstep, self._nstate))
         out_sens = np.zeros((n, nstep, self._model.nsensordata))
+        warm = np.zeros((n, self.nv)) if warmstart is None else np.asarray(warmstart, float)
+        if warm.shape != (n, self.nv):
+            raise InputError(f"rollout: warmstart must be ({n}, {self.nv}), got {warm.shape}")
         self._rollout.rollout(
             self._models if self._per_env else [self._model] * n,
             self._scratch,
@@ -519,6 +528,7 @@ class MujocoCpuBackend:
             control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
             skip_checks=True,
             nstep=nstep,
+            initial_warmstart=np.ascontiguousarray(warm),
             state=out_state,
             sensordata=out_sens,
         )
