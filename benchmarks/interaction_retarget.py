@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import platform
 import subprocess
@@ -48,7 +49,7 @@ def main() -> None:
                         default=sorted(p for p in DATA.glob("mocap_climb_seq_*") if p.is_dir()))  # fmt: skip
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--peer-python", type=Path, default=None)
-    parser.add_argument("--scale", default=None,
+    parser.add_argument("--scale", default=None, type=_scale,
                         help="human-to-robot scale: a number, or 'holosoma' (1.32 / 1.78, "
                              "holosoma's); default: the leg ratio, or holosoma's with --peer-python")  # fmt: skip
     parser.add_argument(
@@ -65,9 +66,9 @@ def main() -> None:
     args = parser.parse_args()
     if not args.clips:
         raise SystemExit(f"no clips: expected holosoma_climb clip folders under {DATA}")
-    if args.scale is None and args.peer_python is not None:
-        args.scale = "holosoma"  # holosoma's evaluation scores a result in its own scene.
-    scale = HOLOSOMA_SCALE if args.scale == "holosoma" else args.scale and float(args.scale)
+    scale = args.scale
+    if scale is None and args.peer_python is not None:
+        scale = HOLOSOMA_SCALE  # holosoma's evaluation scores a result in its own scene.
     mesh = InteractionConfig()
     if args.still_speed is not None:
         mesh = dataclasses.replace(mesh, still_speed=args.still_speed)
@@ -139,6 +140,19 @@ def _peer(python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> d
 
 HOLOSOMA_SCALE = 1.32 / 1.78
 """holosoma's fixed human and scene scale (G1 height over human height)."""
+
+
+def _scale(text: str) -> float:
+    """``--scale``: ``holosoma`` or a positive number."""
+    if text == "holosoma":
+        return HOLOSOMA_SCALE
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected 'holosoma' or a positive number, got {text!r}")
+    return value
 
 
 def _to_holosoma_frame(qpos: np.ndarray, scene_poses: np.ndarray, folder: Path) -> np.ndarray:

@@ -8,6 +8,17 @@ from dataclasses import dataclass
 from humimic.errors import InputError
 
 
+def _check_numbers(cfg: object, prefix: str, names: tuple[str, ...], *, positive: bool) -> None:
+    """Each named field of ``cfg`` must be a finite number > 0 (``positive``) or >= 0;
+    :class:`InputError` names the field as ``<prefix>.<field>`` (the CLI flag)."""
+    for name in names:
+        v = getattr(cfg, name)
+        if positive and not (math.isfinite(v) and v > 0):
+            raise InputError(f"{prefix}.{name}: must be a positive number, got {v}")
+        if not positive and not (math.isfinite(v) and v >= 0):
+            raise InputError(f"{prefix}.{name}: must be a number >= 0, got {v}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RetargetConfig:
     """Settings of the kinematic (mink IK) retargeter.
@@ -75,10 +86,7 @@ class RetargetConfig:
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--ik.<field>`` on the CLI)."""
         positive = ("fps", "max_step", "contact_speed", "contact_height", "plant_radius")
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise InputError(f"ik.{name}: must be a positive number, got {v}")
+        _check_numbers(self, "ik", positive, positive=True)
         if self.fps > 1000:
             raise InputError(f"ik.fps: {self.fps} frames per second is beyond any motion capture")
         non_negative = (
@@ -86,10 +94,7 @@ class RetargetConfig:
             "contact_weight_scale", "foot_orientation_weight", "foot_contact_orientation_weight",
             "velocity_limit_scale", "collision_margin", "collision_detection", "smooth_weight",
         )  # fmt: skip
-        for name in non_negative:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"ik.{name}: must be a number >= 0, got {v}")
+        _check_numbers(self, "ik", non_negative, positive=False)
         for name in ("stage1_iters", "stage2_iters", "first_frame_iters", "repair_iters"):
             if getattr(self, name) < 0:
                 raise InputError(f"ik.{name}: must be >= 0")
@@ -172,17 +177,16 @@ class InteractionConfig:
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""
-        for name in ("scene_spacing", "scene_radius", "collision_detection", "contact_distance"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise InputError(f"mesh.{name}: must be a positive number, got {v}")
+        _check_numbers(
+            self,
+            "mesh",
+            ("scene_spacing", "scene_radius", "collision_detection", "contact_distance"),
+            positive=True,
+        )
         non_negative = ("mesh_weight", "keypoint_scale", "tol", "penetration_margin",
                         "stick_weight", "contact_weight", "smooth_weight", "contact_gap",
                         "still_speed")  # fmt: skip
-        for name in non_negative:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"mesh.{name}: must be a number >= 0, got {v}")
+        _check_numbers(self, "mesh", non_negative, positive=False)
         if self.iterations < 1 or self.max_scene_points < 0 or self.reattach_iterations < 0:
             raise InputError(
                 "mesh.iterations must be >= 1, mesh.max_scene_points and "
@@ -272,17 +276,11 @@ class DynamicsConfig:
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--dyn.<field>``)."""
         positive = ("horizon_s", "knot_dt", "commit_s", "temperature", "fall_height")
-        for name in positive:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise InputError(f"dyn.{name}: must be a positive number, got {v}")
+        _check_numbers(self, "dyn", positive, positive=True)
         non_negative = ("min_improvement", "noise", "horizon_noise", "upper_body_noise",
                         "body_weight", "root_weight", "joint_weight", "velocity_weight",
                         "effort_weight", "fall_cost", "fall_tilt", "foot_weight")  # fmt: skip
-        for name in non_negative:
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"dyn.{name}: must be a number >= 0, got {v}")
+        _check_numbers(self, "dyn", non_negative, positive=False)
         if self.samples < 2 or self.iterations < 1 or self.elites < 1 or self.ensemble < 0:
             raise InputError(
                 "dyn.samples must be >= 2, dyn.iterations and dyn.elites >= 1, dyn.ensemble >= 0"

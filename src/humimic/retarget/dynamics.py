@@ -48,6 +48,7 @@ from humimic.tracking import dr as dr_mod
 from humimic.tracking.backend import MujocoCpuBackend
 from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
 from humimic.tracking.env import build_backend, tracking_model
+from humimic.transforms import quat_to_matrix
 
 _UPPER = ("waist", "shoulder", "elbow", "wrist")
 
@@ -144,6 +145,8 @@ class DynamicsRetargeter:
                 f"the motion's {motion.fps} fps is not a whole number of {task.sim_dt} s "
                 "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
             )
+        if task.body_names[0] != motion.body_names[0]:
+            raise InputError(f"the task's first body must be the base {motion.body_names[0]!r}")
         self.motion, self.cfg, self.decimation = motion, cfg, round(ratio)
         self.step_dt = 1.0 / motion.fps
         self.physics_dt = task.sim_dt
@@ -160,28 +163,29 @@ class DynamicsRetargeter:
                                 num_joints=self.backend.nu, rng=rng)  # fmt: skip
             for e in range(cfg.ensemble):
                 ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
-                rows = {f: np.repeat(getattr(smp.physics, f)[e : e + 1], len(ids), axis=0)
-                        for f in smp.physics.__dataclass_fields__}  # fmt: skip
-                self.backend.set_params(ids, type(smp.physics)(**rows))
+                self.backend.set_params(ids, smp.physics.select(np.full(len(ids), e)))
 
         be = self.backend
+        missing = [n for n in be.joint_names if n not in motion.joint_names] + [
+            n for n in task.body_names if n not in motion.body_names
+        ]
+        if missing:
+            raise InputError(f"the motion has no joint or body named {missing}")
         jidx = [motion.joint_names.index(j) for j in be.joint_names]
         bidx = [motion.body_names.index(b) for b in task.body_names]
         self.ref_joint = np.ascontiguousarray(motion.joint_pos[:, jidx])
+        self.ref_joint_vel = motion.joint_vel[:, jidx]
         self.ref_body = np.ascontiguousarray(motion.body_pos_w[:, bidx])
-        self.ref_quat_root = motion.body_quat_w[:, motion.body_names.index(task.body_names[0])]
+        self.ref_quat_root = motion.body_quat_w[:, 0]
         self.ref_root_vel = motion.body_lin_vel_w[:, 0]
-        self.root = 0  # task.body_names[0] is the pelvis (the floating base).
-        if task.body_names[0] != motion.body_names[0]:
-            raise InputError(f"the task's first body must be the base {motion.body_names[0]!r}")
+        self.root = 0  # task.body_names[0] is the pelvis (the floating base), checked above.
         self.joint_lo, self.joint_hi = be.joint_range[:, 0], be.joint_range[:, 1]
         self.kp = be.kp
         self.kd = -model.actuator_biasprm[:, 2].copy()
         self.effort = np.where(be.effort_limit > 0, be.effort_limit, 1.0)
-        scale = np.array(
+        self.joint_noise = np.array(
             [cfg.upper_body_noise if any(u in j for u in _UPPER) else 1.0 for j in be.joint_names]
         )
-        self.joint_noise = scale
         self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
         self.sl = be.sensor_slices
         self.nb = len(task.body_names)
@@ -217,12 +221,12 @@ class DynamicsRetargeter:
         q = st[..., 1 + 7 : 1 + self.nq]
         qd = st[..., 1 + self.nq + 6 : 1 + self.nq + self.nv]
         e_joint = np.mean((q - self.ref_joint[frames]) ** 2, axis=-1)
-        vel = se[..., self.sl["lin"]].reshape(n, H, self.nb, 3)[:, :, self.root]
-        e_vel = np.sum((vel - self.ref_root_vel[frames]) ** 2, axis=-1)
+        lin = se[..., self.sl["lin"]].reshape(n, H, self.nb, 3)
+        e_vel = np.sum((lin[:, :, self.root] - self.ref_root_vel[frames]) ** 2, axis=-1)
         tau = np.clip(self.kp * (u - q) - self.kd * qd, -self.effort, self.effort)
         e_tau = np.mean((tau / self.effort) ** 2, axis=-1)
-        lin = se[..., self.sl["lin"]].reshape(n, H, self.nb, 3)[:, :, self.feet, :2]
-        e_foot = np.sum(self.ref_planted[frames] * np.sum(lin**2, axis=-1), axis=-1)
+        feet_v = lin[:, :, self.feet, :2]
+        e_foot = np.sum(self.ref_planted[frames] * np.sum(feet_v**2, axis=-1), axis=-1)
         c = (
             cfg.body_weight * e_body / 0.01
             + cfg.foot_weight * e_foot / 0.09
@@ -347,10 +351,9 @@ class DynamicsRetargeter:
         m, be = self.motion, self.backend
         qvel = np.zeros(self.nv)
         qvel[:3] = m.body_lin_vel_w[0, 0]
-        rot = _quat_to_matrix(m.qpos[0, 3:7])
+        rot = quat_to_matrix(m.qpos[0, 3:7])
         qvel[3:6] = rot.T @ m.body_ang_vel_w[0, 0]
-        jidx = [m.joint_names.index(j) for j in be.joint_names]
-        qvel[6:] = m.joint_vel[0, jidx]
+        qvel[6:] = self.ref_joint_vel[0]
         be.set_ctrl(np.tile(self.ref_joint[0], (be.num_envs, 1)))
         be.reset_to(np.array([0]), m.qpos[0][None], qvel[None])
         return be.env_state(0)
@@ -443,8 +446,7 @@ def perturbed_models(
                              foot_body_names=backend.foot_body_names, per_env_models=True,
                              nthread=1)  # fmt: skip
     for i in range(count):
-        rows = {f: getattr(smp.physics, f)[i : i + 1] for f in smp.physics.__dataclass_fields__}
-        probe.set_params(np.array([0]), type(smp.physics)(**rows))
+        probe.set_params(np.array([0]), smp.physics.select(np.array([i])))
         out.append(copy.copy(probe.model_of(0)))
     probe.close()
     return out
@@ -494,12 +496,6 @@ def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
 def _up_z(q: np.ndarray) -> np.ndarray:
     """z component of the body z axis of wxyz quaternions: ``1 - 2 (x^2 + y^2)``."""
     return 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
-
-
-def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    from humimic.transforms import quat_to_matrix
-
-    return quat_to_matrix(q)
 
 
 def refine(

@@ -192,15 +192,15 @@ class InteractionMeshRetargeter:
         robot_geoms, obj_geoms = robot_collision_geoms(model), scene_geoms(model)
         if not robot_geoms or not obj_geoms:
             raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
+        floor = model.geom(self.robot.floor_geom).id
         scene_limit = SelfCollisionLimit(
             model,
-            [(robot_geoms, [*obj_geoms, model.geom(self.robot.floor_geom).id])],  # type: ignore[list-item]
+            [(robot_geoms, [*obj_geoms, floor])],  # type: ignore[list-item]
             gain=icfg.collision_gain,
             minimum_distance_from_collisions=icfg.penetration_margin,
             collision_detection_distance=icfg.collision_detection,
         )
         limits = [*kin.limits, scene_limit]
-        floor = model.geom(self.robot.floor_geom).id
         scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)

@@ -31,7 +31,7 @@ import copy
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Literal, Protocol
 
 import mujoco
@@ -68,6 +68,10 @@ class PhysicsParams:
     kp_scale: np.ndarray
     kd_scale: np.ndarray
     armature_scale: np.ndarray
+
+    def select(self, rows: slice | np.ndarray) -> PhysicsParams:
+        """The parameters of some envs: every array indexed by ``rows`` on its env axis."""
+        return PhysicsParams(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -7,7 +7,7 @@ knows the physics the actor must cope with (asymmetric actor-critic).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -133,12 +133,9 @@ class SamplePool:
             self._next = 0
         rows, smp = slice(self._next, self._next + n), self._sample
         self._next += n
-        physics = PhysicsParams(
-            **{f.name: getattr(smp.physics, f.name)[rows] for f in fields(PhysicsParams)}
-        )
         return (
             DrSample(
-                physics=physics,
+                physics=smp.physics.select(rows),
                 joint_offset=smp.joint_offset[rows],
                 action_delay=smp.action_delay[rows],
             ),
