@@ -17,11 +17,15 @@ The env loop runs torch on one thread, as ``humimic train`` does while it collec
 (``humimic.tracking.rsl.torch_threads``); ``env_torch_all_threads_steps_per_s`` is the same loop
 with torch on all cores, for comparison.
 
+``compiled_*``: the same measurement for the env with ``torch_compile=True`` (its tensor math
+compiled by ``torch.compile``), alternating with the eager env repeat by repeat;
+``compile_s`` is its construction time (compilation included; inductor caches it on disk).
+
 Also reported: the ``threads`` stepping method (Python thread pool over ``mj_step``) for the
 same env, to back the choice of ``rollout`` as the default.
 
 Usage: .venv/bin/python benchmarks/env_throughput.py [--num-envs 64 256 1024] [--steps 100]
-    [--dr default] [--repeats 3]
+    [--dr default] [--repeats 3] [--no-threads] [--no-compile]
 """
 
 from __future__ import annotations
@@ -140,6 +144,9 @@ def main() -> None:
     parser.add_argument("--dr", default="default")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-threads", action="store_true", help="skip the thread-pool method")
+    parser.add_argument(
+        "--no-compile", action="store_true", help="skip the env with torch.compile'd math"
+    )
     args = parser.parse_args()
     out = {
         "benchmark": "env_throughput",
@@ -156,34 +163,52 @@ def main() -> None:
         cfg = replace(g1_tracking(args.dr), episode_length_s=1e3)
         gen = torch.Generator().manual_seed(0)
         actions = [0.3 * torch.randn(n, 29, generator=gen) for _ in range(args.steps)]
-        env = TrackingEnv(cfg, motion, n, model=model)
-        assert isinstance(env.backend, MujocoCpuBackend)
-        with torch.inference_mode():
-            for a in actions[:10]:  # Warm-up: leave the all-reset start.
-                env.step(a)
-        env_rates, raw_rates, single_rates, all_threads = [], [], [], []
-        for _ in range(args.repeats):
-            probe = _Interleaved(env)
-            env_rate, raw_rate = probe.rates(actions)
-            env_rates.append(env_rate)
-            raw_rates.append(raw_rate)
-            single_rates.append(probe.single_call_rate())
-            probe.close()
+        envs = {"eager": TrackingEnv(cfg, motion, n, model=model)}
+        if not args.no_compile:
+            t0 = time.perf_counter()
+            envs["compiled"] = TrackingEnv(replace(cfg, torch_compile=True), motion, n, model=model)
+            compile_s = time.perf_counter() - t0
+        for env in envs.values():
             with torch.inference_mode():
-                t0 = time.perf_counter()
-                for a in actions:
+                for a in actions[:10]:  # Warm-up: leave the all-reset start.
                     env.step(a)
-                all_threads.append(n * len(actions) / (time.perf_counter() - t0))
-        env.close()
+        rates: dict[str, dict[str, list[float]]] = {
+            k: {"env": [], "raw": [], "single": [], "all_threads": []} for k in envs
+        }
+        for _ in range(args.repeats):  # The variants alternate: drifts hit both alike.
+            for name, env in envs.items():
+                r = rates[name]
+                probe = _Interleaved(env)
+                env_rate, raw_rate = probe.rates(actions)
+                r["env"].append(env_rate)
+                r["raw"].append(raw_rate)
+                r["single"].append(probe.single_call_rate())
+                probe.close()
+                with torch.inference_mode():
+                    t0 = time.perf_counter()
+                    for a in actions:
+                        env.step(a)
+                    r["all_threads"].append(n * len(actions) / (time.perf_counter() - t0))
+        for env in envs.values():
+            env.close()
+        r = rates["eager"]
         row = {
             "num_envs": n,
-            "env_steps_per_s": float(np.median(env_rates)),
-            "raw_rollout_steps_per_s": float(np.median(raw_rates)),
-            "ratio": float(np.median(np.array(env_rates) / np.array(raw_rates))),
-            "raw_single_call_steps_per_s": float(np.median(single_rates)),
-            "physics_steps_per_s": float(np.median(env_rates)) * cfg.decimation,
-            "env_torch_all_threads_steps_per_s": float(np.median(all_threads)),
+            "env_steps_per_s": float(np.median(r["env"])),
+            "raw_rollout_steps_per_s": float(np.median(r["raw"])),
+            "ratio": float(np.median(np.array(r["env"]) / np.array(r["raw"]))),
+            "raw_single_call_steps_per_s": float(np.median(r["single"])),
+            "physics_steps_per_s": float(np.median(r["env"])) * cfg.decimation,
+            "env_torch_all_threads_steps_per_s": float(np.median(r["all_threads"])),
         }
+        if "compiled" in rates:
+            c = rates["compiled"]
+            row |= {
+                "compiled_env_steps_per_s": float(np.median(c["env"])),
+                "compiled_raw_rollout_steps_per_s": float(np.median(c["raw"])),
+                "compiled_ratio": float(np.median(np.array(c["env"]) / np.array(c["raw"]))),
+                "compile_s": compile_s,
+            }
         if not args.no_threads:
             env_t = TrackingEnv(replace(cfg, step_method="threads"), motion, n, model=model)
             with torch.inference_mode():

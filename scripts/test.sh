@@ -16,5 +16,7 @@ echo "== ruff"
 echo "== pyright"
 .venv/bin/pyright
 echo "== pytest"
-if [ $# -eq 0 ]; then set -- -m "not network and not slow"; fi
+# Two workers (pytest-xdist): 12% faster on the 2-core machine (7:57 -> 6:58), where MuJoCo
+# and torch already use both cores part of the time.
+if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2; fi
 .venv/bin/python -m pytest -q "$@"

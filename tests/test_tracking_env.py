@@ -13,7 +13,8 @@ import torch
 from rsl_rl.env import VecEnv
 from rsl_rl.runners import OnPolicyRunner
 
-from humimic.errors import InputError
+from humimic import transforms as tf
+from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion, motion_from_qpos
 from humimic.tracking import dr as dr_mod
 from humimic.tracking import rewards as rew
@@ -332,6 +333,66 @@ def test_adaptive_sampling_favours_failing_bins(model: mujoco.MjModel, motion: M
     env._update_failure_stats()
     after = env.sampling_weights
     assert after[1] > after[0] and after[1] > 1.2 * before[1]
+
+
+def test_reset_state_is_the_noisy_reference(model: mujoco.MjModel, motion: Motion) -> None:
+    """The reset states built from block-drawn noise (rotation matrices, quaternion product as
+    a matrix) against the quaternion formulas of reference state initialization."""
+    env = make_env(model, motion, n=2)
+    frames = np.array([3, 40, 70])
+    u, rot, left = env._draw_reset_noise(3)
+    env._reset_noise = dr_mod.Blocks(lambda n: (u, rot, left), block=3)
+    qpos, qvel = env._reset_state(frames)
+    ref_quat = motion.qpos[frames, 3:7] / np.linalg.norm(motion.qpos[frames, 3:7], axis=1)[:, None]
+    root_quat = tf.quat_mul(tf.quat_from_euler_xyz(u[:, 3:6]), ref_quat)
+    np.testing.assert_allclose(qpos[:, 3:7], root_quat, atol=1e-12)
+    np.testing.assert_allclose(qpos[:, :3], motion.qpos[frames, :3] + u[:, :3], atol=1e-12)
+    root = motion.body_names.index("pelvis")
+    ang_vel_b = tf.quat_apply_inverse(root_quat, motion.body_ang_vel_w[frames, root] + u[:, 9:12])
+    np.testing.assert_allclose(qvel[:, 3:6], ang_vel_b, atol=1e-9)
+    np.testing.assert_allclose(qvel[:, :3], motion.body_lin_vel_w[frames, root] + u[:, 6:9])
+    env.close()
+
+
+def test_compiled_env_matches_eager(
+    model: mujoco.MjModel, motion: Motion, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """torch.compile'd env math gives the eager env's observations, rewards and dones step by
+    step (DR, noise, resets, a replaced episode counter), with one compiled graph each."""
+    import torch._dynamo
+
+    monkeypatch.setattr(torch._dynamo.config, "error_on_recompile", True)
+    envs = [make_env(model, motion, n=6, torch_compile=c) for c in (False, True)]
+    gen = torch.Generator().manual_seed(0)
+    resets = 0
+    for k in range(20):
+        if k == 5:
+            for env in envs:  # As OnPolicyRunner.learn(init_at_random_ep_len=True) does.
+                env.episode_length_buf = torch.arange(6) * 20
+        a = 0.5 * torch.randn(6, 29, generator=gen)
+        with torch.inference_mode():
+            (o1, r1, d1, x1), (o2, r2, d2, x2) = (env.step(a) for env in envs)
+        assert torch.equal(d1, d2) and torch.equal(x1["time_outs"], x2["time_outs"])
+        torch.testing.assert_close(r2, r1, atol=1e-5, rtol=1e-5)
+        for group in ("policy", "critic", "proprio_history", "physics"):
+            torch.testing.assert_close(o2[group], o1[group], atol=1e-4, rtol=1e-4)
+        for key, value in x1["log"].items():
+            torch.testing.assert_close(x2["log"][key], value, atol=1e-5, rtol=1e-5)
+        resets += int(d1.sum())
+    assert resets > 0
+    for env in envs:
+        env.close()
+
+
+def test_compile_failure_is_reported(
+    model: mujoco.MjModel, motion: Motion, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("no C++ compiler found\ndetails")
+
+    monkeypatch.setattr(torch, "compile", broken)
+    with pytest.raises(HumimicError, match=r"no C\+\+ compiler found\); on the CPU it needs"):
+        make_env(model, motion, n=2, torch_compile=True)
 
 
 def test_rollout_and_threads_agree(model: mujoco.MjModel) -> None:

@@ -84,3 +84,16 @@ def test_error_magnitude_small_and_half_turn_angles() -> None:
     np.testing.assert_allclose(got.numpy(), angles, rtol=1e-3, atol=2e-6)
     flipped = tm.quat_error_magnitude(_t(a), _t(-b)).numpy()  # -q is the same rotation
     np.testing.assert_allclose(flipped, angles, rtol=1e-9, atol=1e-12)
+
+
+def test_matrix_forms_match_quaternion_math(quats: tuple[np.ndarray, ...]) -> None:
+    """Rotation matrices and the heading-turn matrices the env uses against quaternion math."""
+    a, b, v = quats
+    np.testing.assert_allclose(tm.matrix_from_quat(_t(a)).numpy(), tf.quat_to_matrix(a), atol=1e-12)
+    h = tm.yaw_half_angle(_t(a), _t(b))
+    yaw = tm.yaw_quat(tm.quat_mul(_t(a), tm.quat_conj(_t(b)))).numpy()
+    np.testing.assert_allclose(h.numpy(), yaw[..., [0, 3]], atol=1e-9)
+    turned = np.einsum("...ij,...j->...i", tm.yaw_quat_matrix(h).numpy(), b)
+    np.testing.assert_allclose(turned, tf.quat_mul(yaw, b), atol=1e-12)
+    rotated = np.einsum("...ij,...j->...i", tm.yaw_rotation_matrix(h).numpy(), v)
+    np.testing.assert_allclose(rotated, np.einsum("...ij,...j->...i", tf.quat_to_matrix(yaw), v))

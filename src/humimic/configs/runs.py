@@ -36,6 +36,8 @@ class TrainSettings:
         checkpoint_every: Iterations between checkpoints (the last one is always written).
         num_steps_per_env: Rollout length per env and iteration (default: the PPO config's).
         max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
+        compile: Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++
+            compiler, seconds at the start; cuts the env's own cost per step, BENCHMARKS.md).
         quiet: No progress bar.
     """
 
@@ -54,6 +56,7 @@ class TrainSettings:
     checkpoint_every: int = 50
     num_steps_per_env: int | None = None
     max_minutes: float | None = None
+    compile: bool = False
     quiet: bool = False
 
 
@@ -77,6 +80,8 @@ class DistillSettings:
         seed: Seed of torch and of the environment.
         checkpoint_every: Iterations between checkpoints.
         max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
+        compile: Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++
+            compiler, seconds at the start; cuts the env's own cost per step, BENCHMARKS.md).
         quiet: No progress bar.
     """
 
@@ -92,6 +97,7 @@ class DistillSettings:
     seed: int = 0
     checkpoint_every: int = 50
     max_minutes: float | None = None
+    compile: bool = False
     quiet: bool = False
 
 

@@ -158,6 +158,13 @@ class PhysicsBackend(Protocol):
         ...
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as a basic slice when it is a contiguous increasing run, else ``idx``."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
 def _robot_bodies(model: mujoco.MjModel) -> list[int]:
     return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
 
@@ -342,6 +349,9 @@ class MujocoCpuBackend:
             if self._com_body < 0:
                 raise UnknownNameError(f"com_body {com_body!r} is not in the model")
         self._collider_geoms = np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0)
+        self._param_index = tuple(
+            _as_slice(x) for x in (self._robot_bodies, self._collider_geoms, self._dof)
+        )
         nb, nc, nf = len(self.body_names), len(self.contact_body_names), len(self.foot_body_names)
         expected = 13 * nb + nc + 3 * nf
         if model.nsensordata != expected:
@@ -577,21 +587,24 @@ class MujocoCpuBackend:
                 "set_params needs per-env models: build the backend with per_env_models=True"
             )
         nom = self._nominal
-        rb, g = self._robot_bodies, self._collider_geoms
+        # Basic slices where the indices are contiguous: a reset step changes a few models,
+        # where numpy's fancy indexing costs more than the arithmetic.
+        rb, g, dof = self._param_index
+        mass, inertia = nom["body_mass"][rb], nom["body_inertia"][rb]
+        kp0, kd0 = nom["actuator_gainprm"][:, 0], nom["actuator_biasprm"][:, 2]
+        armature, cb = nom["dof_armature"][dof], self._com_body
         for k, i in enumerate(env_ids):
             m = self._models[i]
             m.geom_friction[g, 0] = params.friction[k]
-            m.body_mass[rb] = nom["body_mass"][rb] * params.mass_scale[k]
-            m.body_inertia[rb] = nom["body_inertia"][rb] * params.mass_scale[k][:, None]
-            if self._com_body >= 0:
-                m.body_ipos[self._com_body] = (
-                    nom["body_ipos"][self._com_body] + params.com_offset[k]
-                )
-            kp = nom["actuator_gainprm"][:, 0] * params.kp_scale[k]
+            m.body_mass[rb] = mass * params.mass_scale[k]
+            m.body_inertia[rb] = inertia * params.mass_scale[k][:, None]
+            if cb >= 0:
+                m.body_ipos[cb] = nom["body_ipos"][cb] + params.com_offset[k]
+            kp = kp0 * params.kp_scale[k]
             m.actuator_gainprm[:, 0] = kp
             m.actuator_biasprm[:, 1] = -kp
-            m.actuator_biasprm[:, 2] = nom["actuator_biasprm"][:, 2] * params.kd_scale[k]
-            m.dof_armature[self._dof] = nom["dof_armature"][self._dof] * params.armature_scale[k]
+            m.actuator_biasprm[:, 2] = kd0 * params.kd_scale[k]
+            m.dof_armature[dof] = armature * params.armature_scale[k]
             d = self._datas[i] if self._datas else self._scratch[0]
             qpos, qvel = d.qpos.copy(), d.qvel.copy()
             mujoco.mj_setConst(m, d)

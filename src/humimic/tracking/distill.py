@@ -19,7 +19,7 @@ The student's run folder is a run like any other: ``humimic eval`` and ``humimic
 from __future__ import annotations
 
 import copy
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import torch
@@ -133,7 +133,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     _, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint)
     run = s.out
     dr = s.dr or teacher.dr
-    task = task_config(teacher.robot, dr, s.seed, teacher.physics)
+    task = replace(task_config(teacher.robot, dr, s.seed, teacher.physics), torch_compile=s.compile)
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     check_writable(run / "config.yaml")

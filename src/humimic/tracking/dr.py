@@ -7,7 +7,8 @@ knows the physics the actor must cope with (asymmetric actor-critic).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -101,14 +102,33 @@ def normalize(dr: DomainRandomization, s: DrSample) -> np.ndarray:
     return np.concatenate(parts, axis=-1)
 
 
-class SamplePool:
-    """Draws of :func:`sample`, with their :func:`normalize` vectors, served in blocks.
+class Blocks:
+    """Rows of a batched random draw, served in blocks.
 
     A reset step resets a few envs; drawing for each such step costs dozens of small numpy
-    calls whatever the number of envs. The pool draws ``block`` envs' parameters at once and
-    hands out consecutive rows: the same distribution, independent rows, a fixed sequence for
-    a given generator.
+    calls whatever the number of envs. ``draw(k)`` returns arrays whose first axis has ``k``
+    rows; this calls it for ``block`` rows at a time and hands out consecutive rows: the same
+    distribution, independent rows, a fixed sequence for a given generator.
     """
+
+    def __init__(self, draw: Callable[[int], tuple[np.ndarray, ...]], block: int = 256) -> None:
+        self._draw, self._block = draw, block
+        self._rows: tuple[np.ndarray, ...] = ()
+        self._size = self._next = 0
+
+    def take(self, n: int) -> tuple[np.ndarray, ...]:
+        """The next ``n`` rows of every array."""
+        if self._next + n > self._size:
+            self._size, self._next = max(n, self._block), 0
+            self._rows = self._draw(self._size)
+        rows = slice(self._next, self._next + n)
+        self._next += n
+        return tuple(a[rows] for a in self._rows)
+
+
+class SamplePool:
+    """Draws of :func:`sample`, with their :func:`normalize` vectors, served in blocks
+    (:class:`Blocks`)."""
 
     def __init__(
         self,
@@ -119,25 +139,17 @@ class SamplePool:
         rng: np.random.Generator,
         block: int = 256,
     ) -> None:
-        self._dr, self._rng, self._block = dr, rng, block
-        self._dims = {"num_bodies": num_bodies, "num_joints": num_joints}
-        self._sample: DrSample | None = None
-        self._e = np.zeros((0, param_dim(num_bodies, num_joints)))
-        self._next = 0
+        self._fields = [f.name for f in fields(PhysicsParams)]
+
+        def draw(n: int) -> tuple[np.ndarray, ...]:
+            smp = sample(dr, n, num_bodies=num_bodies, num_joints=num_joints, rng=rng)
+            physics = [getattr(smp.physics, f) for f in self._fields]
+            return (*physics, smp.joint_offset, smp.action_delay, normalize(dr, smp))
+
+        self._blocks = Blocks(draw, block)
 
     def take(self, n: int) -> tuple[DrSample, np.ndarray]:
         """The next ``n`` envs' parameters and their normalized vectors ``e``."""
-        if self._sample is None or self._next + n > len(self._e):
-            self._sample = sample(self._dr, max(n, self._block), rng=self._rng, **self._dims)
-            self._e = normalize(self._dr, self._sample)
-            self._next = 0
-        rows, smp = slice(self._next, self._next + n), self._sample
-        self._next += n
-        return (
-            DrSample(
-                physics=smp.physics.select(rows),
-                joint_offset=smp.joint_offset[rows],
-                action_delay=smp.action_delay[rows],
-            ),
-            self._e[rows],
-        )
+        *physics, joint_offset, action_delay, e = self._blocks.take(n)
+        params = PhysicsParams(**dict(zip(self._fields, physics, strict=True)))
+        return DrSample(physics=params, joint_offset=joint_offset, action_delay=action_delay), e

@@ -38,7 +38,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from humimic import transforms as tf
-from humimic.errors import InputError
+from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion
 from humimic.robots.registry import get_robot
 from humimic.tracking import dr as dr_mod
@@ -186,9 +186,12 @@ class TrackingEnv(VecEnv):
         )  # fmt: skip
         self._m_split = [len(jidx), len(jidx), 3 * Bt, 4 * Bt, 3 * Bt, 3 * Bt]
         self.num_frames = motion.num_frames
+        root_quat = motion.qpos[:, 3:7].astype(np.float64)
+        root_quat /= np.linalg.norm(root_quat, axis=-1, keepdims=True)
         self._ref_np = {
             "root_pos": motion.qpos[:, :3].astype(np.float64),
-            "root_quat": motion.qpos[:, 3:7].astype(np.float64),
+            "root_quat": root_quat,
+            "root_rot": tf.quat_to_matrix(root_quat),
             "root_lin_vel": motion.body_lin_vel_w[:, root_m].astype(np.float64),
             "root_ang_vel": motion.body_ang_vel_w[:, root_m].astype(np.float64),
             "joint_pos": np.ascontiguousarray(motion.joint_pos[:, jidx], dtype=np.float64),
@@ -234,6 +237,7 @@ class TrackingEnv(VecEnv):
         nb, C, F = len(be.body_names), len(be.contact_body_names), len(be.foot_body_names)
         self._read_split = [J, J, 3 * nb, 4 * nb, 3 * nb, 3 * nb, C, F]
         self._read_np = np.zeros((num_envs, sum(self._read_split)))
+        self._read_np_t = torch.from_numpy(self._read_np)  # A view: the copy is a tensor op.
         self._read_buf = torch.zeros(num_envs, sum(self._read_split), device=dev)
         jp, jv, bp, bq, bl, ba, cf, ff = self._read_buf.split(self._read_split, dim=1)
         st.joint_pos, st.joint_vel, st.contact_found, st.foot_force = jp, jv, cf, ff
@@ -247,6 +251,7 @@ class TrackingEnv(VecEnv):
         self._dr_pool = dr_mod.SamplePool(
             cfg.dr, num_bodies=be.num_bodies_total, num_joints=J, rng=self._rng
         )
+        self._reset_noise = dr_mod.Blocks(self._draw_reset_noise)
         max_delay = int(cfg.dr.action_delay[1])
         self._act_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
         self._delay = torch.zeros(num_envs, dtype=torch.long, device=dev)
@@ -265,10 +270,9 @@ class TrackingEnv(VecEnv):
         ad = cfg.adaptive
         self._bin_count = int(self.num_frames // max(ad.bin_s / cfg.step_dt, 1.0)) + 1
         self._bin_failed = torch.zeros(self._bin_count, device=dev)
-        self._bin_failed_now = torch.zeros(self._bin_count, device=dev)
         kernel = torch.tensor([ad.kernel_lambda**i for i in range(ad.kernel_size)], device=dev)
         self._kernel = (kernel / kernel.sum()).view(1, 1, -1)
-        self._weights: torch.Tensor | None = None
+        self._weights = torch.zeros(self._bin_count, device=dev)
 
         # Observation buffers.
         B, F = len(cfg.body_names), len(be.foot_body_names)
@@ -293,10 +297,15 @@ class TrackingEnv(VecEnv):
             [k for k, t in enumerate(is_timeout) if not t], dtype=torch.long, device=dev
         )
         self._log_keys = [f"term_{k}" for k in cfg.terminations] + [f"rew_{k}" for k in cfg.rewards]
+        self._log_keys.append("sampling_entropy")
 
+        self._update_failure_stats()  # The initial sampling weights (no failures yet).
         self._reset_idx(self._arange)
         self._read_backend()
         self._update_reference()
+        self._after_physics_fn, self._observe_fn = self._after_physics, self._observe
+        if cfg.torch_compile:
+            self._compile_math()
         self._compute_observations()
 
     # ------------------------------------------------------------------------------- API
@@ -340,13 +349,13 @@ class TrackingEnv(VecEnv):
         ep = self.episode_length_buf  # rsl_rl may have replaced it: read it fresh.
         ep += 1
         s.frame.add_(1).clamp_(max=self.num_frames - 1)
-        self._read_backend()
-        self._update_reference()
-        # Terminations and rewards, before any reset.
-        log = dict(zip(self._log_keys, self._compute_terms().unbind(), strict=True))
+        self._gather_backend()
+        # Terminations, rewards and failure statistics, before any reset.
+        with torch.inference_mode():  # The env's math never needs autograd (see _compile_math).
+            logged = self._after_physics_fn()
+        log = dict(zip(self._log_keys, logged.unbind(), strict=True))
         dones = self._terminated | self._time_outs
 
-        self._update_failure_stats()
         done_ids = dones.nonzero(as_tuple=False).flatten()
         reset = done_ids.numel() > 0
         if reset:
@@ -357,7 +366,6 @@ class TrackingEnv(VecEnv):
         if reset:
             self._update_reference()  # For the observations (rewards: next step's).
         self._compute_observations()
-        log["sampling_entropy"] = self._sampling_entropy()
         extras = {"time_outs": self._time_outs.clone(), "log": log}
         return self.get_observations(), self._rewards.clone(), dones, extras
 
@@ -380,8 +388,6 @@ class TrackingEnv(VecEnv):
     @property
     def sampling_weights(self) -> torch.Tensor:
         """Start-bin sampling probabilities of the adaptive sampler. Shape: (bins,)."""
-        if self._weights is None:
-            self._weights = self._compute_weights()
         return self._weights
 
     def _compute_weights(self) -> torch.Tensor:
@@ -402,16 +408,30 @@ class TrackingEnv(VecEnv):
 
     # -------------------------------------------------------------------------- internals
 
-    def _read_backend(self) -> None:
-        """The backend's state into the buffer the state's fields view: one numpy
-        concatenation in float64, one conversion to float32 on the env's device."""
+    def _gather_backend(self) -> None:
+        """The backend's state into one float64 array (one numpy concatenation), which
+        :meth:`_after_physics` copies into the buffer the state's fields view."""
         r, n = self.backend.read(), self.num_envs
         parts = (
             r.qpos[:, 7:], r.qvel[:, 6:], r.body_pos_w, r.body_quat_w, r.body_lin_vel_w,
             r.body_ang_vel_w, r.contact_found, r.foot_force,
         )  # fmt: skip
         np.concatenate([p.reshape(n, -1) for p in parts], axis=1, out=self._read_np)
-        self._read_buf.copy_(torch.from_numpy(self._read_np))
+
+    def _read_backend(self) -> None:
+        """The backend's state into the state's fields (one float32 conversion)."""
+        self._gather_backend()
+        self._read_buf.copy_(self._read_np_t)
+
+    def _after_physics(self) -> torch.Tensor:
+        """The step's tensor math after the physics (after :meth:`_gather_backend`): the
+        state and the reference, terminations, rewards, failure statistics. Returns the
+        logged values (``_log_keys``)."""
+        self._read_buf.copy_(self._read_np_t)
+        self._update_reference()
+        logged = self._compute_terms()
+        self._update_failure_stats()
+        return torch.cat([logged, self._sampling_entropy().view(1)])
 
     def _update_reference(self) -> None:
         """The reference at each env's frame: one gather into the buffer the state's
@@ -434,6 +454,37 @@ class TrackingEnv(VecEnv):
         torch.sum(values, dim=0, out=self._rewards)
         return torch.cat([terms.mean(dim=1, dtype=torch.float32), values.mean(dim=1)])
 
+    def _compile_math(self) -> None:
+        """Compile :meth:`_after_physics` and :meth:`_observe` (whole graphs, fixed shapes)
+        and run them once, so that a failure shows here and the first step does not stall.
+        An eager run first fills the caches they read (tracked-body indices, rotation forms);
+        the buffers the runs write are restored afterwards. They always run under ``torch.inference_mode``
+        (as rsl_rl collects rollouts), which keeps one compiled graph each: a change of grad
+        mode would compile them again."""
+        kept = [t.clone() for t in (self._bin_failed, self._weights, self._fresh, self._history)]
+        with torch.inference_mode():
+            noise = None if self._noise_scale is None else torch.zeros_like(self._policy)
+            self._after_physics()
+            self._observe(noise)
+        try:
+            after = torch.compile(self._after_physics, dynamic=False, fullgraph=True)
+            observe = torch.compile(self._observe, dynamic=False, fullgraph=True)
+            with torch.inference_mode():
+                after()
+                observe(noise)
+        except Exception as e:  # Any compiler failure, reported with its cause.
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise HumimicError(
+                f"torch.compile of the tracking env's math failed ({first}); on the CPU it "
+                "needs a working C++ compiler. Run without compiling (torch_compile=False, "
+                "no --compile)."
+            ) from e
+        for buf, old in zip(
+            (self._bin_failed, self._weights, self._fresh, self._history), kept, strict=True
+        ):
+            buf.copy_(old)
+        self._after_physics_fn, self._observe_fn = after, observe
+
     def _rand(
         self, lo: torch.Tensor | float, hi: torch.Tensor | float, shape: tuple[int, ...]
     ) -> torch.Tensor:
@@ -455,19 +506,20 @@ class TrackingEnv(VecEnv):
         return frames.clamp(0, T - 2)
 
     def _update_failure_stats(self) -> None:
-        failed = self._terminated & ~self._time_outs
-        self._bin_failed_now.zero_()
-        if bool(failed.any()):
-            bins = (self.state.frame[failed] * self._bin_count) // self.num_frames
-            self._bin_failed_now += torch.bincount(
-                bins.clamp(0, self._bin_count - 1), minlength=self._bin_count
-            ).float()
+        """Fold this step's failures (terminations that are not time-outs) into the failure
+        rate of each bin and recompute the sampling weights (no host sync: a scatter, not a
+        test for failures)."""
+        failed = (self._terminated & ~self._time_outs).float()
+        bins = torch.div(self.state.frame * self._bin_count, self.num_frames, rounding_mode="floor")
+        now = torch.zeros_like(self._bin_failed).scatter_add_(
+            0, bins.clamp(0, self._bin_count - 1), failed
+        )
         a = self.cfg.adaptive.alpha
-        self._bin_failed.mul_(1.0 - a).add_(a * self._bin_failed_now)
-        self._weights = None  # Recomputed once, when next needed.
+        self._bin_failed.mul_(1.0 - a).add_(a * now)
+        self._weights.copy_(self._compute_weights())
 
     def _sampling_entropy(self) -> torch.Tensor:
-        p = self.sampling_weights
+        p = self._weights
         h = -(p * (p + 1e-12).log()).sum()
         return h / math.log(self._bin_count) if self._bin_count > 1 else h * 0 + 1
 
@@ -502,19 +554,30 @@ class TrackingEnv(VecEnv):
             lo, hi = cfg.dr.push_interval_s
             self._push_timer[ids] = self._rand(lo, hi, (n,))
 
+    def _draw_reset_noise(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``n`` draws of the reset noise: the uniform offsets (root pose, root velocity,
+        joints; Shape: (n, 12 + J)), and the root orientation noise as a rotation matrix
+        (Shape: (n, 3, 3)) and as the matrix of left quaternion multiplication (Shape:
+        (n, 4, 4))."""
+        u = self._rng.uniform(self._reset_lo, self._reset_hi, size=(n, len(self._reset_lo)))
+        q = tf.quat_from_euler_xyz(u[:, 3:6])
+        left = np.stack([tf.quat_mul(q, e) for e in np.eye(4)], axis=-1)
+        return u, tf.quat_to_matrix(q), left
+
     def _reset_state(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The reference's states at ``frames`` with the reset noise of the config.
+        """The reference's states at ``frames`` with the reset noise of the config (drawn in
+        blocks: a reset step resets a few envs, where numpy's per-call cost dominates).
 
         Returns:
             qpos Shape: (n, nq), qvel Shape: (n, nv), float64.
         """
-        r, J, n = self._ref_np, self.num_actions, len(frames)
-        u = self._rng.uniform(self._reset_lo, self._reset_hi, size=(n, 12 + J))
-        root_quat = tf.quat_mul(tf.quat_from_euler_xyz(u[:, 3:6]), r["root_quat"][frames])
-        root_quat /= np.linalg.norm(root_quat, axis=-1, keepdims=True)
+        r, n = self._ref_np, len(frames)
+        u, noise_rot, noise_left = self._reset_noise.take(n)
+        root_quat = np.einsum("nij,nj->ni", noise_left, r["root_quat"][frames])
+        root_rot = noise_rot @ r["root_rot"][frames]
         jp = np.clip(r["joint_pos"][frames] + u[:, 12:], self._soft_lo, self._soft_hi)
         qpos = np.concatenate([r["root_pos"][frames] + u[:, :3], root_quat, jp], axis=-1)
-        ang_vel_b = tf.quat_apply_inverse(root_quat, r["root_ang_vel"][frames] + u[:, 9:12])
+        ang_vel_b = np.einsum("nji,nj->ni", root_rot, r["root_ang_vel"][frames] + u[:, 9:12])
         lin_vel_w = r["root_lin_vel"][frames] + u[:, 6:9]
         return qpos, np.concatenate([lin_vel_w, ang_vel_b, r["joint_vel"][frames]], axis=-1)
 
@@ -600,20 +663,27 @@ class TrackingEnv(VecEnv):
         return policy, critic
 
     def _compute_observations(self) -> None:
+        with torch.inference_mode():
+            noise = None
+            if self._noise_scale is not None:
+                noise = torch.rand(self._policy.shape, generator=self._gen, device=self.device)
+            self._observe_fn(noise)
+
+    def _observe(self, noise: torch.Tensor | None) -> None:
+        """Observations into their buffers: ``noise`` (uniform in [0, 1), or None) scaled to
+        the DR's observation noise, the history shifted, the history of fresh envs filled
+        with their first observation."""
         policy, critic = self._observation_math()
         self._critic.copy_(critic)
-        if self._noise_scale is not None:
-            u = torch.rand(policy.shape, generator=self._gen, device=self.device)
-            policy = policy + (2.0 * u - 1.0) * self._noise_scale
+        if noise is not None and self._noise_scale is not None:
+            policy = policy + (2.0 * noise - 1.0) * self._noise_scale
         self._policy.copy_(policy)
         h = self._history
         if h.shape[1] > 1:
             h[:, :-1] = h[:, 1:].clone()
         h[:, -1] = policy
-        fresh = self._fresh
-        if bool(fresh.any()):
-            h[fresh] = policy[fresh].unsqueeze(1).expand(-1, h.shape[1], -1)
-            fresh.zero_()
+        h.copy_(torch.where(self._fresh[:, None, None], policy[:, None], h))
+        self._fresh.zero_()
 
 
 __all__ = ["TrackingEnv", "build_backend", "tracking_model"]

@@ -71,37 +71,115 @@ def yaw_quat(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.cos(yaw / 2), zeros, zeros, torch.sin(yaw / 2)], dim=-1)
 
 
-_ROT6D: dict[tuple[torch.device, torch.dtype], torch.Tensor] = {}
+_FORMS: dict[tuple[str, torch.device, torch.dtype], torch.Tensor] = {}
+
+# Rotation-matrix entries of a unit quaternion as quadratic forms of (w, x, y, z): each entry is
+# a list of (i, j, coefficient) over the products q_i q_j.
+_W, _X, _Y, _Z = range(4)
+_MATRIX_TERMS = (
+    ((_W, _W, 1), (_X, _X, 1), (_Y, _Y, -1), (_Z, _Z, -1)),  # R00
+    ((_X, _Y, 2), (_W, _Z, -2)),  # R01
+    ((_X, _Z, 2), (_W, _Y, 2)),  # R02
+    ((_X, _Y, 2), (_W, _Z, 2)),  # R10
+    ((_W, _W, 1), (_X, _X, -1), (_Y, _Y, 1), (_Z, _Z, -1)),  # R11
+    ((_Y, _Z, 2), (_W, _X, -2)),  # R12
+    ((_X, _Z, 2), (_W, _Y, -2)),  # R20
+    ((_Y, _Z, 2), (_W, _X, 2)),  # R21
+    ((_W, _W, 1), (_X, _X, -1), (_Y, _Y, -1), (_Z, _Z, 1)),  # R22
+)
+_FORM_ENTRIES = {
+    "matrix": tuple(range(9)),  # R, row-major.
+    "rot6d": (0, 1, 3, 4, 6, 7),  # R[:, :2], row-major.
+    "heading": (0, 3),  # R00, R10: the rotated x axis in the horizontal plane.
+}
 
 
-def _rot6d_form(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
-    """The six entries of ``rot6d_from_quat`` as quadratic forms of ``q``: a (16, 6) matrix
-    acting on the flattened outer product ``q q^T`` (indices ``4 i + j``, wxyz)."""
-    form = _ROT6D.get((device, dtype))
+def _form(name: str, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """The (16, k) matrix of the rotation-matrix entries ``_FORM_ENTRIES[name]`` as quadratic
+    forms acting on the flattened outer product ``q q^T`` (indices ``4 i + j``, wxyz)."""
+    key = (name, device, dtype)
+    form = _FORMS.get(key)
     if form is None:
-        w, x, y, z = range(4)
-        terms = (
-            ((w, w, 1), (x, x, 1), (y, y, -1), (z, z, -1)),  # R00
-            ((x, y, 2), (w, z, -2)),  # R01
-            ((x, y, 2), (w, z, 2)),  # R10
-            ((w, w, 1), (x, x, -1), (y, y, 1), (z, z, -1)),  # R11
-            ((x, z, 2), (w, y, -2)),  # R20
-            ((y, z, 2), (w, x, 2)),  # R21
-        )
-        form = torch.zeros(16, 6, dtype=dtype)
-        for col, entries in enumerate(terms):
-            for i, j, c in entries:
+        entries = _FORM_ENTRIES[name]
+        form = torch.zeros(16, len(entries), dtype=dtype)
+        for col, entry in enumerate(entries):
+            for i, j, c in _MATRIX_TERMS[entry]:
                 form[4 * i + j, col] = c
-        form = _ROT6D[(device, dtype)] = form.to(device)
+        form = _FORMS[key] = form.to(device)
     return form
+
+
+def _quadratic(q: torch.Tensor, name: str) -> torch.Tensor:
+    outer = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
+    return outer @ _form(name, q.device, q.dtype)
 
 
 def rot6d_from_quat(q: torch.Tensor) -> torch.Tensor:
     """The first two columns of the rotation matrix of a unit quaternion, row-major
     flattened: ``[R00, R01, R10, R11, R20, R21]``. One outer product and one matrix product
     (each entry is a quadratic form of ``q``). Shape: (..., 6)."""
-    outer = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
-    return outer @ _rot6d_form(q.device, q.dtype)
+    return _quadratic(q, "rot6d")
+
+
+def matrix_from_quat(q: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices of unit quaternions, as :func:`rot6d_from_quat` computes them.
+    Shape: (..., 4) -> (..., 3, 3)."""
+    return _quadratic(q, "matrix").unflatten(-1, (3, 3))
+
+
+def yaw_half_angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``[cos(t / 2), sin(t / 2)]`` of the heading ``t`` of ``a * conj(b)``: the angle about
+    world z of :func:`yaw_quat` of that product, without forming the quaternion. Shape:
+    (..., 4) -> (..., 2)."""
+    aw, av, bw, bv = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
+    w = aw * bw + (av * bv).sum(-1, keepdim=True)
+    v = bw * av - aw * bv - torch.linalg.cross(av, bv)
+    c, s = _quadratic(torch.cat([w, v], dim=-1), "heading").unbind(-1)
+    half = 0.5 * torch.atan2(s, c)
+    return torch.stack([torch.cos(half), torch.sin(half)], dim=-1)
+
+
+_YAW: dict[tuple[torch.device, torch.dtype], tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}
+
+
+def _yaw_forms(
+    device: torch.device, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """For ``h = [c, s]`` of a yaw quaternion ``(c, 0, 0, s)``: its left-multiplication
+    matrix is ``h @ L`` (L: (2, 16)); its rotation matrix is ``(h h^T) @ M + E`` (M: (4, 9),
+    E: the constant 1 at R22)."""
+    forms = _YAW.get((device, dtype))
+    if forms is None:
+        # (c, 0, 0, s) * q = [c qw - s qz, c qx - s qy, c qy + s qx, c qz + s qw].
+        left = torch.zeros(2, 4, 4, dtype=dtype)
+        left[0] = torch.eye(4, dtype=dtype)
+        left[1, 0, 3], left[1, 1, 2], left[1, 2, 1], left[1, 3, 0] = -1.0, -1.0, 1.0, 1.0
+        # cos t = c^2 - s^2, sin t = 2 c s (outer product indices: cc 0, cs 1, sc 2, ss 3).
+        rot = torch.zeros(4, 3, 3, dtype=dtype)
+        rot[0, 0, 0], rot[3, 0, 0], rot[0, 1, 1], rot[3, 1, 1] = 1.0, -1.0, 1.0, -1.0
+        rot[1, 1, 0], rot[2, 1, 0], rot[1, 0, 1], rot[2, 0, 1] = 1.0, 1.0, -1.0, -1.0
+        const = torch.zeros(9, dtype=dtype)
+        const[8] = 1.0
+        forms = _YAW[(device, dtype)] = (
+            left.reshape(2, 16).to(device),
+            rot.reshape(4, 9).to(device),
+            const.to(device),
+        )
+    return forms
+
+
+def yaw_quat_matrix(h: torch.Tensor) -> torch.Tensor:
+    """Left-multiplication matrix of the yaw quaternion ``(h0, 0, 0, h1)``: ``yaw * q`` is
+    ``matrix @ q``. Shape: (..., 2) -> (..., 4, 4)."""
+    left, _, _ = _yaw_forms(h.device, h.dtype)
+    return (h @ left).unflatten(-1, (4, 4))
+
+
+def yaw_rotation_matrix(h: torch.Tensor) -> torch.Tensor:
+    """Rotation matrix of the yaw quaternion ``(h0, 0, 0, h1)``. Shape: (..., 2) -> (..., 3, 3)."""
+    _, rot, const = _yaw_forms(h.device, h.dtype)
+    outer = (h.unsqueeze(-1) * h.unsqueeze(-2)).flatten(-2)
+    return torch.addmm(const, outer.reshape(-1, 4), rot).reshape(*h.shape[:-1], 3, 3)
 
 
 def quat_from_euler_xyz(roll: torch.Tensor, pitch: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:

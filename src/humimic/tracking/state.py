@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import torch
 
 from humimic.errors import UnknownNameError
-from humimic.tracking.math import quat_apply, quat_conj, quat_mul, yaw_quat
+from humimic.tracking.math import yaw_half_angle, yaw_quat_matrix, yaw_rotation_matrix
 
 
 @dataclass(kw_only=True, eq=False)
@@ -182,13 +182,16 @@ class TrackingState:
         return self.body_quat_w[:, self.root_index]
 
     def update_relative(self) -> None:
-        """Recompute ``ref_body_pos_rel_w`` / ``ref_body_quat_rel_w`` in place."""
+        """Recompute ``ref_body_pos_rel_w`` / ``ref_body_quat_rel_w`` in place: the reference
+        turned by the heading difference of the anchors about the reference anchor, moved to
+        the robot anchor's horizontal position (BeyondMimic). The heading turn is applied as a
+        matrix product (one for the quaternions, one for the positions)."""
         ref_anchor_pos = self.ref_anchor_pos_w[:, None]
+        h = yaw_half_angle(self.anchor_quat_w, self.ref_anchor_quat_w)
+        torch.matmul(
+            self.ref_body_quat_w, yaw_quat_matrix(h).transpose(-1, -2), out=self.ref_body_quat_rel_w
+        )
         delta_pos = self.anchor_pos_w[:, None].clone()
         delta_pos[..., 2] = ref_anchor_pos[..., 2]
-        delta_quat = yaw_quat(quat_mul(self.anchor_quat_w, quat_conj(self.ref_anchor_quat_w)))
-        delta_quat = delta_quat[:, None].expand_as(self.ref_body_quat_w)
-        self.ref_body_quat_rel_w.copy_(quat_mul(delta_quat, self.ref_body_quat_w))
-        self.ref_body_pos_rel_w.copy_(
-            delta_pos + quat_apply(delta_quat, self.ref_body_pos_w - ref_anchor_pos)
-        )
+        rel = torch.matmul(self.ref_body_pos_w - ref_anchor_pos, yaw_rotation_matrix(h).mT)
+        torch.add(delta_pos, rel, out=self.ref_body_pos_rel_w)

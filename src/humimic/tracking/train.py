@@ -295,7 +295,7 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             )
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
-    task = task_config(s.robot, s.dr, s.seed, s.physics)
+    task = replace(task_config(s.robot, s.dr, s.seed, s.physics), torch_compile=s.compile)
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
     cfg = train_cfg(ppo or ppo_for(s))
     init = None
