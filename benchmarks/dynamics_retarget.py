@@ -6,27 +6,72 @@ then refines with ``humimic.retarget.dynamics.refine`` and reports, from the sam
 state, the open-loop replay of the kinematic reference and of the result (time until fall,
 MPJPE against the reference, foot skating, effort), the result's replays on perturbed physics,
 whether the stored controls reproduce the stored states, and CPU seconds per second of motion.
+Also, per clip, how ballistic the kinematic reference's flight is: in frames where both feet
+are 5 cm above their lowest, the whole-body centre of mass of a physical motion falls at
+9.81 m/s^2; ``reference_flight`` gives the reference's mean vertical acceleration there.
 
 Usage: .venv/bin/python benchmarks/dynamics_retarget.py [--clips 35_01 09_01] [--seconds 3]
     [--samples 128] [--iterations 8] [--noise 0.15] [--threads N] [--robustness 8]
-    [--ensemble E] [--seed S]
+    [--ensemble E] [--seed S] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
 import time
 from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
 
 from humimic.configs import DynamicsConfig, RetargetConfig
 from humimic.datasets import load_clip
+from humimic.motion import Motion
 from humimic.retarget import Retargeter
 from humimic.retarget.dynamics import check_replay, refine
+from humimic.robots.registry import get_robot
+from humimic.tracking.config import g1_tracking
+from humimic.tracking.env import tracking_model
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
+
+
+def _overrides(pairs: list[str]) -> dict[str, Any]:
+    """``FIELD=VALUE`` pairs as DynamicsConfig keyword arguments, typed by the fields."""
+    types = {f.name: f.type for f in dataclasses.fields(DynamicsConfig)}
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if name not in types or not value:
+            raise SystemExit(f"--set {pair}: expected FIELD=VALUE with FIELD in {sorted(types)}")
+        kind = {"int": int, "float": float}.get(str(types[name]), str)
+        out[name] = kind(value)
+    return out
+
+
+def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float]:
+    """Frames where both feet are 5 cm above their lowest, and the mean vertical acceleration
+    of the whole-body centre of mass there (a physical flight phase: -9.81 m/s^2)."""
+    data = mujoco.MjData(model)
+    feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
+    com, foot_z = np.zeros((motion.num_frames, 3)), np.zeros((motion.num_frames, len(feet)))
+    for t in range(motion.num_frames):
+        data.qpos[:] = motion.qpos[t]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
+    acc_z = (com[2:, 2] - 2 * com[1:-1, 2] + com[:-2, 2]) * motion.fps**2
+    flight = (foot_z[1:-1] > foot_z.min(axis=0) + 0.05).all(axis=1)
+    return {
+        "flight_frames": int(flight.sum()),
+        "frames": motion.num_frames,
+        "com_z_acc_in_flight": float(acc_z[flight].mean()) if flight.any() else float("nan"),
+    }
 
 
 def main() -> None:
@@ -40,9 +85,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--robustness", type=int, default=8)
+    parser.add_argument("--set", nargs="+", default=[], metavar="FIELD=VALUE",
+                        help="other DynamicsConfig fields, e.g. joint_weight=0.3")  # fmt: skip
     args = parser.parse_args()
     cfg = DynamicsConfig(samples=args.samples, iterations=args.iterations, noise=args.noise,
-                         ensemble=args.ensemble, seed=args.seed)  # fmt: skip
+                         ensemble=args.ensemble, seed=args.seed, **_overrides(args.set))  # fmt: skip
+    cfg.validate()
+    model = tracking_model(g1_tracking("none"))
     rt = Retargeter("g1", "cmu", RetargetConfig(fps=50.0))
     rows = []
     t0 = time.perf_counter()
@@ -54,7 +103,8 @@ def main() -> None:
         clip = clip.slice(1, min(clip.num_frames, 1 + int(args.seconds * clip.fps)))
         motion = rt.run(clip).motion
         refined, report = refine(motion, cfg, robustness=args.robustness, nthread=args.threads)
-        row = {"clip": name, **report, "replay_check": check_replay(refined)}
+        row = {"clip": name, "reference_flight": reference_flight(motion, model), **report,
+               "replay_check": check_replay(refined)}  # fmt: skip
         rows.append(row)
         print(json.dumps(row), flush=True)
     out = {

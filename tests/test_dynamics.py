@@ -118,3 +118,24 @@ def test_cli_retarget_dynamics_checks_the_frame_rate_first(
             "--method", "dynamics", "--ik.fps", "30", "--quiet"]  # fmt: skip
     assert main(args) == 2  # 30 fps is not a whole number of 5 ms physics steps.
     assert not out.exists()
+
+
+def test_eval_open_loop_targets_of_a_refined_motion() -> None:
+    """A refined motion's open loop in ``humimic eval`` is its stored PD targets, one per
+    control step; a section that does not fit the task is refused, not reinterpreted."""
+    from types import SimpleNamespace
+
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.evaluate import _stored_targets
+
+    task = g1_tracking("none")
+    d, frames = task.decimation, 5
+    per_frame = np.arange(4 * 29, dtype=float).reshape(4, 29)
+    dyn = {"ctrl": per_frame.repeat(d, axis=0), "physics_dt": np.float64(task.sim_dt)}
+    refined = SimpleNamespace(dynamics=dyn, num_frames=frames)
+    np.testing.assert_array_equal(_stored_targets(refined, task), per_frame)
+    assert _stored_targets(SimpleNamespace(dynamics=None, num_frames=frames), task) is None
+    varying = dict(dyn, ctrl=np.arange(16 * 29, dtype=float).reshape(16, 29))
+    for bad in (dict(dyn, physics_dt=np.float64(0.002)), varying):
+        with pytest.raises(InputError, match="refine the motion again"):
+            _stored_targets(SimpleNamespace(dynamics=bad, num_frames=frames), task)

@@ -193,17 +193,48 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
         st = env.state
+        # A refined motion (humimic refine) stores the PD targets that replay it: one per
+        # control step, held over its physics steps. Those are its open loop; a kinematic
+        # reference's open loop is its next frame's joint positions.
+        targets = _stored_targets(motion, task)
+        if targets is None:
+            targets = env.reference_joint_pos[1:]
+            results["open_loop_targets"] = "reference joint positions"
+        else:
+            targets = torch.as_tensor(targets, dtype=torch.float32, device=env.device)
+            results["open_loop_targets"] = "stored dynamic controls"
 
         def open_loop(obs: Any) -> torch.Tensor:
             del obs
-            nxt = (st.frame + 1).clamp(max=env.num_frames - 1)
-            return (env.reference_joint_pos[nxt] - env.default_joint_pos) / env.action_scale
+            k = st.frame.clamp(max=len(targets) - 1)
+            return (targets[k] - env.default_joint_pos) / env.action_scale
 
         open_trace = _Trace()
         results["open_loop"] = _episodes(env, open_loop, s.episodes, open_trace)
     finally:
         env.close()
     return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
+
+
+def _stored_targets(motion: Any, task: Any) -> np.ndarray | None:
+    """The PD targets of each control step of a refined motion's dynamic section (Shape:
+    (frames - 1, J)), or None without one. The section must be at the task's physics step and
+    hold each target over a control step's physics steps (as ``humimic refine`` writes it)."""
+    dyn = motion.dynamics
+    if not dyn or "ctrl" not in dyn:
+        return None
+    ctrl, d = np.asarray(dyn["ctrl"]), task.decimation
+    if (
+        abs(float(dyn.get("physics_dt", 0.0)) - task.sim_dt) > 1e-12
+        or ctrl.shape[0] != (motion.num_frames - 1) * d
+        or not np.array_equal(ctrl[::d].repeat(d, axis=0), ctrl)
+    ):
+        raise InputError(
+            "the motion's dynamic section does not match the task (physics step "
+            f"{task.sim_dt} s, {d} physics steps per frame, one target per frame): refine the "
+            "motion again at the policy rate"
+        )
+    return ctrl[::d]
 
 
 def write_eval_mcap(
