@@ -139,3 +139,25 @@ def test_eval_open_loop_targets_of_a_refined_motion() -> None:
     for bad in (dict(dyn, physics_dt=np.float64(0.002)), varying):
         with pytest.raises(InputError, match="refine the motion again"):
             _stored_targets(SimpleNamespace(dynamics=bad, num_frames=frames), task)
+
+
+@pytest.mark.parametrize("g", [9.81, 3.0])
+def test_reference_flight_measures_how_ballistic_a_hop_is(g: float) -> None:
+    """A hop of the home pose whose height follows a parabola of curvature ``g``: the flight
+    frames (both feet 5 cm up) and the centre of mass's vertical acceleration there."""
+    from humimic.motion import motion_from_qpos
+    from humimic.retarget.dynamics import reference_flight
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.env import tracking_model
+
+    model = tracking_model(g1_tracking("none"))
+    fps, flight_s = 50.0, 0.4
+    t = np.arange(60) / fps - 0.2  # 0.2 s standing, the hop, then standing again.
+    tau = np.clip(t, 0.0, flight_s)
+    lift = g * flight_s / 2 * tau - g / 2 * tau**2
+    q = np.tile(model.key_qpos[0], (len(t), 1))
+    q[:, 2] += lift
+    report = reference_flight(motion_from_qpos(model, q, fps, "g1"), model)
+    assert report["flight_frames"] == int((lift > 0.05).sum()) > 0
+    assert report["com_z_acc_in_flight"] == pytest.approx(-g, rel=1e-6)
+    assert report["gravity_z"] == pytest.approx(-9.81)

@@ -396,6 +396,17 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
 def _print_dynamics(report: dict, out: Path) -> None:
     """The summary of a dynamics refinement (humimic refine, retarget --method dynamics)."""
     k, d = report["kinematic_replay"], report["dynamics_replay"]
+    fl = report.get("reference_flight")
+    if (
+        fl
+        and fl["flight_frames"]
+        and abs(fl["com_z_acc_in_flight"] - fl["gravity_z"]) > 0.3 * abs(fl["gravity_z"])
+    ):
+        print(
+            f"warning: in the reference's {fl['flight_frames']} flight frames (both feet off the "
+            f"ground) its centre of mass accelerates at {fl['com_z_acc_in_flight']:.1f} m/s^2 "
+            f"vertically, not {fl['gravity_z']:.2f}: no physical motion follows that timing"
+        )
     print(f"open-loop replay, kinematic: {'fell at ' + format(k['seconds_until_fall'], '.2f') + ' s' if k['fell'] else 'stayed up'}, "
           f"MPJPE {k['mpjpe_mm']:.0f} mm; refined: {'fell at ' + format(d['seconds_until_fall'], '.2f') + ' s' if d['fell'] else 'stayed up'}, "
           f"MPJPE {d['mpjpe_mm']:.0f} mm")  # fmt: skip

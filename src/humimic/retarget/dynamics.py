@@ -44,6 +44,7 @@ import numpy as np
 from humimic.configs.retarget import DynamicsConfig
 from humimic.errors import InputError
 from humimic.motion import Motion
+from humimic.robots.registry import get_robot
 from humimic.tracking import dr as dr_mod
 from humimic.tracking.backend import MujocoCpuBackend
 from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
@@ -498,6 +499,41 @@ def _up_z(q: np.ndarray) -> np.ndarray:
     return 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
 
 
+FLIGHT_CLEARANCE = 0.05
+"""Both feet this far [m] above their lowest in the clip: a flight frame."""
+
+
+def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float | int]:
+    """How ballistic a reference's flight phases are: the frames where both feet are
+    :data:`FLIGHT_CLEARANCE` above their lowest, and the mean vertical acceleration of the
+    whole-body centre of mass there (of ``model``'s masses under the motion's qpos). A physical
+    flight falls at gravity (-9.81 m/s^2 on Earth's model); a retargeted one often does not
+    (the human's timing with the robot's scaled heights), and then no feasible motion follows
+    its timing.
+
+    Returns:
+        ``flight_frames``, ``frames``, ``com_z_acc_in_flight`` [m/s^2] (NaN without flight),
+        ``gravity_z`` [m/s^2].
+    """
+    data = mujoco.MjData(model)
+    feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
+    T = motion.num_frames
+    com, foot_z = np.zeros((T, 3)), np.zeros((T, len(feet)))
+    for t in range(T):
+        data.qpos[:] = motion.qpos[t]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
+    acc_z = (com[2:, 2] - 2 * com[1:-1, 2] + com[:-2, 2]) * motion.fps**2
+    flight = (foot_z[1:-1] > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
+    return {
+        "flight_frames": int(flight.sum()),
+        "frames": T,
+        "com_z_acc_in_flight": float(acc_z[flight].mean()) if flight.any() else float("nan"),
+        "gravity_z": float(model.opt.gravity[2]),
+    }
+
+
 def refine(
     motion: Motion,
     cfg: DynamicsConfig | None = None,
@@ -530,6 +566,7 @@ def refine(
         "robot": motion.robot,
         "frames": motion.num_frames,
         "motion_seconds": seconds,
+        "reference_flight": reference_flight(motion, dyn.model),
         "kinematic_replay": kin,
         "dynamics_replay": mine,
         "robustness": {
