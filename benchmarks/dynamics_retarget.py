@@ -27,22 +27,26 @@ from typing import Any
 
 from humimic.configs import DynamicsConfig, RetargetConfig
 from humimic.datasets import load_clip
+from humimic.errors import InputError
 from humimic.retarget import Retargeter
 from humimic.retarget.dynamics import check_replay, refine
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
 
 
-def _overrides(pairs: list[str]) -> dict[str, Any]:
+def _overrides(parser: argparse.ArgumentParser, pairs: list[str]) -> dict[str, Any]:
     """``FIELD=VALUE`` pairs as DynamicsConfig keyword arguments, typed by the fields."""
     types = {f.name: f.type for f in dataclasses.fields(DynamicsConfig)}
     out: dict[str, Any] = {}
     for pair in pairs:
         name, _, value = pair.partition("=")
         if name not in types or not value:
-            raise SystemExit(f"--set {pair}: expected FIELD=VALUE with FIELD in {sorted(types)}")
+            parser.error(f"--set {pair}: expected FIELD=VALUE with FIELD in {sorted(types)}")
         kind = {"int": int, "float": float}.get(str(types[name]), str)
-        out[name] = kind(value)
+        try:
+            out[name] = kind(value)
+        except ValueError:
+            parser.error(f"--set {pair}: {name} takes a number")
     return out
 
 
@@ -61,8 +65,12 @@ def main() -> None:
                         help="other DynamicsConfig fields, e.g. joint_weight=0.3")  # fmt: skip
     args = parser.parse_args()
     cfg = DynamicsConfig(samples=args.samples, iterations=args.iterations, noise=args.noise,
-                         ensemble=args.ensemble, seed=args.seed, **_overrides(args.set))  # fmt: skip
-    cfg.validate()
+                         ensemble=args.ensemble, seed=args.seed)  # fmt: skip
+    cfg = dataclasses.replace(cfg, **_overrides(parser, args.set))  # --set wins over the flags.
+    try:
+        cfg.validate()
+    except InputError as e:
+        parser.error(str(e))
     rt = Retargeter("g1", "cmu", RetargetConfig(fps=50.0))
     rows = []
     t0 = time.perf_counter()

@@ -19,7 +19,6 @@ import csv
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -54,9 +53,9 @@ def main() -> None:
     args = parser.parse_args()
     for path in (args.kinematic, args.refined):
         if not path.is_file():
-            sys.exit(f"error: {path}: no such file")
+            parser.error(f"{path}: no such file")
     if load_motion(args.refined).dynamics is None:
-        sys.exit(f"error: --refined {args.refined}: no dynamic section (run humimic refine)")
+        parser.error(f"--refined {args.refined}: no dynamic section (run humimic refine)")
 
     result: dict = {
         "benchmark": "refined_tracking",

@@ -202,6 +202,18 @@ def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:
     assert main(["eval", str(tmp_path / "nothing")]) == 2
 
 
+def test_failed_compile_exits_1_and_leaves_no_run_folder(
+    motion_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("no C++ compiler found")
+
+    monkeypatch.setattr(torch, "compile", broken)
+    out = tmp_path / "run"
+    assert main([*_train_args(motion_file, out, 1), "--compile"]) == 1
+    assert not out.exists()
+
+
 def test_kill_9_then_resume_loses_nothing_beyond_the_last_checkpoint(
     motion_file: Path, tmp_path: Path
 ) -> None:

@@ -111,7 +111,6 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
 def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     """Distill (or resume distilling) a teacher run into a student. Returns the last progress
     row (``loss_behavior`` is the student's imitation loss)."""
-    from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
         _plain,
@@ -120,6 +119,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         load_reference,
         read_run_settings,
         resolve_checkpoint,
+        run_env,
         run_rsl_cfg,
         task_config,
     )
@@ -136,10 +136,11 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     task = replace(task_config(teacher.robot, dr, s.seed, teacher.physics), torch_compile=s.compile)
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
+    created = not run.exists()
     check_writable(run / "config.yaml")
 
     torch.manual_seed(s.seed)
-    env = TrackingEnv(task, motion, s.num_envs, device=s.device)
+    env = run_env(task, motion, s, created)
     try:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
         try:  # The teacher's actor -> the teacher model, before anything is written.

@@ -17,7 +17,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -35,6 +35,9 @@ from humimic.tracking.config import (
     tracking_task,
 )
 from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
+
+if TYPE_CHECKING:
+    from humimic.tracking.env import TrackingEnv
 
 
 class TrainingDiverged(HumimicError):
@@ -281,8 +284,6 @@ def ppo_for(settings: TrainSettings) -> PpoConfig:
 
 def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     """Train (or resume) a tracking policy. Returns the last progress row."""
-    from humimic.tracking.env import TrackingEnv
-
     s = settings
     run = s.out
     has_run = check_run_settings(s)
@@ -307,7 +308,7 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     created = not run.exists()
     check_writable(run / "config.yaml")
     torch.manual_seed(s.seed)
-    env = TrackingEnv(task, motion, s.num_envs, device=s.device)
+    env = run_env(task, motion, s, created)
     try:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
         if init is not None:
@@ -327,6 +328,19 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
         return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
     finally:
         env.close()
+
+
+def run_env(task: TrackingConfig, motion: Motion, s: Any, created: bool) -> TrackingEnv:
+    """The env of a run command (``s``: its settings); if it cannot be built (a bad task, a
+    failing ``--compile``), the run folder this command ``created`` is removed again."""
+    from humimic.tracking.env import TrackingEnv
+
+    try:
+        return TrackingEnv(task, motion, s.num_envs, device=s.device)
+    except BaseException:
+        if created:
+            shutil.rmtree(s.out, ignore_errors=True)
+        raise
 
 
 def check_run_settings(s: Any) -> bool:
