@@ -618,8 +618,8 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
                 "initial_state": np.array(json.loads(d["initial_state"]), dtype=np.float64),
             }
             steps = log.topic("/dynamics/step")
-            for n in ("ctrl", "qpos", "qvel"):
-                dynamics[n] = np.array([m["arrays"][n] for _, m in steps], dtype=np.float64)
+            for key in ("ctrl", "qpos", "qvel"):
+                dynamics[key] = np.array([m["arrays"][key] for _, m in steps], dtype=np.float64)
         except (KeyError, ValueError) as e:
             raise McapFormatError(f"{log.path}: dynamic section: missing or bad {e}") from None
     return Motion(

@@ -6,7 +6,7 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 import tyro
@@ -27,6 +27,9 @@ from humimic.configs.runs import (
 )
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable, json_ready
+
+if TYPE_CHECKING:
+    from humimic.motion import Motion
 
 RETARGET_CONFIGS = {"default": retarget_default, "fast": retarget_fast}
 """Named retargeting configurations (factories); see :mod:`humimic.configs`."""
@@ -289,7 +292,6 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     from tqdm import tqdm
 
     from humimic.datasets import HumanClip, load_bvh, load_clip
-    from humimic.motion import save_motion
     from humimic.retarget import Retargeter
     from humimic.retarget.scene import Scene, load_scene
     from humimic.robots import get_robot
@@ -298,11 +300,11 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     cmd.ik.validate()
     cmd.mesh.validate()
     if cmd.method == "dynamics":
+        from humimic.retarget.dynamics import physics_steps_per_frame
         from humimic.tracking.config import tracking_task
 
         cmd.dyn.validate()
-        steps = 1.0 / (cmd.ik.fps * tracking_task(cmd.robot, dr="none").sim_dt)
-        if abs(steps - round(steps)) > 1e-6:
+        if physics_steps_per_frame(cmd.ik.fps, tracking_task(cmd.robot, dr="none").sim_dt) is None:
             raise InputError(
                 f"--method dynamics: --ik.fps {cmd.ik.fps} is not a whole number of physics "
                 "steps per frame (50 fps is)"
@@ -379,18 +381,25 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         report = json_ready(
             {**result.report, **extra, "start_frame": int(clip.meta["start_frame"])}
         )
-        save_motion(motion, motion_path)
-        if report_path is not None:
-            try:
-                atomic_write_text(report_path, json.dumps(report, indent=2, allow_nan=False) + "\n")
-            except BaseException:
-                motion_path.unlink(missing_ok=True)  # No motion without its report.
-                raise
+        _save_with_report(motion, motion_path, report, report_path)
         _print_summary(result.report, motion_path)
         if "dynamics" in extra:
             _print_dynamics(report["dynamics"], motion_path)
         reports.append(report)
     return reports
+
+
+def _save_with_report(motion: Motion, path: Path, report: dict, report_path: Path | None) -> None:
+    """Write the motion, then its JSON report; no motion is left without its report."""
+    from humimic.motion import save_motion
+
+    save_motion(motion, path)
+    if report_path is not None:
+        try:
+            atomic_write_text(report_path, json.dumps(report, indent=2, allow_nan=False) + "\n")
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
 
 
 def _print_dynamics(report: dict, out: Path) -> None:
@@ -483,7 +492,7 @@ def run_refine(cmd: RefineCommand) -> dict:
     """Run ``humimic refine``; returns the report."""
     from tqdm import tqdm
 
-    from humimic.motion import load_motion, save_motion
+    from humimic.motion import load_motion
     from humimic.retarget.dynamics import refine
 
     cmd.dyn.validate()
@@ -499,13 +508,7 @@ def run_refine(cmd: RefineCommand) -> dict:
               disable=cmd.quiet, leave=False) as bar:  # fmt: skip
         refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=bar.update)
     report = json_ready(report)
-    save_motion(refined, cmd.out)
-    if cmd.report is not None:
-        try:
-            atomic_write_text(cmd.report, json.dumps(report, indent=2, allow_nan=False) + "\n")
-        except BaseException:
-            cmd.out.unlink(missing_ok=True)  # No motion without its report.
-            raise
+    _save_with_report(refined, cmd.out, report, cmd.report)
     _print_dynamics(report, cmd.out)
     return report
 

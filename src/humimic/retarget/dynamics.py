@@ -59,7 +59,7 @@ class DynamicsResult:
     """A dynamically feasible motion: initial state, controls, and the states they produce.
 
     Attributes:
-        initial_state: ``mjSTATE_FULLPHYSICS`` state at frame 0. Shape: (state_size,).
+        initial_state: ``mjSTATE_FULLPHYSICS`` state at frame 0. Shape: (``mj_stateSize``,).
         ctrl: PD targets of every physics step. Shape: (S, nu).
         qpos: Generalized positions after each physics step. Shape: (S, nq).
         qvel: Generalized velocities after each physics step. Shape: (S, nv).
@@ -69,7 +69,6 @@ class DynamicsResult:
         cpu_seconds: Process CPU time of the optimization, all threads [s].
         rollouts: Physics steps simulated, all samples and iterations.
         iterations: Sampling iterations of each window. Shape: (windows,).
-        best_cost: Best cost of each window. Shape: (windows,).
     """
 
     initial_state: np.ndarray
@@ -82,7 +81,6 @@ class DynamicsResult:
     cpu_seconds: float
     rollouts: int
     iterations: np.ndarray
-    best_cost: np.ndarray
 
     def frame_qpos(self) -> np.ndarray:
         """The state at each reference frame: the start, then every ``decimation``-th step.
@@ -140,15 +138,15 @@ class DynamicsRetargeter:
             raise InputError(f"the motion is for {motion.robot!r}, the task for {task.robot!r}")
         if motion.num_frames < 3:
             raise InputError(f"the motion has {motion.num_frames} frames; at least 3 needed")
-        ratio = 1.0 / (motion.fps * task.sim_dt)
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        decimation = physics_steps_per_frame(motion.fps, task.sim_dt)
+        if decimation is None:
             raise InputError(
                 f"the motion's {motion.fps} fps is not a whole number of {task.sim_dt} s "
                 "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
             )
         if task.body_names[0] != motion.body_names[0]:
             raise InputError(f"the task's first body must be the base {motion.body_names[0]!r}")
-        self.motion, self.cfg, self.decimation = motion, cfg, round(ratio)
+        self.motion, self.cfg, self.decimation = motion, cfg, decimation
         self.step_dt = 1.0 / motion.fps
         self.physics_dt = task.sim_dt
         model = tracking_model(task)
@@ -216,9 +214,9 @@ class DynamicsRetargeter:
         ref_root = self.ref_body[frames, self.root]
         e_height = (root[..., 2] - ref_root[:, 2]) ** 2
         quat = se[..., self.sl["quat"]].reshape(n, H, self.nb, 4)[:, :, self.root]
-        up = _up_z(quat)  # z of the pelvis's z axis
-        up_ref = _up_z(self.ref_quat_root[frames])
-        tilt = np.arccos(np.clip(up, -1.0, 1.0)) - np.arccos(np.clip(up_ref, -1.0, 1.0))
+        tilt, fallen = _tilt_and_fall(
+            root[..., 2], ref_root[:, 2], _up_z(quat), _up_z(self.ref_quat_root[frames]), cfg
+        )
         q = st[..., 1 + 7 : 1 + self.nq]
         qd = st[..., 1 + self.nq + 6 : 1 + self.nq + self.nv]
         e_joint = np.mean((q - self.ref_joint[frames]) ** 2, axis=-1)
@@ -236,7 +234,6 @@ class DynamicsRetargeter:
             + cfg.velocity_weight * e_vel
             + cfg.effort_weight * e_tau
         )
-        fallen = (root[..., 2] < cfg.fall_height * ref_root[:, 2]) | (np.abs(tilt) > cfg.fall_tilt)
         c = c + cfg.fall_cost * np.maximum.accumulate(fallen, axis=1)
         c[:, -1] *= 2.0
         return c.sum(axis=1) / (H + 1)
@@ -263,7 +260,7 @@ class DynamicsRetargeter:
         ctrl_out, qpos_out, qvel_out = [], [], []
         f0 = 0
         plan_prev: np.ndarray | None = None  # offsets at the control steps of the last window
-        iters, best_costs = [], []
+        iters = []
         steps = 0
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         while f0 < T - 1:
@@ -277,7 +274,11 @@ class DynamicsRetargeter:
                 for j in range(self.nu):
                     mean[:, j] = np.interp(tk, src, plan_prev[:, j], right=0.0)
             ref_u = self.ref_joint[f0 + 1 : f0 + 1 + H]  # (H, J): next frame's joints
-            start = np.broadcast_to(state, (N * members, state.size))
+            # The window's start state and solver warm start, for every rollout.
+            start = np.ascontiguousarray(np.broadcast_to(state, (N * members, state.size)))
+            warm = np.ascontiguousarray(
+                np.broadcast_to(live.qacc_warmstart, (N * members, self.nv))
+            )
             ramp = 1.0 + (cfg.horizon_noise - 1.0) * np.arange(K) / max(K - 1, 1)
             sigma0 = cfg.noise * ramp[:, None] * self.joint_noise[None]  # (K, J)
             sigma0[0] = 0.0  # The first knot continues the committed targets.
@@ -293,8 +294,7 @@ class DynamicsRetargeter:
                 u = np.clip(ref_u + offs, self.joint_lo, self.joint_hi)
                 u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
                 ctrl = np.tile(u_steps, (members, 1, 1))
-                warm = np.broadcast_to(live.qacc_warmstart, (N * members, self.nv))
-                states, sens = be.rollout(np.ascontiguousarray(start), ctrl, warm)
+                states, sens = be.rollout(start, ctrl, warm)
                 steps += ctrl.shape[0] * ctrl.shape[1]
                 cost_all = self._costs(states, sens, ctrl, f0).reshape(members, N)
                 cost = cost_all.mean(0) if cfg.robust == "mean" else cost_all.max(0)
@@ -329,7 +329,6 @@ class DynamicsRetargeter:
             mujoco.mj_getState(self.model, live, state, spec)
             plan_prev = offs_b[c:] if c < H else None
             iters.append(it + 1)
-            best_costs.append(best_c)
             f0 += c
             if progress is not None:
                 progress(c)
@@ -344,7 +343,6 @@ class DynamicsRetargeter:
             cpu_seconds=time.process_time() - t_cpu,
             rollouts=steps,
             iterations=np.array(iters),
-            best_cost=np.array(best_costs),
         )
 
     def _initial_state(self) -> np.ndarray:
@@ -402,10 +400,7 @@ def evaluate_replay(
         pos[t] = data.xpos[bodies]
         up[t] = data.xmat[bodies[0]][8]
     ref = dyn.ref_body[:T]
-    tilt = np.abs(
-        np.arccos(np.clip(up, -1, 1)) - np.arccos(np.clip(_up_z(dyn.ref_quat_root[:T]), -1, 1))
-    )
-    fallen = (pos[:, 0, 2] < cfg.fall_height * ref[:, 0, 2]) | (tilt > cfg.fall_tilt)
+    _, fallen = _tilt_and_fall(pos[:, 0, 2], ref[:, 0, 2], up, _up_z(dyn.ref_quat_root[:T]), cfg)
     first = int(np.argmax(fallen)) if fallen.any() else T
     live = slice(0, max(first, 1))
     err = np.linalg.norm(pos[live] - ref[live], axis=-1).mean()
@@ -457,7 +452,7 @@ def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -
     """Open-loop replay: ``mj_step`` from ``initial_state`` under one control per step.
 
     Returns:
-        The full physics state after each step. Shape: (S, state_size).
+        The full physics state after each step. Shape: (S, ``mj_stateSize``).
     """
     spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
     if initial_state.shape != (mujoco.mj_stateSize(model, spec),):
@@ -492,6 +487,28 @@ def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
         kp_scale=half(dr.kp_scale, 1.0, True),
         kd_scale=half(dr.kd_scale, 1.0, True),
     )
+
+
+def physics_steps_per_frame(fps: float, sim_dt: float) -> int | None:
+    """The whole number of ``sim_dt`` physics steps in a frame at ``fps``, or None."""
+    ratio = 1.0 / (fps * sim_dt)
+    n = round(ratio)
+    return n if n >= 1 and abs(ratio - n) <= 1e-6 else None
+
+
+def _tilt_and_fall(
+    root_z: np.ndarray,
+    ref_root_z: np.ndarray,
+    up: np.ndarray,
+    up_ref: np.ndarray,
+    cfg: DynamicsConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pelvis's tilt against the reference's (from the z components of their z axes;
+    signed) and whether the robot has fallen: pelvis below ``fall_height`` of the reference's
+    height, or tilted more than ``fall_tilt``. The one fall test of the optimizer and the
+    replay report."""
+    tilt = np.arccos(np.clip(up, -1.0, 1.0)) - np.arccos(np.clip(up_ref, -1.0, 1.0))
+    return tilt, (root_z < cfg.fall_height * ref_root_z) | (np.abs(tilt) > cfg.fall_tilt)
 
 
 def _up_z(q: np.ndarray) -> np.ndarray:

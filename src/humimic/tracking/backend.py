@@ -486,18 +486,13 @@ class MujocoCpuBackend:
         self._sens[:] = self._out_sens[:, -1]
 
     @property
-    def state_size(self) -> int:
-        """Length of a full physics state (``mjSTATE_FULLPHYSICS``)."""
-        return self._nstate
-
-    @property
     def sensor_slices(self) -> dict[str, slice]:
         """Where the read-out sensors sit in a row of sensor data: ``pos``, ``quat``,
         ``lin``, ``ang`` (Shape: (3B,) / (4B,) / (3B,) / (3B,)), ``found`` and ``force``."""
         return dict(self._sl)
 
     def env_state(self, env_id: int) -> np.ndarray:
-        """Env ``env_id``'s full physics state (a copy). Shape: (state_size,)."""
+        """Env ``env_id``'s full physics state (a copy). Shape: (``mj_stateSize``,)."""
         return self._state[env_id].copy()
 
     def rollout(
@@ -507,7 +502,7 @@ class MujocoCpuBackend:
         model, under a control per physics step; the envs' own states stay as they were.
 
         Args:
-            state: Start states (``mjSTATE_FULLPHYSICS``). Shape: (num_envs, state_size).
+            state: Start states (``mjSTATE_FULLPHYSICS``). Shape: (num_envs, ``mj_stateSize``).
             controls: PD targets of every physics step. Shape: (num_envs, nstep, nu).
             warmstart: The constraint solver's warm start (``qacc_warmstart``) at the start,
                 Shape: (num_envs, nv); default zeros. A full physics state does not hold it,
@@ -515,7 +510,7 @@ class MujocoCpuBackend:
                 makes a rollout exactly reproduce ``mj_step`` from the same ``MjData``.
 
         Returns:
-            The state after each step, Shape: (num_envs, nstep, state_size), and the sensor
+            The state after each step, Shape: (num_envs, nstep, ``mj_stateSize``), and the sensor
             data after each step, Shape: (num_envs, nstep, nsensordata).
 
         Raises:

@@ -461,7 +461,8 @@ class TrackingEnv(VecEnv):
         the buffers the runs write are restored afterwards. They always run under ``torch.inference_mode``
         (as rsl_rl collects rollouts), which keeps one compiled graph each: a change of grad
         mode would compile them again."""
-        kept = [t.clone() for t in (self._bin_failed, self._weights, self._fresh, self._history)]
+        written = (self._bin_failed, self._weights, self._fresh, self._history)
+        kept = [t.clone() for t in written]
         with torch.inference_mode():
             noise = None if self._noise_scale is None else torch.zeros_like(self._policy)
             self._after_physics()
@@ -479,9 +480,7 @@ class TrackingEnv(VecEnv):
                 "needs a working C++ compiler. Run without compiling (torch_compile=False, "
                 "no --compile)."
             ) from e
-        for buf, old in zip(
-            (self._bin_failed, self._weights, self._fresh, self._history), kept, strict=True
-        ):
+        for buf, old in zip(written, kept, strict=True):
             buf.copy_(old)
         self._after_physics_fn, self._observe_fn = after, observe
 
