@@ -94,6 +94,24 @@ def test_predictions_express_every_effect_exactly(effect: str, target: str, valu
         assert kstep_error(written, log).kstep_rmse_rad < 1e-9
 
 
+def test_play_joints_in_different_places_predict_alone_and_batched_alike() -> None:
+    """Backlash candidates on different joints have the same sizes but different trees: a
+    batch of them must predict each exactly as it does alone (the state layout and MuJoCo's
+    data are per tree)."""
+    log = simulate_log(get_robot("g1"), [], LogSettings(duration=3.0, seed=1))
+    build = backlash_models(get_robot("g1"), log.base_pose)
+    cs = []
+    for joint in ("left_knee_joint", "waist_pitch_joint", "right_elbow_joint"):
+        c = Correction.of(build((joint,)))
+        apply_effect(c, "backlash", log.joint_names.index(joint), 0.04)
+        cs.append(c)
+    alone = [Predictor(_model(log), log).run([c])[0] for c in cs]
+    batched = Predictor(_model(log), log).run(cs)
+    for a, b in zip(alone, batched, strict=True):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+    assert np.all(np.isfinite(batched)) and np.abs(batched).max() < 0.5
+
+
 def _draw(effect: str, rng: np.random.Generator) -> tuple[str, float]:
     legs = ["left_knee_joint", "right_knee_joint", "left_hip_pitch_joint", "right_hip_pitch_joint"]
     if effect == "coulomb_friction":

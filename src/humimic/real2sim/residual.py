@@ -191,7 +191,7 @@ class Predictor:
         self._index_cache: dict[float, np.ndarray] = {}
 
     def _threads(self, model: mujoco.MjModel) -> list[mujoco.MjData]:
-        key = (model.nq, model.nv, model.na, model.nu)
+        key = _structure(model)
         if key not in self._datas:
             self._datas[key] = [mujoco.MjData(model) for _ in range(self.nthread)]
         return self._datas[key]
@@ -288,10 +288,11 @@ class Predictor:
             raise InputError("the log has no effort (drive torque) to compare with")
         J = self.log.q.shape[1]
         out = np.empty((len(corrections), W, S, J, 2) if effort else (len(corrections), W, S, J))
-        # Models of one structure run together (a backlash joint adds a degree of freedom).
+        # Models of one structure run together: a backlash joint adds a degree of freedom,
+        # and where it sits decides the state's meaning and the data's sparse layout.
         groups: dict[tuple[int, ...], list[int]] = {}
         for i, c in enumerate(corrections):
-            groups.setdefault((c.model.nq, c.model.nv, c.model.na), []).append(i)
+            groups.setdefault(_structure(c.model), []).append(i)
         for members in groups.values():
             self._run_group([corrections[i] for i in members], effort, out, members)
         return out
@@ -426,6 +427,13 @@ def set_gains(c: Correction, kp: np.ndarray, kd: np.ndarray) -> None:
     m.actuator_biasprm[:, 0] = 0.0
     m.actuator_biasprm[:, 1] = -kp
     m.actuator_biasprm[:, 2] = -kd
+
+
+def _structure(model: mujoco.MjModel) -> tuple[int, ...]:
+    """What models must share to run in one batch on the same ``MjData``: their sizes and their
+    kinematic tree (two models with a play joint in different places have the same sizes but
+    a different state layout and sparse inertia)."""
+    return (model.nq, model.nu, model.na, *model.dof_parentid, *model.jnt_qposadr)
 
 
 def _state_layout(model: mujoco.MjModel) -> dict[str, slice]:
