@@ -27,8 +27,8 @@ diagnosis says the offset is not identifiable from this log, and does not guess.
 Backlash changes the model's structure (a second hinge per joint: the link side, free within
 the play), so its candidates run on their own model (given by ``backlash_model``), with the
 play joint starting each window at the end the drive pushes against. Torque limits and
-backlash are fitted on refined grids (their error is flat, then kinked), the rest by secant
-search; effects that share joints are refitted together (Gauss-Newton).
+backlash are fitted by a grid and a golden-section search (their error is flat, then kinked),
+the rest by secant search; effects that share joints are refitted together (Gauss-Newton).
 """
 
 from __future__ import annotations
@@ -248,7 +248,7 @@ def _fit(
     effect" and ``first`` (default: each pair's probe). Returns the best value per pair.
 
     A torque limit acts only above it, so its error is flat down to the largest torque and
-    kinked there: it gets a refined grid instead."""
+    kinked there: it gets a grid and a golden-section search instead."""
     grid = [i for i, p in enumerate(pairs) if p.effect in _GRID_EFFECTS]
     if grid:
         smooth = [i for i in range(len(pairs)) if i not in grid]
@@ -358,34 +358,58 @@ _GRID_EFFECTS = ("torque_limit", "backlash")
 
 
 def _grid_fit(
-    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], levels: int = 7, n: int = 6
+    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], n: int = 8, golden: int = 9
 ) -> list[float]:
-    """Batched grid search, refined ``levels`` times around the best value; geometric where the
-    interval spans decades (backlash), linear otherwise."""
+    """Batched grid search over each pair's interval, then golden-section search between the
+    best grid point's neighbours; geometric where the interval spans decades (backlash),
+    linear otherwise. Every pair advances one evaluation per batch."""
     geometric = np.array([p.lo > 0 and p.hi / p.lo > 20 for p in pairs])
-    lo = np.array([np.log(p.lo) if g else p.lo for p, g in zip(pairs, geometric, strict=True)])
-    hi = np.array([np.log(p.hi) if g else p.hi for p, g in zip(pairs, geometric, strict=True)])
-    bound = lo.copy(), hi.copy()
-    best = [(np.inf, p.none) for p in pairs]
-    for _ in range(levels):
-        grids = np.linspace(lo, hi, n, axis=1)  # (P, n)
-        grids = np.where(geometric[:, None], np.exp(grids), grids)
+
+    def value(x: np.ndarray) -> np.ndarray:
+        """Parameter values from search coordinates (P,) or (P, k)."""
+        g = geometric.reshape(-1, *([1] * (x.ndim - 1)))
+        return np.where(g, np.exp(x), x)
+
+    def sse(xs: np.ndarray) -> np.ndarray:
+        """Error of each pair's joints at its value in ``xs`` (P, k). Shape: (P, k)."""
+        k = xs.shape[1]
         cs = []
-        for b, p, g in zip(bases, pairs, grids, strict=True):
-            for v in g:
+        for b, p, vs in zip(bases, pairs, value(xs), strict=True):
+            for v in vs:
                 c = b.copy()
                 apply_effect(c, p.effect, p.index, float(v))
                 cs.append(c)
         res = predictor.run(cs)
-        for i, p in enumerate(pairs):
-            sse = [float(np.sum(res[i * n + k][..., p.joints, :] ** 2)) for k in range(n)]
-            k = int(np.argmin(sse))
-            if sse[k] < best[i][0]:
-                best[i] = (sse[k], float(grids[i, k]))
-            step = (hi[i] - lo[i]) / (n - 1)
-            centre = lo[i] + k * step
-            lo[i], hi[i] = max(bound[0][i], centre - step), min(bound[1][i], centre + step)
-    return [v for _, v in best]
+        return np.array([[float(np.sum(res[i * k + j][..., p.joints, :] ** 2)) for j in range(k)]
+                         for i, p in enumerate(pairs)])  # fmt: skip
+
+    lo = np.array([np.log(p.lo) if g else p.lo for p, g in zip(pairs, geometric, strict=True)])
+    hi = np.array([np.log(p.hi) if g else p.hi for p, g in zip(pairs, geometric, strict=True)])
+    grid = np.linspace(lo, hi, n, axis=1)  # (P, n)
+    err = sse(grid)
+    k = np.argmin(err, axis=1)
+    rows = np.arange(len(pairs))
+    best_x, best_e = grid[rows, k], err[rows, k]
+    a = grid[rows, np.maximum(k - 1, 0)]
+    b = grid[rows, np.minimum(k + 1, n - 1)]
+    ratio = (np.sqrt(5.0) - 1.0) / 2.0
+    x1, x2 = b - ratio * (b - a), a + ratio * (b - a)
+    e12 = sse(np.stack([x1, x2], axis=1))
+    e1, e2 = e12[:, 0], e12[:, 1]
+    for _ in range(golden):
+        left = e1 <= e2  # The minimum lies in [a, x2]: x1 becomes the new x2.
+        for x, e in ((x1, e1), (x2, e2)):
+            better = e < best_e
+            best_x, best_e = np.where(better, x, best_x), np.where(better, e, best_e)
+        a, b = np.where(left, a, x1), np.where(left, x2, b)
+        x_new = np.where(left, b - ratio * (b - a), a + ratio * (b - a))
+        e_new = sse(x_new[:, None])[:, 0]
+        x1, e1, x2, e2 = (np.where(left, x_new, x2), np.where(left, e_new, e2),
+                          np.where(left, x1, x_new), np.where(left, e1, e_new))  # fmt: skip
+    for x, e in ((x1, e1), (x2, e2)):
+        better = e < best_e
+        best_x, best_e = np.where(better, x, best_x), np.where(better, e, best_e)
+    return [float(v) for v in value(best_x)]
 
 
 def _refit(
