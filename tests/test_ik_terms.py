@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from humimic.retarget.contacts import detect_contacts, plant_segments, runs
 from humimic.retarget.interaction_mesh import build_mesh
-from humimic.retarget.limits import FloorLimit, SelfCollisionLimit
+from humimic.retarget.limits import FloorLimit, PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.tasks import (
     InteractionMeshTask,
     KeypointsTask,
@@ -116,6 +116,40 @@ def test_floor_limit_rows_are_height_derivatives(arm: mink.Configuration) -> Non
     np.testing.assert_allclose(-cons.G, fd, atol=1e-6)
     expected_sphere_bottom = arm.data.geom_xpos[arm.model.geom("sole").id][2] - 0.02
     assert cons.h[0] == pytest.approx(expected_sphere_bottom)
+
+
+def test_point_travel_limit_rows_and_step(arm: mink.Configuration) -> None:
+    model = arm.model
+    body = model.body("lower").id
+    point = np.array([[0.05, 0.02, -0.1]])
+    limit = PointTravelLimit(model, np.array([body]), point)
+    assert limit.compute_qp_inequalities(arm, 1.0).G is None  # Free until a radius is set.
+    start = limit.positions(arm.data)
+    np.testing.assert_allclose(  # The point in the world, as MuJoCo moves it.
+        start[0], arm.data.xpos[body] + arm.data.xmat[body].reshape(3, 3) @ point[0], atol=1e-12
+    )
+    anchor = start + np.array([[0.004, -0.003, 0.5]])  # Height does not count.
+    limit.set(anchor, np.array([0.01]))
+    cons = limit.compute_qp_inequalities(arm, 1.0)
+    assert cons.G is not None and cons.h is not None and cons.G.shape == (8, model.nv)
+
+    def slack(c: mink.Configuration) -> np.ndarray:
+        h = limit.compute_qp_inequalities(c, 1.0).h
+        assert h is not None
+        return h.copy()
+
+    np.testing.assert_allclose(-cons.G, fd_jacobian(arm, slack), atol=1e-6)
+    d = (start - anchor)[0, :2]
+    assert np.all(cons.h > 0) and np.linalg.norm(d) < 0.01 * np.cos(np.pi / 8)
+    # A step that would carry the point 5 cm away is cut back to the octagon, to first order.
+    jac = np.zeros((3, model.nv))
+    mujoco.mj_jac(model, arm.data, jac, None, start[0], body)
+    pull = np.linalg.pinv(jac[:2]) @ np.array([0.05, 0.0])
+    scale = min(1.0, float(np.min(np.where(cons.G @ pull > 0, cons.h / (cons.G @ pull), np.inf))))
+    assert scale < 0.5
+    arm.integrate_inplace(scale * pull, 1.0)
+    moved = limit.positions(arm.data)[0, :2] - anchor[0, :2]
+    assert np.linalg.norm(moved) <= 0.01 + 1e-4
 
 
 def test_self_collision_limit_row_is_distance_derivative(arm: mink.Configuration) -> None:

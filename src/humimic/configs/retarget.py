@@ -149,11 +149,13 @@ class InteractionConfig:
             ``contact_distance``; a step is kept only if nothing then lies inside the scene.
         contact_gap: Distance off the surface that those iterations aim for [m] (pulling to
             zero fights the linearized non-penetration limit).
-        still_speed: A human foot point slower than this horizontally [m/s, robot scale] has
-            the robot's held in x and y where it was in the previous frame, in the air too
-            (holosoma's notion of foot sticking). Off by default (0): on the climbing clips it
-            raises joint jerk by 60% (BENCHMARKS.md). Planted points are held in all three
-            axes whatever this is.
+        still_speed: While the human's toe moves slower than this horizontally [m/s, the
+            human scaled by the root scale, bone lengths unchanged], in the air too
+            (holosoma's notion of foot sticking), the front of the robot's sole moves at most
+            0.75 times as fast (a hard limit, dropped for a frame where it conflicts with the
+            non-penetration limits or where the frame's warm start has moved that toe more than
+            3 cm). Off by default (0; BENCHMARKS.md has its effect on the climbing clips).
+            Planted points are held in all three axes whatever this is.
     """
 
     mesh_weight: float = 20.0

@@ -13,9 +13,10 @@ interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
 3. A few QPs, each solved directly with daqp: minimize the mesh's deformation, weak key-point
    anchors, the body orientations, posture and smoothness to the previous frame, and hold a
    foot point still while the human's is in contact; subject to joint ranges and speeds, a
-   trust region, the floor under the feet, self-collision, and no penetration of the robot's
+   trust region, the floor under the feet, self-collision, no penetration of the robot's
    collision geoms into the scene (MuJoCo distance queries, linearized with the contact
-   normal's Jacobian).
+   normal's Jacobian) and, with ``still_speed``, a cap on how far the front of a sole travels
+   while the human's toe is still (:class:`~humimic.retarget.limits.PointTravelLimit`).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from humimic.retarget.kinematic import (
     robot_collision_geoms,
     scene_geoms,
 )
-from humimic.retarget.limits import SelfCollisionLimit
+from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.scene import Scene, human_contacts
 from humimic.retarget.targets import RobotGeometry
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
@@ -145,6 +146,19 @@ def set_scene_pose(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, t: 
         data.mocap_quat[mocap] = p[3:]
 
 
+STILL_TRAVEL = 0.75
+"""While the human's toe moves slower than ``still_speed``, the front contact points of the
+robot's sole move at most this share of it: a point up to a third of the front's width ahead
+of them (a toe tip) then moves at most 0.9 times ``still_speed``, even while the foot turns."""
+
+TOE_REACH = 0.03
+"""The travel limit holds a toe only where the frame's warm start puts it within this
+horizontal distance [m] of where it was."""
+
+TOE_DEPTH = 0.01
+"""A sole's contact points within this distance [m] of its foremost one are its front."""
+
+
 class InteractionMeshRetargeter:
     """Retarget clips with a scene to one robot with one map (see the module doc)."""
 
@@ -200,13 +214,16 @@ class InteractionMeshRetargeter:
             minimum_distance_from_collisions=icfg.penetration_margin,
             collision_detection_distance=icfg.collision_detection,
         )
-        limits = [*kin.limits, scene_limit]
         scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         names = list(self.map.keypoints)
         foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
+        # A toe the human barely moves horizontally: the front of the robot's sole moves at
+        # most STILL_TRAVEL times as fast.
+        toe_feet, travel = self._toe_travel(model, kin.foot_points)
+        limits = [*kin.limits, scene_limit, travel]
         samples = scene_r.surface_points(icfg.scene_spacing)
         radius = contact_radii(self.map, kin.geometry)
         contacts, firm = human_contacts(scene_r, tg.scaled, radius, icfg.contact_distance)
@@ -218,8 +235,11 @@ class InteractionMeshRetargeter:
         planted = tg.contacts.reshape(T, -1) | (
             (contacts[:, feet_flat] >= 0) & (speed < self.cfg.contact_speed)
         )
-        # A foot point the human does not move horizontally: the robot's stays put in x, y.
-        still = speed < icfg.still_speed
+        toes = foot_idx[:, 1]
+        toe_speed = np.zeros((T, toes.size))
+        toe_speed[1:] = np.linalg.norm(np.diff(tg.human[:, toes, :2], axis=0), axis=-1) * tg.fps
+        still = toe_speed[:, toe_feet] < icfg.still_speed  # (T, toe points)
+        cap = STILL_TRAVEL * icfg.still_speed / tg.fps
         smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
         touch = SceneContactTask(
             model, body_geoms(model, contact_bodies(self.map)),
@@ -236,6 +256,17 @@ class InteractionMeshRetargeter:
             if self.cfg.velocity_limit_scale > 0
             else None
         )
+        free = [lim for lim in limits if lim is not travel]
+
+        def solve(frame: _Frame) -> np.ndarray:
+            """One QP; where the limits conflict, the toes' travel limit yields first."""
+            relaxed = frame.relaxed
+            dq = kin._solve(frame, limits)
+            if frame.relaxed > relaxed and np.isfinite(travel.radius).any():
+                frame.relaxed = relaxed
+                dq = kin._solve(frame, free)
+            return dq
+
         t0 = time.perf_counter()
         for t in range(T):
             set_scene_pose(model, conf.data, scene_r, t)
@@ -262,26 +293,31 @@ class InteractionMeshRetargeter:
                 smooth.set_target(out[t - 1])
                 tasks.append(smooth)
                 held = planted[t] & planted[t - 1]  # (4,) per foot point
-                slow = still[t] & ~held  # Held in x and y only.
-                if held.any() or slow.any():
-                    prev.qpos[:] = out[t - 1]
-                    prev.mocap_pos[:], prev.mocap_quat[:] = (
-                        conf.data.mocap_pos,
-                        conf.data.mocap_quat,
-                    )
-                    mujoco.mj_kinematics(model, prev)
+                prev.qpos[:] = out[t - 1]
+                prev.mocap_pos[:], prev.mocap_quat[:] = conf.data.mocap_pos, conf.data.mocap_quat
+                mujoco.mj_kinematics(model, prev)
+                # Only where the warm start's toe is near: a limit far from it would drag the
+                # whole body after a foot the targets have moved on.
+                anchors = travel.positions(prev)
+                near = (
+                    np.linalg.norm(travel.positions(conf.data)[:, :2] - anchors[:, :2], axis=1)
+                    < TOE_REACH
+                )
+                travel.set(anchors, np.where(still[t] & near, cap, np.inf))
+                if held.any():
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
                     cost = np.zeros((held.size, 3))
                     cost[held] = icfg.stick_weight
-                    cost[slow, :2] = icfg.stick_weight
                     stick.cost = cost.ravel()
                     tasks.append(stick)
+            else:
+                travel.set(travel.anchors, np.full(len(toe_feet), np.inf))
             frame.t, frame.tasks = t, tasks
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             frame.step = step
             n = 0
             for _ in range(icfg.iterations):
-                dq = kin._solve(frame, limits)
+                dq = solve(frame)
                 conf.integrate_inplace(dq, 1.0)
                 n += 1
                 if float(np.abs(dq).max()) < icfg.tol:
@@ -292,7 +328,7 @@ class InteractionMeshRetargeter:
             for _ in range(self.cfg.repair_iters):
                 if scene_limit.active_min_distance(conf) >= -REPAIR_DEPTH:
                     break
-                conf.integrate_inplace(kin._solve(frame, limits), 1.0)
+                conf.integrate_inplace(solve(frame), 1.0)
                 n += 1
             # Reattach: the repair may have moved a touching body off its surface. Step again
             # with the pull aiming contact_gap off the surface (at zero gap it fights the
@@ -305,7 +341,7 @@ class InteractionMeshRetargeter:
                     if attached.all():
                         break
                     before = conf.q.copy()
-                    conf.integrate_inplace(kin._solve(frame, limits), 1.0)
+                    conf.integrate_inplace(solve(frame), 1.0)
                     n += 1
                     now = _attached(touch, conf, icfg.contact_distance)
                     deep = _deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
@@ -330,6 +366,21 @@ class InteractionMeshRetargeter:
             mesh_scene_points=n_scene,
             human_contacts=contacts,
         )
+
+    def _toe_travel(
+        self, model: mujoco.MjModel, foot_points: tuple[np.ndarray, np.ndarray, np.ndarray]
+    ) -> tuple[np.ndarray, PointTravelLimit]:
+        """The front of each sole (its contact points within :data:`TOE_DEPTH` of the foremost)
+        under a travel limit. Returns the foot of each point and the limit."""
+        ids, pts, _ = foot_points
+        feet, chosen = [], []
+        for k, foot in enumerate(self.map.feet.values()):
+            sel = np.flatnonzero(ids == model.body(foot.body).id)
+            front = sel[pts[sel, 0] >= pts[sel, 0].max() - TOE_DEPTH]
+            chosen.append(front)
+            feet += [k] * front.size
+        at = np.concatenate(chosen)
+        return np.array(feet), PointTravelLimit(model, ids[at], pts[at])
 
     def _scene_points(
         self, scene: Scene, samples: list[np.ndarray], keypoints: np.ndarray, t: int

@@ -95,6 +95,56 @@ class FloorLimit(mink.Limit):
         return Constraint(G=G, h=bottom - self.height)
 
 
+class PointTravelLimit(mink.Limit):
+    """Keep points of bodies within a horizontal distance of anchors: a hard limit.
+
+    For an active point ``i`` at ``p_i`` with anchor ``a_i`` and radius ``r_i``, the horizontal
+    displacement ``d = (p_i + J_i dq - a_i)_xy`` stays inside the regular octagon inscribed in
+    the circle of radius ``r_i``: ``n_k . d <= r_i cos(pi / 8)`` for its eight edge normals
+    ``n_k``, exact to first order. Points with an infinite radius are free.
+
+    Args:
+        model: The model.
+        body_ids: The body of each point. Shape: (N,).
+        points: Each point in its body's frame. Shape: (N, 3).
+    """
+
+    _NORMALS = np.stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], 1)
+
+    def __init__(self, model: mujoco.MjModel, body_ids: np.ndarray, points: np.ndarray) -> None:
+        self.model = model
+        self.body_ids = np.asarray(body_ids, dtype=int)
+        self.points = np.asarray(points, dtype=float).reshape(-1, 3)
+        self.anchors = np.zeros((len(self.body_ids), 3))
+        self.radius = np.full(len(self.body_ids), np.inf)
+        self._jac = np.zeros((3, model.nv))
+
+    def positions(self, data: mujoco.MjData) -> np.ndarray:
+        """World positions of the points in ``data`` (after kinematics). Shape: (N, 3)."""
+        rot = data.xmat[self.body_ids].reshape(-1, 3, 3)
+        return data.xpos[self.body_ids] + np.einsum("nij,nj->ni", rot, self.points)
+
+    def set(self, anchors: np.ndarray, radius: np.ndarray) -> None:
+        """Anchors (N, 3) [m] and radii (N,) [m]; ``inf`` frees a point."""
+        self.anchors = np.asarray(anchors, dtype=float).reshape(len(self.body_ids), 3)
+        self.radius = np.asarray(radius, dtype=float).reshape(len(self.body_ids))
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
+        del dt  # A position limit.
+        data = configuration.data
+        active = np.flatnonzero(np.isfinite(self.radius))
+        if not active.size:
+            return Constraint()
+        world = self.positions(data)
+        rows, h = [], []
+        for i in active:
+            mujoco.mj_jac(self.model, data, self._jac, None, world[i], int(self.body_ids[i]))
+            rows.append(self._NORMALS @ self._jac[:2])
+            d = world[i, :2] - self.anchors[i, :2]
+            h.append(self.radius[i] * np.cos(np.pi / 8) - self._NORMALS @ d)
+        return Constraint(G=np.vstack(rows), h=np.concatenate(h))
+
+
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     """mink's collision avoidance, changed to also push penetrating pairs apart.
 

@@ -58,6 +58,8 @@ class Targets:
     Attributes:
         positions: Key point targets after contact handling. Shape: (T, K, 3).
         scaled: Key point targets before contact handling: the scaled human. Shape: (T, K, 3).
+        human: The human's key points turned and moved as the root is and scaled by ``scale``,
+            bone lengths unchanged (how the human's own points move). Shape: (T, K, 3).
         position_weights: Position cost per key point and frame. Shape: (T, K).
         frame_rots: Body orientation targets of the map's frames. Shape: (T, F, 3, 3).
         foot_rots: Foot body orientation targets. Shape: (T, 2, 3, 3).
@@ -76,6 +78,7 @@ class Targets:
 
     positions: np.ndarray
     scaled: np.ndarray
+    human: np.ndarray
     position_weights: np.ndarray
     frame_rots: np.ndarray
     foot_rots: np.ndarray
@@ -249,6 +252,7 @@ def build_targets(
     return Targets(
         positions=pos,
         scaled=scaled,
+        human=scale * human,
         position_weights=weights,
         frame_rots=frame_rots,
         foot_rots=foot_rots,
