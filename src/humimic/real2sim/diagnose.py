@@ -387,29 +387,28 @@ def _grid_fit(
     hi = np.array([np.log(p.hi) if g else p.hi for p, g in zip(pairs, geometric, strict=True)])
     grid = np.linspace(lo, hi, n, axis=1)  # (P, n)
     err = sse(grid)
+    tried_x, tried_e = [grid], [err]  # Every value evaluated, per pair.
     k = np.argmin(err, axis=1)
     rows = np.arange(len(pairs))
-    best_x, best_e = grid[rows, k], err[rows, k]
     a = grid[rows, np.maximum(k - 1, 0)]
     b = grid[rows, np.minimum(k + 1, n - 1)]
     ratio = (np.sqrt(5.0) - 1.0) / 2.0
-    x1, x2 = b - ratio * (b - a), a + ratio * (b - a)
-    e12 = sse(np.stack([x1, x2], axis=1))
-    e1, e2 = e12[:, 0], e12[:, 1]
+    x12 = np.stack([b - ratio * (b - a), a + ratio * (b - a)], axis=1)
+    e12 = sse(x12)
+    tried_x.append(x12)
+    tried_e.append(e12)
+    (x1, x2), (e1, e2) = x12.T, e12.T
     for _ in range(golden):
         left = e1 <= e2  # The minimum lies in [a, x2]: x1 becomes the new x2.
-        for x, e in ((x1, e1), (x2, e2)):
-            better = e < best_e
-            best_x, best_e = np.where(better, x, best_x), np.where(better, e, best_e)
         a, b = np.where(left, a, x1), np.where(left, x2, b)
         x_new = np.where(left, b - ratio * (b - a), a + ratio * (b - a))
         e_new = sse(x_new[:, None])[:, 0]
+        tried_x.append(x_new[:, None])
+        tried_e.append(e_new[:, None])
         x1, e1, x2, e2 = (np.where(left, x_new, x2), np.where(left, e_new, e2),
                           np.where(left, x1, x_new), np.where(left, e1, e_new))  # fmt: skip
-    for x, e in ((x1, e1), (x2, e2)):
-        better = e < best_e
-        best_x, best_e = np.where(better, x, best_x), np.where(better, e, best_e)
-    return [float(v) for v in value(best_x)]
+    xs, es = np.concatenate(tried_x, axis=1), np.concatenate(tried_e, axis=1)
+    return [float(v) for v in value(xs[rows, np.argmin(es, axis=1)])]
 
 
 def _refit(

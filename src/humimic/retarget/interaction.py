@@ -289,29 +289,29 @@ class InteractionMeshRetargeter:
                     [(int(k), obj_geoms[contacts[t, k]]) for k in touching], firm[t, touching]
                 )
                 tasks.append(touch)
+            travel.set(travel.anchors, np.full(len(toe_feet), np.inf))
             if t > 0:
                 smooth.set_target(out[t - 1])
                 tasks.append(smooth)
                 held = planted[t] & planted[t - 1]  # (4,) per foot point
-                prev.qpos[:] = out[t - 1]
-                prev.mocap_pos[:], prev.mocap_quat[:] = conf.data.mocap_pos, conf.data.mocap_quat
-                mujoco.mj_kinematics(model, prev)
-                # Only where the warm start's toe is near: a limit far from it would drag the
-                # whole body after a foot the targets have moved on.
-                anchors = travel.positions(prev)
-                near = (
-                    np.linalg.norm(travel.positions(conf.data)[:, :2] - anchors[:, :2], axis=1)
-                    < TOE_REACH
-                )
-                travel.set(anchors, np.where(still[t] & near, cap, np.inf))
+                if held.any() or still[t].any():
+                    prev.qpos[:] = out[t - 1]
+                    prev.mocap_pos[:] = conf.data.mocap_pos
+                    prev.mocap_quat[:] = conf.data.mocap_quat
+                    mujoco.mj_kinematics(model, prev)
+                if still[t].any():
+                    # Only where the warm start's toe is near: a limit far from it would drag
+                    # the whole body after a foot the targets have moved on.
+                    anchors = travel.positions(prev)
+                    moved = travel.positions(conf.data)[:, :2] - anchors[:, :2]
+                    near = np.linalg.norm(moved, axis=1) < TOE_REACH
+                    travel.set(anchors, np.where(still[t] & near, cap, np.inf))
                 if held.any():
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
                     cost = np.zeros((held.size, 3))
                     cost[held] = icfg.stick_weight
                     stick.cost = cost.ravel()
                     tasks.append(stick)
-            else:
-                travel.set(travel.anchors, np.full(len(toe_feet), np.inf))
             frame.t, frame.tasks = t, tasks
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             frame.step = step

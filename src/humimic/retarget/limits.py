@@ -54,6 +54,19 @@ def foot_contact_points(
     return np.array(ids), np.array(pts), np.array(rad)
 
 
+def body_points(data: mujoco.MjData, ids: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """World positions of points given in their bodies' frames (after kinematics).
+
+    Args:
+        ids: Body of each point. Shape: (N,).
+        pts: Each point in its body's frame. Shape: (N, 3).
+
+    Returns:
+        Shape: (N, 3).
+    """
+    return data.xpos[ids] + np.einsum("nij,nj->ni", data.xmat[ids].reshape(-1, 3, 3), pts)
+
+
 def contact_point_heights(
     data: mujoco.MjData, ids: np.ndarray, pts: np.ndarray, rad: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -62,7 +75,7 @@ def contact_point_heights(
     Returns:
         positions (N, 3), bottom heights (N,).
     """
-    world = data.xpos[ids] + np.einsum("nij,nj->ni", data.xmat[ids].reshape(-1, 3, 3), pts)
+    world = body_points(data, ids, pts)
     return world, world[:, 2] - rad
 
 
@@ -121,8 +134,7 @@ class PointTravelLimit(mink.Limit):
 
     def positions(self, data: mujoco.MjData) -> np.ndarray:
         """World positions of the points in ``data`` (after kinematics). Shape: (N, 3)."""
-        rot = data.xmat[self.body_ids].reshape(-1, 3, 3)
-        return data.xpos[self.body_ids] + np.einsum("nij,nj->ni", rot, self.points)
+        return body_points(data, self.body_ids, self.points)
 
     def set(self, anchors: np.ndarray, radius: np.ndarray) -> None:
         """Anchors (N, 3) [m] and radii (N,) [m]; ``inf`` frees a point."""
