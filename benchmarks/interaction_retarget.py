@@ -34,6 +34,7 @@ import numpy as np
 
 from humimic.configs import InteractionConfig, RetargetConfig
 from humimic.datasets import load_clip
+from humimic.errors import InputError
 from humimic.retarget import Retargeter
 from humimic.retarget.scene import load_scene
 
@@ -63,6 +64,12 @@ def main() -> None:
         default=None,
         help="--mesh.still_speed for our retargeter (default: its default)",
     )
+    parser.add_argument(
+        "--still-reach",
+        type=float,
+        default=None,
+        help="--mesh.still_reach for our retargeter (default: its default)",
+    )
     args = parser.parse_args()
     if not args.clips:
         raise SystemExit(f"no clips: expected holosoma_climb clip folders under {DATA}")
@@ -72,6 +79,12 @@ def main() -> None:
     mesh = InteractionConfig()
     if args.still_speed is not None:
         mesh = dataclasses.replace(mesh, still_speed=args.still_speed)
+    if args.still_reach is not None:
+        mesh = dataclasses.replace(mesh, still_reach=args.still_reach)
+    try:
+        mesh.validate()
+    except InputError as e:
+        parser.error(str(e))
     t0 = time.perf_counter()
     rt = Retargeter("g1", "holosoma", RetargetConfig(fps=args.fps, scale=scale),
                     method="interaction-mesh", mesh=mesh)  # fmt: skip

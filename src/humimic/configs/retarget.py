@@ -154,8 +154,11 @@ class InteractionConfig:
             (holosoma's notion of foot sticking), the front of the robot's sole moves at most
             0.75 times as fast (a hard limit, dropped for a frame where it conflicts with the
             non-penetration limits or where the frame's warm start has moved that toe more than
-            3 cm). Off by default (0; BENCHMARKS.md has its effect on the climbing clips).
-            Planted points are held in all three axes whatever this is.
+            ``still_reach``). Off by default (0; BENCHMARKS.md has its effect on the climbing
+            clips). Planted points are held in all three axes whatever this is.
+        still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
+            warm start puts it within this horizontal distance [m] of where it was: farther,
+            the targets have moved on and holding the toe back drags the body after it.
     """
 
     mesh_weight: float = 20.0
@@ -176,15 +179,13 @@ class InteractionConfig:
     reattach_iterations: int = 3
     contact_gap: float = 0.01
     still_speed: float = 0.0
+    still_reach: float = 0.03
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""
-        _check_numbers(
-            self,
-            "mesh",
-            ("scene_spacing", "scene_radius", "collision_detection", "contact_distance"),
-            positive=True,
-        )
+        positive = ("scene_spacing", "scene_radius", "collision_detection", "contact_distance",
+                    "still_reach")  # fmt: skip
+        _check_numbers(self, "mesh", positive, positive=True)
         non_negative = ("mesh_weight", "keypoint_scale", "tol", "penetration_margin",
                         "stick_weight", "contact_weight", "smooth_weight", "contact_gap",
                         "still_speed")  # fmt: skip

@@ -151,10 +151,6 @@ STILL_TRAVEL = 0.75
 robot's sole move at most this share of it: a point up to a third of the front's width ahead
 of them (a toe tip) then moves at most 0.9 times ``still_speed``, even while the foot turns."""
 
-TOE_REACH = 0.03
-"""The travel limit holds a toe only where the frame's warm start puts it within this
-horizontal distance [m] of where it was."""
-
 TOE_DEPTH = 0.01
 """A sole's contact points within this distance [m] of its foremost one are its front."""
 
@@ -304,7 +300,7 @@ class InteractionMeshRetargeter:
                     # the whole body after a foot the targets have moved on.
                     anchors = travel.positions(prev)
                     moved = travel.positions(conf.data)[:, :2] - anchors[:, :2]
-                    near = np.linalg.norm(moved, axis=1) < TOE_REACH
+                    near = np.linalg.norm(moved, axis=1) < icfg.still_reach
                     travel.set(anchors, np.where(still[t] & near, cap, np.inf))
                 if held.any():
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
