@@ -49,7 +49,7 @@ from humimic.tracking.env import TrackingEnv, tracking_model
 from humimic.tracking.rsl import torch_threads
 
 
-def _motion(model: mujoco.MjModel):
+def arm_swing(model: mujoco.MjModel):
     """A 5 s reference: the home pose with the arms swinging (no data files needed)."""
     fps, T = 50.0, 250
     q = np.tile(model.key_qpos[0], (T, 1))
@@ -158,7 +158,7 @@ def main() -> None:
         "results": [],
     }
     model = tracking_model(g1_tracking("none"))
-    motion = _motion(model)
+    motion = arm_swing(model)
     for n in args.num_envs:
         cfg = replace(g1_tracking(args.dr), episode_length_s=1e3)
         gen = torch.Generator().manual_seed(0)

@@ -5,6 +5,9 @@ Usage:
   .venv/bin/humimic retarget ../shared/data/cmu/35_01.bvh --out walk.npz
   .venv/bin/python benchmarks/tracking_learning.py --motion walk.npz --out runs/walk \\
       --minutes 45 --num-envs 128 --plot docs/tracking_walk_curve.png
+On a GPU (MuJoCo Warp, humimic[gpu]):
+  python benchmarks/tracking_learning.py --motion walk.npz --out runs/walk_gpu --minutes 6 \\
+      --num-envs 4096 --device cuda --backend warp
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import json
 import os
 import platform
 from pathlib import Path
+
+import torch
 
 from humimic.configs.runs import EvalSettings, TrainSettings
 from humimic.tracking.evaluate import evaluate
@@ -30,17 +35,22 @@ def main() -> None:
     parser.add_argument("--dr", default="default")
     parser.add_argument("--episodes", type=int, default=16)
     parser.add_argument("--plot", type=Path, default=None)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--backend", choices=("cpu", "warp"), default="cpu")
     args = parser.parse_args()
     settings = TrainSettings(motion=args.motion, out=args.out, num_envs=args.num_envs,
                              max_iterations=100_000, dr=args.dr, max_minutes=args.minutes,
-                             checkpoint_every=25, quiet=True,
+                             checkpoint_every=25, quiet=True, device=args.device,
+                             backend=args.backend,
                              resume=(args.out / "config.yaml").exists())  # fmt: skip
     train(settings)
     with open(args.out / "progress.csv") as f:
         rows = list(csv.DictReader(f))
     result = {"benchmark": "tracking_learning", "machine": {"cpu": platform.processor() or
-              platform.machine(), "cores": os.cpu_count()}, "motion": str(args.motion),
+              platform.machine(), "cores": os.cpu_count(), "gpu": torch.cuda.get_device_name(0)
+              if torch.cuda.is_available() else None}, "motion": str(args.motion),
               "num_envs": args.num_envs, "dr": args.dr, "minutes": args.minutes,
+              "device": args.device, "backend": args.backend,
               "iterations": int(rows[-1]["iteration"]), "env_steps": int(float(rows[-1]["env_steps"])),
               "curve": [{k: float(r[k]) for k in ("iteration", "seconds", "mean_reward",
                                                    "mean_episode_length")}

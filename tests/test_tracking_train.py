@@ -361,3 +361,30 @@ def test_export_onnx_matches_the_torch_policy(motion_file: Path, tmp_path: Path)
     assert got.shape == expected.shape == (5, 29)
     np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-4, atol=1e-5)
     assert main(["export", str(out), "--out", str(tmp_path / "policy.txt")]) == 2
+
+
+def test_two_processes_train_one_policy_and_stay_in_sync(motion_file: Path, tmp_path: Path) -> None:
+    """``torchrun --nproc-per-node 2 humimic train`` on the CPU (gloo): every iteration the
+    ranks' policies are compared (``rank_param_spread``, the largest difference of any
+    parameter from rank 0's); rank 0 alone writes the run."""
+    out = tmp_path / "run"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone",
+           "--nproc-per-node", "2", "-m", "humimic.cli.main",
+           *_train_args(motion_file, out, 3)]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = (out / "progress.csv").read_text().splitlines()
+    header, rows = lines[0].split(","), [line.split(",") for line in lines[1:]]
+    assert [int(r[0]) for r in rows] == [1, 2, 3]  # One row per iteration: rank 0's.
+    spread = [float(r[header.index("rank_param_spread")]) for r in rows]
+    assert spread == [0.0, 0.0, 0.0]
+    # Both ranks' experience counts: 2 ranks x 8 envs x 8 steps per iteration.
+    assert [int(r[header.index("env_steps")]) for r in rows] == [128, 256, 384]
+    ckpts = sorted(p.name for p in (out / "checkpoints").iterdir())
+    assert ckpts == ["model_000002.pt", "model_000003.pt"]
+    # The policy moved away from its initialization (the updates were not all zero).
+    a = torch.load(out / "checkpoints" / "model_000002.pt", weights_only=True)
+    b = torch.load(out / "checkpoints" / "model_000003.pt", weights_only=True)
+    key = next(k for k in b["actor_state_dict"] if k.endswith("weight"))
+    assert not torch.equal(a["actor_state_dict"][key], b["actor_state_dict"][key])

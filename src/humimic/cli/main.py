@@ -690,10 +690,11 @@ def run_fetch(cmd: FetchCommand) -> None:
 
 def run_train(cmd: TrainSettings) -> None:
     """Run ``humimic train``."""
+    from humimic.tracking.distributed import Ranks
     from humimic.tracking.train import train
 
     last = train(cmd)
-    if last:
+    if last and Ranks.from_env().main:  # Under torchrun, rank 0 speaks for the run.
         print(f"{cmd.out}: {int(last['iteration'])} iterations, mean reward "
               f"{last.get('mean_reward', float('nan')):.4g}, mean episode length "
               f"{last.get('mean_episode_length', float('nan')):.1f} steps")  # fmt: skip

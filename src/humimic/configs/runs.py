@@ -19,7 +19,10 @@ class TrainSettings:
         robot: Registry name; must match the motion's.
         num_envs: Parallel environments.
         max_iterations: Total PPO iterations of the run (a resumed run continues up to it).
-        device: Torch device of the learner (``cpu`` or ``cuda``).
+        device: Torch device of the learner (``cpu`` or ``cuda``). Under torchrun each process
+            takes the GPU of its local rank.
+        backend: The simulator: ``cpu`` (MuJoCo on the CPU) or ``warp`` (MuJoCo Warp on
+            ``--device``: GPU throughput; needs ``humimic[gpu]``).
         dr: Domain randomization: a profile name (``none``, ``default``) or a YAML file.
         physics: Train on a fixed model: a physics file (docs/tracking.md, "Physics files"),
             e.g. the correction ``humimic sysid diagnose`` found; DR acts on top of it.
@@ -47,6 +50,7 @@ class TrainSettings:
     num_envs: int = 4096
     max_iterations: int = 1000
     device: str = "cpu"
+    backend: Literal["cpu", "warp"] = "cpu"
     dr: str = "default"
     physics: str | None = None
     init_from: Path | None = None

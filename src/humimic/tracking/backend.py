@@ -3,8 +3,8 @@
 The environment never touches MuJoCo itself: it sets joint targets, steps, and reads batched
 arrays. :class:`MujocoCpuBackend` runs ``num_envs`` MuJoCo CPU simulations, either through
 ``mujoco.rollout`` (C++ thread pool, one call for all envs) or through a Python thread pool over
-``mj_step`` (the GIL is released inside ``mj_step``). A MuJoCo-Warp backend can later implement
-the same protocol.
+``mj_step`` (the GIL is released inside ``mj_step``). :class:`~humimic.tracking.warp_backend.MujocoWarpBackend`
+implements the same protocol with MuJoCo Warp (GPU), plus :class:`TensorBackend`.
 
 Everything the environment reads about bodies comes from MuJoCo *sensors* compiled into the
 training model (``framepos``/``framequat``/``framelinvel``/``frameangvel`` on the body frames, and
@@ -32,10 +32,11 @@ import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 import mujoco
 import numpy as np
+import torch
 from mujoco import rollout as mj_rollout
 
 from humimic.errors import InputError, UnknownNameError
@@ -158,6 +159,24 @@ class PhysicsBackend(Protocol):
         ...
 
 
+@runtime_checkable
+class TensorBackend(Protocol):
+    """A backend whose state lives in torch tensors on ``device`` (the warp backend): the env
+    sets targets and reads the state without a copy through the host."""
+
+    device: torch.device
+
+    def set_ctrl_tensor(self, ctrl: torch.Tensor) -> None:
+        """Set the PD position targets of all envs. Shape: (num_envs, J)."""
+        ...
+
+    def read_into(self, out: torch.Tensor) -> None:
+        """The state in the env's layout (joint positions, joint velocities, then the sensors:
+        body positions, quaternions, linear and angular velocities, contact counts, foot force
+        magnitudes), written into ``out``. Shape: (num_envs, 2J + 13B + C + F)."""
+        ...
+
+
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     """``idx`` as a basic slice when it is a contiguous increasing run, else ``idx``."""
     if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
@@ -167,6 +186,178 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
 
 def _robot_bodies(model: mujoco.MjModel) -> list[int]:
     return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
+
+
+# Model fields that domain randomization (PhysicsParams) changes, with their nominal values kept.
+DR_FIELDS = (
+    "geom_friction",
+    "body_mass",
+    "body_inertia",
+    "body_ipos",
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "dof_armature",
+)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelLayout:
+    """What every backend reads off a training model: the actuated joints, the read-out
+    sensors, the bodies and colliders that domain randomization changes, and their nominal
+    values. Build it with :meth:`of`.
+
+    Attributes:
+        joint_names: The actuated joints, in actuator (= qpos) order.
+        dof: Their dof addresses. Shape: (J,).
+        joint_range: Their position limits. Shape: (J, 2).
+        default_joint_pos: The home pose (first keyframe, else ``qpos0``). Shape: (J,).
+        kp: Nominal PD stiffness. Shape: (J,).
+        effort_limit: Torque limits. Shape: (J,).
+        robot_bodies: Bodies that move with the robot (mass randomization). Shape: (Bm,).
+        collider_geoms: Geoms that collide (friction randomization). Shape: (G,).
+        com_body: The body whose CoM ``PhysicsParams.com_offset`` moves, or -1.
+        sensor_slices: Where ``pos``, ``quat``, ``lin``, ``ang``, ``found``, ``force`` sit in a
+            row of sensor data.
+        nominal: Copies of the :data:`DR_FIELDS` of the model.
+    """
+
+    body_names: tuple[str, ...]
+    contact_body_names: tuple[str, ...]
+    foot_body_names: tuple[str, ...]
+    joint_names: tuple[str, ...]
+    dof: np.ndarray
+    joint_range: np.ndarray
+    default_joint_pos: np.ndarray
+    kp: np.ndarray
+    effort_limit: np.ndarray
+    robot_bodies: np.ndarray
+    collider_geoms: np.ndarray
+    com_body: int
+    sensor_slices: dict[str, slice]
+    nominal: dict[str, np.ndarray]
+
+    @classmethod
+    def of(
+        cls,
+        model: mujoco.MjModel,
+        body_names: Sequence[str],
+        contact_body_names: Sequence[str] = (),
+        foot_body_names: Sequence[str] = (),
+        com_body: str | None = None,
+    ) -> ModelLayout:
+        """The layout of a model from :func:`training_model` built with these names.
+
+        Raises:
+            InputError: If the actuators do not drive the joints after the free joint in qpos
+                order, or the sensors are not those of :func:`training_model`.
+            UnknownNameError: If ``com_body`` is not in the model.
+        """
+        joints = [int(model.actuator_trnid[a, 0]) for a in range(model.nu)]
+        qadr = [int(model.jnt_qposadr[j]) for j in joints]
+        if qadr != list(range(model.nq - model.nu, model.nq)):
+            raise InputError(
+                "the actuators must drive the joints after the free joint, in qpos order"
+            )
+        cb = -1
+        if com_body is not None:
+            cb = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, com_body)
+            if cb < 0:
+                raise UnknownNameError(f"com_body {com_body!r} is not in the model")
+        nb, nc, nf = len(body_names), len(contact_body_names), len(foot_body_names)
+        expected = 13 * nb + nc + 3 * nf
+        if model.nsensordata != expected:
+            raise InputError(
+                f"the model has {model.nsensordata} sensor values, expected {expected} for "
+                f"{nb} bodies, {nc} contact bodies and {nf} feet: build it with training_model()"
+            )
+        home = model.key_qpos[0] if model.nkey else model.qpos0
+        return cls(
+            body_names=tuple(body_names),
+            contact_body_names=tuple(contact_body_names),
+            foot_body_names=tuple(foot_body_names),
+            joint_names=tuple(model.joint(j).name for j in joints),
+            dof=np.array([model.jnt_dofadr[j] for j in joints]),
+            joint_range=np.array([model.jnt_range[j] for j in joints]),
+            default_joint_pos=np.array(home[qadr]),
+            kp=model.actuator_gainprm[:, 0].copy(),
+            effort_limit=model.actuator_forcerange[:, 1].copy(),
+            robot_bodies=np.array(_robot_bodies(model)),
+            collider_geoms=np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0),
+            com_body=cb,
+            sensor_slices={
+                "pos": slice(0, 3 * nb),
+                "quat": slice(3 * nb, 7 * nb),
+                "lin": slice(7 * nb, 10 * nb),
+                "ang": slice(10 * nb, 13 * nb),
+                "found": slice(13 * nb, 13 * nb + nc),
+                "force": slice(13 * nb + nc, expected),
+            },
+            nominal={name: getattr(model, name).copy() for name in DR_FIELDS},
+        )
+
+    def fields(self, params: PhysicsParams) -> dict[str, np.ndarray]:
+        """The :data:`DR_FIELDS` of the n models ``params`` describes (the nominal values where
+        domain randomization leaves them). Shape of each: (n, *the model field's shape)."""
+        nom, cb = self.nominal, self.com_body
+        rb, g, dof = self.robot_bodies, self.collider_geoms, self.dof
+        n = len(params.friction)
+        out = {f: np.repeat(nom[f][None], n, axis=0) for f in DR_FIELDS}
+        out["geom_friction"][:, g, 0] = params.friction[:, None]
+        out["body_mass"][:, rb] = nom["body_mass"][rb] * params.mass_scale
+        out["body_inertia"][:, rb] = nom["body_inertia"][rb] * params.mass_scale[..., None]
+        if cb >= 0:
+            out["body_ipos"][:, cb] += params.com_offset
+        kp = nom["actuator_gainprm"][:, 0] * params.kp_scale
+        out["actuator_gainprm"][:, :, 0] = kp
+        out["actuator_biasprm"][:, :, 1] = -kp
+        out["actuator_biasprm"][:, :, 2] = nom["actuator_biasprm"][:, 2] * params.kd_scale
+        out["dof_armature"][:, dof] = nom["dof_armature"][dof] * params.armature_scale
+        return out
+
+    def nominal_params(self, n: int) -> PhysicsParams:
+        """Parameters that leave the model nominal, for ``n`` envs."""
+        j, b = len(self.joint_names), len(self.robot_bodies)
+        friction = float(self.nominal["geom_friction"][self.collider_geoms, 0].max())
+        return PhysicsParams(
+            friction=np.full(n, friction),
+            mass_scale=np.ones((n, b)),
+            com_offset=np.zeros((n, 3)),
+            kp_scale=np.ones((n, j)),
+            kd_scale=np.ones((n, j)),
+            armature_scale=np.ones((n, j)),
+        )
+
+
+class LayoutBackend:
+    """What every backend takes from its model's :class:`ModelLayout`: the
+    :class:`PhysicsBackend` attributes the env reads."""
+
+    layout: ModelLayout
+    nq: int
+    nv: int
+    nu: int
+    num_bodies_total: int
+    body_names: tuple[str, ...]
+    contact_body_names: tuple[str, ...]
+    foot_body_names: tuple[str, ...]
+    joint_names: tuple[str, ...]
+    joint_range: np.ndarray
+    default_joint_pos: np.ndarray
+    kp: np.ndarray
+    effort_limit: np.ndarray
+
+    def _take_layout(self, model: mujoco.MjModel, layout: ModelLayout) -> None:
+        self.layout = layout
+        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
+        self.num_bodies_total = len(layout.robot_bodies)
+        self.body_names = layout.body_names
+        self.contact_body_names = layout.contact_body_names
+        self.foot_body_names = layout.foot_body_names
+        self.joint_names = layout.joint_names
+        self.joint_range = layout.joint_range
+        self.default_joint_pos = layout.default_joint_pos
+        self.kp = layout.kp
+        self.effort_limit = layout.effort_limit
 
 
 def training_model(
@@ -282,7 +473,7 @@ def training_model(
     return model
 
 
-class MujocoCpuBackend:
+class MujocoCpuBackend(LayoutBackend):
     """``num_envs`` MuJoCo CPU simulations of one training model.
 
     Args:
@@ -319,65 +510,11 @@ class MujocoCpuBackend:
         self.method: StepMethod = method
         self.nthread = max(1, min(nthread or os.cpu_count() or 1, num_envs))
         self._model = model
-        self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
-        self.body_names = tuple(body_names)
-        self.contact_body_names = tuple(contact_body_names)
-        self.foot_body_names = tuple(foot_body_names)
-        self.joint_names = tuple(
-            model.joint(model.actuator_trnid[a, 0]).name for a in range(model.nu)
-        )
-        self._dof = np.array(
-            [model.jnt_dofadr[model.actuator_trnid[a, 0]] for a in range(model.nu)]
-        )
-        self.joint_range = np.array(
-            [model.jnt_range[model.actuator_trnid[a, 0]] for a in range(model.nu)]
-        )
-        home = model.key_qpos[0] if model.nkey else model.qpos0
-        qadr = [model.jnt_qposadr[model.actuator_trnid[a, 0]] for a in range(model.nu)]
-        if qadr != list(range(model.nq - model.nu, model.nq)):
-            raise InputError(
-                "the actuators must drive the joints after the free joint, in qpos order"
-            )
-        self.default_joint_pos = np.array(home[qadr])
-        self.kp = model.actuator_gainprm[:, 0].copy()
-        self.effort_limit = model.actuator_forcerange[:, 1].copy()
-        self._robot_bodies = np.array(_robot_bodies(model))
-        self.num_bodies_total = len(self._robot_bodies)
-        self._com_body = -1
-        if com_body is not None:
-            self._com_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, com_body)
-            if self._com_body < 0:
-                raise UnknownNameError(f"com_body {com_body!r} is not in the model")
-        self._collider_geoms = np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0)
-        self._param_index = tuple(
-            _as_slice(x) for x in (self._robot_bodies, self._collider_geoms, self._dof)
-        )
-        nb, nc, nf = len(self.body_names), len(self.contact_body_names), len(self.foot_body_names)
-        expected = 13 * nb + nc + 3 * nf
-        if model.nsensordata != expected:
-            raise InputError(
-                f"the model has {model.nsensordata} sensor values, expected {expected} for "
-                f"{nb} bodies, {nc} contact bodies and {nf} feet: build it with training_model()"
-            )
-        self._sl = {
-            "pos": slice(0, 3 * nb),
-            "quat": slice(3 * nb, 7 * nb),
-            "lin": slice(7 * nb, 10 * nb),
-            "ang": slice(10 * nb, 13 * nb),
-            "found": slice(13 * nb, 13 * nb + nc),
-            "force": slice(13 * nb + nc, expected),
-        }
+        lay = ModelLayout.of(model, body_names, contact_body_names, foot_body_names, com_body)
+        self._take_layout(model, lay)
+        self._sl = lay.sensor_slices
         self._per_env = per_env_models
         self._models = [copy.copy(model) for _ in range(num_envs)] if per_env_models else []
-        self._nominal = {
-            "geom_friction": model.geom_friction.copy(),
-            "body_mass": model.body_mass.copy(),
-            "body_inertia": model.body_inertia.copy(),
-            "body_ipos": model.body_ipos.copy(),
-            "actuator_gainprm": model.actuator_gainprm.copy(),
-            "actuator_biasprm": model.actuator_biasprm.copy(),
-            "dof_armature": model.dof_armature.copy(),
-        }
         self._ctrl = np.zeros((num_envs, self.nu))
         self._qpos = np.tile(model.qpos0, (num_envs, 1))
         self._qvel = np.zeros((num_envs, self.nv))
@@ -581,25 +718,11 @@ class MujocoCpuBackend:
             raise InputError(
                 "set_params needs per-env models: build the backend with per_env_models=True"
             )
-        nom = self._nominal
-        # Basic slices where the indices are contiguous: a reset step changes a few models,
-        # where numpy's fancy indexing costs more than the arithmetic.
-        rb, g, dof = self._param_index
-        mass, inertia = nom["body_mass"][rb], nom["body_inertia"][rb]
-        kp0, kd0 = nom["actuator_gainprm"][:, 0], nom["actuator_biasprm"][:, 2]
-        armature, cb = nom["dof_armature"][dof], self._com_body
+        values = self.layout.fields(params)
         for k, i in enumerate(env_ids):
             m = self._models[i]
-            m.geom_friction[g, 0] = params.friction[k]
-            m.body_mass[rb] = mass * params.mass_scale[k]
-            m.body_inertia[rb] = inertia * params.mass_scale[k][:, None]
-            if cb >= 0:
-                m.body_ipos[cb] = nom["body_ipos"][cb] + params.com_offset[k]
-            kp = kp0 * params.kp_scale[k]
-            m.actuator_gainprm[:, 0] = kp
-            m.actuator_biasprm[:, 1] = -kp
-            m.actuator_biasprm[:, 2] = kd0 * params.kd_scale[k]
-            m.dof_armature[dof] = armature * params.armature_scale[k]
+            for name, v in values.items():
+                getattr(m, name)[:] = v[k]
             d = self._datas[i] if self._datas else self._scratch[0]
             qpos, qvel = d.qpos.copy(), d.qvel.copy()
             mujoco.mj_setConst(m, d)
@@ -607,17 +730,7 @@ class MujocoCpuBackend:
 
     def nominal_params(self, n: int) -> PhysicsParams:
         """Parameters that leave the model nominal, for ``n`` envs."""
-        j, b = self.nu, self.num_bodies_total
-        return PhysicsParams(
-            friction=np.full(
-                n, float(self._nominal["geom_friction"][self._collider_geoms, 0].max())
-            ),
-            mass_scale=np.ones((n, b)),
-            com_offset=np.zeros((n, 3)),
-            kp_scale=np.ones((n, j)),
-            kd_scale=np.ones((n, j)),
-            armature_scale=np.ones((n, j)),
-        )
+        return self.layout.nominal_params(n)
 
     def close(self) -> None:
         """Stop the worker threads."""

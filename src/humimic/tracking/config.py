@@ -308,6 +308,22 @@ class AdaptiveSampling:
 
 
 @dataclass(frozen=True, kw_only=True)
+class WarpOptions:
+    """Settings of the MuJoCo Warp backend.
+
+    Attributes:
+        nconmax: Contacts per world, pooled over worlds (default: a bound no floor contact
+            state exceeds, :func:`humimic.tracking.warp_backend.capacity`).
+        njmax: Constraint rows per world (default: likewise a bound).
+        cuda_graph: Replay each env step's physics as a captured CUDA graph.
+    """
+
+    nconmax: int | None = None
+    njmax: int | None = None
+    cuda_graph: bool = True
+
+
+@dataclass(frozen=True, kw_only=True)
 class TrackingConfig:
     """The motion-tracking task.
 
@@ -332,6 +348,10 @@ class TrackingConfig:
         reset: Reference-state-initialization noise.
         adaptive: Adaptive start-frame sampling.
         history_length: Policy observations stacked in the ``proprio_history`` group.
+        backend: The simulator: ``cpu`` (MuJoCo, :class:`~humimic.tracking.backend.MujocoCpuBackend`)
+            or ``warp`` (MuJoCo Warp on the env's device, ``humimic[gpu]``:
+            :class:`~humimic.tracking.warp_backend.MujocoWarpBackend`).
+        warp: Settings of the ``warp`` backend.
         step_method: CPU stepping: ``rollout`` (``mujoco.rollout``) or ``threads``.
         num_threads: Simulation threads (default: all cores).
         torch_compile: Compile the env's tensor math (the relative reference, terminations,
@@ -360,6 +380,8 @@ class TrackingConfig:
     reset: ResetNoise = field(default_factory=ResetNoise)
     adaptive: AdaptiveSampling = field(default_factory=AdaptiveSampling)
     history_length: int = 5
+    backend: Literal["cpu", "warp"] = "cpu"
+    warp: WarpOptions = field(default_factory=lambda: WarpOptions())
     step_method: Literal["rollout", "threads"] = "rollout"
     num_threads: int | None = None
     torch_compile: bool = False
@@ -387,6 +409,8 @@ class TrackingConfig:
             raise InputError(
                 f"tracking.soft_limit_factor: must be in (0, 1], got {self.soft_limit_factor}"
             )
+        if self.backend not in ("cpu", "warp"):
+            raise InputError(f"tracking.backend: expected 'cpu' or 'warp', got {self.backend!r}")
         if self.anchor_body not in self.body_names:
             raise InputError(f"tracking.anchor_body: {self.anchor_body!r} is not in body_names")
         missing = [b for b in self.ee_body_names if b not in self.body_names]

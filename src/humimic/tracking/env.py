@@ -42,7 +42,12 @@ from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion
 from humimic.robots.registry import get_robot
 from humimic.tracking import dr as dr_mod
-from humimic.tracking.backend import MujocoCpuBackend, PhysicsBackend, training_model
+from humimic.tracking.backend import (
+    MujocoCpuBackend,
+    PhysicsBackend,
+    TensorBackend,
+    training_model,
+)
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.math import (
     quat_apply_inverse,
@@ -58,28 +63,37 @@ def build_backend(
     *,
     model: mujoco.MjModel | None = None,
     menagerie_root: str | os.PathLike[str] | None = None,
-) -> MujocoCpuBackend:
-    """The MuJoCo CPU backend a :class:`TrackingEnv` of ``cfg`` needs.
+    device: str | torch.device = "cpu",
+) -> PhysicsBackend:
+    """The backend a :class:`TrackingEnv` of ``cfg`` needs: ``cfg.backend`` on ``device``.
 
     Args:
         cfg: The task.
         num_envs: Number of envs.
         model: A model from :func:`tracking_model` (building one takes seconds; reuse it).
         menagerie_root: Where the robot files are.
+        device: The env's torch device; the ``warp`` backend simulates on it.
     """
     robot = get_robot(cfg.robot)
     if model is None:
         model = tracking_model(cfg, menagerie_root=menagerie_root)
+    names = {
+        "body_names": cfg.body_names,
+        "contact_body_names": cfg.undesired_contact_bodies,
+        "foot_body_names": tuple(robot.feet.values()),
+        "com_body": cfg.anchor_body,
+        "per_env_models": cfg.dr.randomizes_model,
+    }
+    if cfg.backend == "warp":
+        from humimic.tracking.warp_backend import MujocoWarpBackend
+
+        w = cfg.warp
+        return MujocoWarpBackend(
+            model, num_envs, device=device, nconmax=w.nconmax, njmax=w.njmax,
+            cuda_graph=w.cuda_graph, **names,
+        )  # fmt: skip
     return MujocoCpuBackend(
-        model,
-        num_envs,
-        body_names=cfg.body_names,
-        contact_body_names=cfg.undesired_contact_bodies,
-        foot_body_names=tuple(robot.feet.values()),
-        com_body=cfg.anchor_body,
-        per_env_models=cfg.dr.randomizes_model,
-        method=cfg.step_method,
-        nthread=cfg.num_threads,
+        model, num_envs, method=cfg.step_method, nthread=cfg.num_threads, **names
     )
 
 
@@ -132,6 +146,8 @@ class TrackingEnv(VecEnv):
         self.cfg = cfg
         self.num_envs = num_envs
         self.device = torch.device(device)
+        if self.device.type == "cuda" and self.device.index is None:
+            self.device = torch.device("cuda", torch.cuda.current_device())
         self.step_dt = cfg.step_dt
         self.max_episode_length = math.ceil(cfg.episode_length_s / cfg.step_dt)
         if motion.robot != cfg.robot:
@@ -145,8 +161,12 @@ class TrackingEnv(VecEnv):
             )
         if motion.num_frames < 2:
             raise InputError("the motion needs at least 2 frames")
-        self.backend: PhysicsBackend = backend or build_backend(cfg, num_envs, model=model)
+        self.backend: PhysicsBackend = backend or build_backend(
+            cfg, num_envs, model=model, device=self.device
+        )
         be = self.backend
+        # A backend on the env's device hands tensors over without a host round trip.
+        self._tensor_io = isinstance(be, TensorBackend) and be.device == self.device
         if be.num_envs != num_envs:
             raise InputError(f"the backend has {be.num_envs} envs, the env {num_envs}")
         self.joint_names = be.joint_names
@@ -343,7 +363,10 @@ class TrackingEnv(VecEnv):
         applied = self._act_hist[self._arange, self._delay]
         targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
         self._targets = targets
-        self.backend.set_ctrl(targets.detach().cpu().double().numpy())
+        if self._tensor_io:
+            self.backend.set_ctrl_tensor(targets)  # type: ignore[attr-defined]
+        else:
+            self.backend.set_ctrl(targets.detach().cpu().double().numpy())
         self.backend.step(cfg.decimation)
 
         ep = self.episode_length_buf  # rsl_rl may have replaced it: read it fresh.
@@ -410,7 +433,11 @@ class TrackingEnv(VecEnv):
 
     def _gather_backend(self) -> None:
         """The backend's state into one float64 array (one numpy concatenation), which
-        :meth:`_after_physics` copies into the buffer the state's fields view."""
+        :meth:`_after_physics` copies into the buffer the state's fields view; a tensor
+        backend writes that buffer itself."""
+        if self._tensor_io:
+            self.backend.read_into(self._read_buf)  # type: ignore[attr-defined]
+            return
         r, n = self.backend.read(), self.num_envs
         parts = (
             r.qpos[:, 7:], r.qvel[:, 6:], r.body_pos_w, r.body_quat_w, r.body_lin_vel_w,
@@ -421,13 +448,15 @@ class TrackingEnv(VecEnv):
     def _read_backend(self) -> None:
         """The backend's state into the state's fields (one float32 conversion)."""
         self._gather_backend()
-        self._read_buf.copy_(self._read_np_t)
+        if not self._tensor_io:
+            self._read_buf.copy_(self._read_np_t)
 
     def _after_physics(self) -> torch.Tensor:
         """The step's tensor math after the physics (after :meth:`_gather_backend`): the
         state and the reference, terminations, rewards, failure statistics. Returns the
         logged values (``_log_keys``)."""
-        self._read_buf.copy_(self._read_np_t)
+        if not self._tensor_io:
+            self._read_buf.copy_(self._read_np_t)
         self._update_reference()
         logged = self._compute_terms()
         self._update_failure_stats()

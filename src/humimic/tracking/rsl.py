@@ -18,6 +18,7 @@ import torch
 
 from humimic.errors import InputError
 from humimic.io import atomic_write
+from humimic.tracking.distributed import Ranks
 
 RSL_RL_VERSION = "5.5.1"
 
@@ -159,9 +160,25 @@ def torch_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(old)
 
 
-def make_runner(env: Any, cfg: dict[str, Any], *, log_dir: Path | None, device: str) -> Any:
+def make_runner(
+    env: Any,
+    cfg: dict[str, Any],
+    *,
+    log_dir: Path | None,
+    device: str,
+    ranks: Ranks | None = None,
+) -> Any:
     """An rsl_rl runner whose checkpoints humimic writes (see :class:`_Runner`):
-    ``OnPolicyRunner`` for PPO, ``DistillationRunner`` for ``Distillation``."""
+    ``OnPolicyRunner`` for PPO, ``DistillationRunner`` for ``Distillation``.
+
+    Args:
+        env: The env. cfg: rsl_rl's ``train_cfg``. log_dir: TensorBoard folder, or None.
+        device: The learner's device.
+        ranks: Train data-parallel with the other ranks of a process group this process has
+            joined (:func:`humimic.tracking.distributed.start`). Default: a single process,
+            whatever torchrun's variables say.
+    """
+    one = ranks is None or not ranks.distributed
     from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
     distill = cfg["algorithm"]["class_name"] == "Distillation"
@@ -190,6 +207,23 @@ def make_runner(env: Any, cfg: dict[str, Any], *, log_dir: Path | None, device: 
                     return super().learn(num_learning_iterations, init_at_random_ep_len)
             finally:
                 self.alg.update = update
+
+        def _configure_multi_gpu(self) -> None:
+            """rsl_rl's, except that the process group is humimic's (gloo on the CPU, NCCL
+            on GPUs; rsl_rl's own allows NCCL alone) and that only ``ranks`` enables it."""
+            if one:
+                self.gpu_world_size, self.is_distributed = 1, False
+                self.gpu_local_rank = self.gpu_global_rank = 0
+                self.cfg["multi_gpu"] = None
+                return
+            assert ranks is not None
+            self.gpu_world_size, self.is_distributed = ranks.world_size, True
+            self.gpu_local_rank, self.gpu_global_rank = ranks.local_rank, ranks.rank
+            self.cfg["multi_gpu"] = {
+                "global_rank": ranks.rank,
+                "local_rank": ranks.local_rank,
+                "world_size": ranks.world_size,
+            }
 
         def save(self, path: str, infos: dict | None = None) -> None:
             del path, infos  # Checkpoints are written by save_checkpoint.

@@ -15,7 +15,7 @@ import csv
 import math
 import shutil
 import time
-from dataclasses import asdict, dataclass, fields, is_dataclass, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,6 +27,7 @@ from humimic.configs.runs import TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
+from humimic.tracking import distributed
 from humimic.tracking.config import (
     DR_PROFILES,
     DomainRandomization,
@@ -34,6 +35,7 @@ from humimic.tracking.config import (
     load_dr_profile,
     tracking_task,
 )
+from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
 
 if TYPE_CHECKING:
@@ -177,19 +179,19 @@ class _Progress:
     num_envs: int
     steps_per_env: int
     max_seconds: float | None = None
+    ranks: Ranks = field(default_factory=Ranks)
     last: dict[str, float] | None = None
 
     def __call__(self, *, it: int, loss_dict: dict, learning_rate: float, action_std: torch.Tensor,
                  collect_time: float, learn_time: float, **_: Any) -> None:  # fmt: skip
-        lg = self.runner.logger
+        lg, ranks = self.runner.logger, self.ranks
         done = it + 1
+        batch = self.num_envs * self.steps_per_env * ranks.world_size  # Over all ranks.
         row: dict[str, float] = {
             "iteration": done,
-            "env_steps": done * self.num_envs * self.steps_per_env,
+            "env_steps": done * batch,
             "seconds": time.perf_counter() - self.started,
-            "steps_per_second": self.num_envs
-            * self.steps_per_env
-            / max(collect_time + learn_time, 1e-9),
+            "steps_per_second": batch / max(collect_time + learn_time, 1e-9),
             "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
             "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
             "learning_rate": float(learning_rate),
@@ -204,14 +206,32 @@ class _Progress:
         lg.ep_extras.clear()
         bad = [k for k, v in row.items() if k.startswith(("loss_", "action_std")) and
                not math.isfinite(v)]  # fmt: skip
-        params = self.runner.alg.get_policy().parameters()
-        if bad or not all(bool(torch.isfinite(p).all()) for p in params):
+        params = list(self.runner.alg.get_policy().parameters())
+        finite = all(bool(torch.isfinite(p).all()) for p in params)
+        time_up = self.max_seconds is not None and row["seconds"] > self.max_seconds
+        if ranks.distributed:  # Every rank stops, or none: rank 0's clock decides time-ups.
+            row["rank_param_spread"] = parameter_spread(params)
+            flags = agree([int(bool(bad) or not finite), int(time_up and ranks.main)],
+                          self.runner.device)  # fmt: skip
+            finite, time_up = not flags[0] and finite, bool(flags[1])
+            bad = bad or ([] if flags[0] == 0 else ["values on another rank"])
+        if bad or not finite:
             last = _checkpoints(self.run)
             raise TrainingDiverged(
                 f"training diverged at iteration {done}: non-finite "
                 f"{', '.join(bad) or 'policy parameters'}; the last good checkpoint is "
                 f"{last[-1] if last else 'none'}"
             )
+        if row.get("rank_param_spread", 0.0) != 0.0:
+            raise HumimicError(
+                f"iteration {done}: the ranks' policies differ by up to "
+                f"{row['rank_param_spread']:.3g}; data-parallel training must keep them equal"
+            )
+        self.last = row
+        if not ranks.main:  # Rank 0 alone writes the run folder and shows progress.
+            if time_up:
+                raise _TimeUp
+            return
         if lg.writer is not None:
             for k, v in row.items():
                 if k != "iteration":
@@ -223,13 +243,11 @@ class _Progress:
             if new:
                 w.writeheader()
             w.writerow(row)
-        self.last = row
         if self.bar is not None:
             self.bar.update(1)
             self.bar.set_postfix(reward=f"{row['mean_reward']:.3g}",
                                  ep_len=f"{row['mean_episode_length']:.0f}",
                                  sps=f"{row['steps_per_second']:.0f}")  # fmt: skip
-        time_up = self.max_seconds is not None and row["seconds"] > self.max_seconds
         if done % self.every == 0 or done == self.total or time_up:
             path = self.run / "checkpoints" / f"model_{done:06d}.pt"
             self.runner.save_checkpoint(path, done)
@@ -283,9 +301,14 @@ def ppo_for(settings: TrainSettings) -> PpoConfig:
 
 
 def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
-    """Train (or resume) a tracking policy. Returns the last progress row."""
+    """Train (or resume) a tracking policy. Returns the last progress row.
+
+    Under torchrun (``WORLD_SIZE`` > 1) every process trains data-parallel with the others
+    (:mod:`humimic.tracking.distributed`); ``--num-envs`` is each process's.
+    """
     s = settings
     run = s.out
+    ranks = Ranks.from_env()
     has_run = check_run_settings(s)
     if s.resume:
         old = read_run_settings(run)
@@ -296,7 +319,10 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             )
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
-    task = replace(task_config(s.robot, s.dr, s.seed, s.physics), torch_compile=s.compile)
+    seed = s.seed + ranks.rank  # Each rank collects its own experience.
+    task = replace(
+        task_config(s.robot, s.dr, seed, s.physics), torch_compile=s.compile, backend=s.backend
+    )
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
     cfg = train_cfg(ppo or ppo_for(s))
     init = None
@@ -305,38 +331,52 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
         file = s.init_from if s.init_from.is_file() else None
         init = resolve_checkpoint(s.init_from, file)
-    created = not run.exists()
-    check_writable(run / "config.yaml")
-    torch.manual_seed(s.seed)
-    env = run_env(task, motion, s, created)
+    device = s.device
+    if ranks.distributed:
+        device = distributed.start(ranks, s.device)
+        agree([0], device)  # Every rank has checked the run folder before rank 0 writes it.
+    created = not run.exists() and ranks.main
     try:
-        runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
-        if init is not None:
-            try:
-                runner.load_checkpoint(init[1])
-            except (RuntimeError, KeyError) as e:
-                if created:  # Leave nothing behind for a run that never started.
-                    shutil.rmtree(run, ignore_errors=True)
-                raise InputError(
-                    f"--init-from {init[0]}: its networks do not fit this run's (variant "
-                    f"{s.variant!r}, task of {s.robot!r}): {str(e).splitlines()[0]}"
-                ) from None
-            runner.current_learning_iteration = 0
-        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-        if not has_run:
-            _write_config(run, s, task, cfg)
-        return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
+        if ranks.main:
+            check_writable(run / "config.yaml")
+        torch.manual_seed(seed)
+        env = run_env(task, motion, s, created, device=device)
+        try:
+            log_dir = run / "tensorboard" if ranks.main else None
+            runner = make_runner(env, cfg, log_dir=log_dir, device=device, ranks=ranks)
+            if init is not None:
+                try:
+                    runner.load_checkpoint(init[1])
+                except (RuntimeError, KeyError) as e:
+                    if created:  # Leave nothing behind for a run that never started.
+                        shutil.rmtree(run, ignore_errors=True)
+                    raise InputError(
+                        f"--init-from {init[0]}: its networks do not fit this run's (variant "
+                        f"{s.variant!r}, task of {s.robot!r}): {str(e).splitlines()[0]}"
+                    ) from None
+                runner.current_learning_iteration = 0
+            if ranks.main:
+                (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+                if not has_run:
+                    _write_config(run, s, task, cfg)
+            steps = int(cfg["num_steps_per_env"])
+            return fit(runner, run, s, steps_per_env=steps, ranks=ranks)
+        finally:
+            env.close()
     finally:
-        env.close()
+        distributed.stop()
 
 
-def run_env(task: TrackingConfig, motion: Motion, s: Any, created: bool) -> TrackingEnv:
-    """The env of a run command (``s``: its settings); if it cannot be built (a bad task, a
-    failing ``--compile``), the run folder this command ``created`` is removed again."""
+def run_env(
+    task: TrackingConfig, motion: Motion, s: Any, created: bool, device: str | None = None
+) -> TrackingEnv:
+    """The env of a run command (``s``: its settings; on ``device``, default ``s.device``); if
+    it cannot be built (a bad task, a failing ``--compile``), the run folder this command
+    ``created`` is removed again."""
     from humimic.tracking.env import TrackingEnv
 
     try:
-        return TrackingEnv(task, motion, s.num_envs, device=s.device)
+        return TrackingEnv(task, motion, s.num_envs, device=device or s.device)
     except BaseException:
         if created:
             shutil.rmtree(s.out, ignore_errors=True)
@@ -361,7 +401,7 @@ def check_run_settings(s: Any) -> bool:
     return has_run
 
 
-def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int) -> dict:
+def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | None = None) -> dict:
     """Run a runner's learning loop for a run folder: resume from its newest checkpoint if
     ``s.resume``, progress bar, CSV, checks, periodic atomic checkpoints, time budget.
 
@@ -371,6 +411,7 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int) -> dict:
         s: Settings with ``resume``, ``max_iterations``, ``checkpoint_every``, ``quiet``,
             ``num_envs`` and ``max_minutes`` (:class:`TrainSettings`, ``DistillSettings``).
         steps_per_env: Rollout length per iteration.
+        ranks: This process's place in a data-parallel run (default: a single process).
 
     Returns:
         The last progress row.
@@ -386,20 +427,23 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int) -> dict:
     if start >= s.max_iterations:
         print(f"{run}: {start} iterations done already (--max-iterations {s.max_iterations})")
         return {"iteration": start}
+    ranks = ranks or Ranks()
     bar = None
-    if not s.quiet:
+    if not s.quiet and ranks.main:
         from tqdm import tqdm
 
         bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc=run.name or "train")
     progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
                          total=s.max_iterations, bar=bar, started=time.perf_counter(),
                          num_envs=s.num_envs, steps_per_env=steps_per_env,
-                         max_seconds=None if s.max_minutes is None else 60 * s.max_minutes)  # fmt: skip
+                         max_seconds=None if s.max_minutes is None else 60 * s.max_minutes,
+                         ranks=ranks)  # fmt: skip
     runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
     try:
         runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
     except _TimeUp:
-        print(f"{run}: --max-minutes {s.max_minutes} reached; resume to continue")
+        if ranks.main:
+            print(f"{run}: --max-minutes {s.max_minutes} reached; resume to continue")
     except ValueError as e:  # rsl_rl's NaN check on observations and rewards.
         if "NaN" in str(e):
             raise TrainingDiverged(f"training diverged: {e}") from None
