@@ -107,3 +107,38 @@ def test_second_robot_uses_the_same_code(shared_data: Path) -> None:
     assert r["max_ground_penetration_mm"] <= 5.0
     assert r["median_lowest_foot_mm"] <= 15.0
     assert r["keypoint_error_mm_mean"] <= 40.0
+
+
+def test_toe_targets_hold_where_the_humans_toe_is_still() -> None:
+    """hold_still_points: the target stops where the human's point stops (not where the
+    bone-length remapping carries it), except on floor plants, and a hold ends where the
+    human's point drifts farther than the radius."""
+    from humimic.retarget.targets import Targets, hold_still_points
+
+    T, fps = 40, 30.0
+    human = np.zeros((T, 1, 3))
+    human[:, 0, 0] = np.concatenate([np.linspace(0, 0.5, 10), np.full(20, 0.5),
+                                     0.5 + np.linspace(0.01, 0.5, 10)])  # fmt: skip
+    human[20:30, 0, 1] = np.linspace(0, 0.025, 10)  # a slow drift: past 2 cm at frame 28
+    pos = human.copy()
+    pos[:, 0, 0] += np.linspace(0, 0.3, T)  # the remapped target keeps moving
+    planted = np.zeros((T, 1), dtype=bool)
+    planted[12:14] = True  # a floor plant holds these frames already
+    z = np.zeros((T, 1, 3, 3))
+    tg = Targets(positions=pos, scaled=pos, human=human, position_weights=np.ones((T, 1)),
+                 frame_rots=z, foot_rots=z, foot_weights=np.ones((T, 1)),
+                 contacts=np.zeros((T, 1, 2), dtype=bool), scale=1.0, human_ground=0.0,
+                 human_height=1.7, fps=fps, yaw=0.0, origin=np.zeros(3), z_offset=0.0)  # fmt: skip
+    out = hold_still_points(tg, np.array([0]), planted, speed=0.3, radius=0.02, weight_scale=5.0)
+    held, xy = out.positions[:, 0, :2], pos[:, 0, :2]
+    # Holds from frame 10 (the first slow step), split by the plant and by the drift.
+    for start, stop in ((10, 12), (14, 28), (28, 30)):
+        np.testing.assert_array_equal(held[start:stop], np.repeat(xy[start : start + 1],
+                                                                  stop - start, axis=0))  # fmt: skip
+        assert np.all(out.position_weights[start:stop, 0] == 5.0)
+    np.testing.assert_array_equal(held[12:14], xy[12:14])  # The plant's frames as they were.
+    np.testing.assert_array_equal(held[:10], xy[:10])  # Moving: as they were.
+    np.testing.assert_array_equal(held[30:], xy[30:])
+    np.testing.assert_array_equal(out.positions[:, 0, 2], pos[:, 0, 2])  # Heights untouched.
+    assert np.all(out.position_weights[:10] == 1.0) and np.all(out.position_weights[30:] == 1.0)
+    np.testing.assert_array_equal(tg.positions, pos)  # The input is not changed.

@@ -151,11 +151,16 @@ class InteractionConfig:
             zero fights the linearized non-penetration limit).
         still_speed: While the human's toe moves slower than this horizontally [m/s, the
             human scaled by the root scale, bone lengths unchanged], in the air too
-            (holosoma's notion of foot sticking), the front of the robot's sole moves at most
-            0.75 times as fast (a hard limit, dropped for a frame where it conflicts with the
-            non-penetration limits or where the frame's warm start has moved that toe more than
-            ``still_reach``). Off by default (0; BENCHMARKS.md has its effect on the climbing
-            clips). Planted points are held in all three axes whatever this is.
+            (holosoma's notion of foot sticking): the robot's toe target keeps the horizontal
+            position it had when the human's toe stopped (until the human's toe drifts farther
+            than the IK's ``plant_radius``: :func:`~humimic.retarget.targets.hold_still_points`),
+            and the front of the robot's sole moves at most 0.75 times as fast (a hard limit,
+            dropped for a frame where it conflicts with the non-penetration limits or where the
+            frame's warm start has moved that toe more than ``still_reach``). The held targets
+            are also the kinematic warm start's. 0 turns both off (the warm start is then
+            exactly ``--method kinematic``). Keep ``0.75 * still_speed / fps`` under 1 cm
+            (holosoma's sliding threshold per frame): at 0.45 and 30 fps the cap lets a toe
+            slide (BENCHMARKS.md). Planted points are held in all three axes whatever this is.
         still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
             warm start puts it within this horizontal distance [m] of where it was: farther,
             the targets have moved on and holding the toe back drags the body after it.
@@ -178,8 +183,8 @@ class InteractionConfig:
     smooth_weight: float = 5.0
     reattach_iterations: int = 3
     contact_gap: float = 0.01
-    still_speed: float = 0.0
-    still_reach: float = 0.03
+    still_speed: float = 0.32
+    still_reach: float = 0.10
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""

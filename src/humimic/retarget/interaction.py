@@ -5,7 +5,8 @@ Humanoid Whole-Body Loco-Manipulation and Scene Interaction", 2025), which build
 interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
 
 1. The kinematic result (:class:`~humimic.retarget.kinematic.KinematicRetargeter`, on the
-   same targets) is the warm start.
+   same targets, whose toe targets ``still_speed`` holds where the human's toes are still:
+   :func:`~humimic.retarget.targets.hold_still_points`) is the warm start.
 2. The frame's interaction mesh is the Delaunay tetrahedralization of the scaled human's key
    points and the scene points near them (the scene is mapped into the robot's frame with the
    human's heading, origin, scale and height calibration); its Laplacian coordinates are the
@@ -46,7 +47,7 @@ from humimic.retarget.kinematic import (
 )
 from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.scene import Scene, human_contacts
-from humimic.retarget.targets import RobotGeometry
+from humimic.retarget.targets import RobotGeometry, hold_still_points
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
 from humimic.robots.maps import RetargetMap
 from humimic.robots.registry import RobotConfig
@@ -195,8 +196,14 @@ class InteractionMeshRetargeter:
                                   menagerie_root=self.menagerie_root, scene=scene_r)  # fmt: skip
         model, conf = kin.model, kin.configuration
         set_scene_pose(model, conf.data, scene_r, 0)
-        kres = kin.run(clip, progress=progress)
-        tg = kres.targets
+        tg = kin.targets(clip)
+        names = list(self.map.keypoints)
+        foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
+        if icfg.still_speed > 0:  # Toe targets still where the human's toes are.
+            tg = hold_still_points(tg, foot_idx[:, 1], tg.contacts[:, :, 1],
+                                   speed=icfg.still_speed, radius=self.cfg.plant_radius,
+                                   weight_scale=self.cfg.contact_weight_scale)  # fmt: skip
+        kres = kin.run(clip, progress=progress, targets=tg)
         T = tg.positions.shape[0]
 
         robot_geoms, obj_geoms = robot_collision_geoms(model), scene_geoms(model)
@@ -213,8 +220,6 @@ class InteractionMeshRetargeter:
         scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
-        names = list(self.map.keypoints)
-        foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
         # A toe the human barely moves horizontally: the front of the robot's sole moves at
         # most STILL_TRAVEL times as fast.

@@ -246,10 +246,16 @@ class KinematicRetargeter:
         """IK targets for ``clip`` resampled to the output frame rate."""
         return build_targets(clip.resample(self.cfg.fps), self.map, self.geometry, self.cfg)
 
-    def run(self, clip: HumanClip, progress: Callable[[int], Any] | None = None) -> KinematicResult:
-        """Retarget a clip. ``progress(n)`` is called after every frame."""
+    def run(
+        self,
+        clip: HumanClip,
+        progress: Callable[[int], Any] | None = None,
+        targets: Targets | None = None,
+    ) -> KinematicResult:
+        """Retarget a clip. ``progress(n)`` is called after every frame. ``targets``: the
+        clip's targets, changed by the caller (default: :meth:`targets`)."""
         cfg = self.cfg
-        targets = self.targets(clip)
+        targets = self.targets(clip) if targets is None else targets
         T = targets.positions.shape[0]
         conf = self.configuration
         step = (

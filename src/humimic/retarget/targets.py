@@ -20,7 +20,7 @@ Steps (all documented in docs/retargeting.md):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -269,6 +269,46 @@ def build_targets(
             + scale * (ground - np.mean(planted_h[:, 1]))
         ),
     )
+
+
+def hold_still_points(
+    tg: Targets,
+    keys: np.ndarray,
+    planted: np.ndarray,
+    *,
+    speed: float,
+    radius: float,
+    weight_scale: float,
+) -> Targets:
+    """Targets whose points ``keys`` stand still horizontally where the human's own points do.
+
+    A robot key point's target hangs from its parent with the robot's bone length along the
+    human's bone, so it moves when the human's body moves over a still foot (a toe resting on a
+    box while the human climbs onto it). Where the human's point (``tg.human``) moves slower
+    than ``speed`` horizontally, off the floor contacts (planted already), the target keeps the
+    horizontal position it had when the point stopped, with its weight times ``weight_scale``;
+    a hold ends where the human's point drifts further than ``radius`` from where it stopped
+    (:func:`~humimic.retarget.contacts.plant_segments`).
+
+    Args:
+        tg: The targets. keys: Key point indices. Shape: (N,).
+        planted: Frames where a point is planted on the floor already. Shape: (T, N).
+        speed: Horizontal speed under which a human point is still [m/s].
+        radius: Largest drift within one hold [m].
+        weight_scale: Weight factor of a held point.
+    """
+    pos, weights = tg.positions.copy(), tg.position_weights.copy()
+    T = pos.shape[0]
+    for n, key in enumerate(keys):
+        v = np.zeros(T)
+        v[1:] = np.linalg.norm(np.diff(tg.human[:, key, :2], axis=0), axis=-1) * tg.fps
+        still = (v < speed) & ~planted[:, n]
+        for start, stop in plant_segments(still, tg.human[:, key, :2], radius):
+            if stop - start < 2:
+                continue
+            pos[start:stop, key, :2] = pos[start, key, :2]
+            weights[start:stop, key] *= weight_scale
+    return replace(tg, positions=pos, position_weights=weights)
 
 
 def _foot_rotations(
