@@ -7,6 +7,7 @@ caches them in ``~/.cache/warp``). Run with ``bash scripts/test.sh -m slow tests
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -42,7 +43,7 @@ def model() -> mujoco.MjModel:
 
 
 def _backends(
-    model: mujoco.MjModel, device: str = "cpu", **kw
+    model: mujoco.MjModel, device: str = "cpu", method: str = "threads", **kw
 ) -> tuple[MujocoCpuBackend, MujocoWarpBackend]:
     cfg = g1_tracking("default")
     names = {
@@ -54,7 +55,7 @@ def _backends(
     }
     # The thread pool keeps each env's MjData, so the solver's warm start carries over between
     # env steps as it does in MJWarp (rollout restarts it at every call).
-    cpu = MujocoCpuBackend(model, N, method="threads", nthread=1, **names)
+    cpu = MujocoCpuBackend(model, N, method=method, nthread=1, **names)  # type: ignore[arg-type]
     gpu = MujocoWarpBackend(model, N, device=device, **names, **kw)
     return cpu, gpu
 
@@ -157,6 +158,32 @@ def test_the_env_reads_the_same_through_either_backend(model: mujoco.MjModel, de
         torch.testing.assert_close(rg, rc, atol=1e-4, rtol=0)
 
 
+@pytest.mark.parametrize("device", DEVICES)
+def test_open_loop_rollouts_agree_with_the_cpu_backends(model: mujoco.MjModel, device: str) -> None:
+    """``rollout`` (the dynamics retargeter's call): the same states and sensors after each
+    physics step as the CPU backend's, from given states and warm starts, and the envs' own
+    states untouched."""
+    rng = np.random.default_rng(2)
+    cpu, gpu = _backends(model, device, method="rollout")
+    qpos, qvel = _start(model, rng)
+    for be in (cpu, gpu):
+        be.reset_to(np.arange(N), qpos, qvel)
+    start = np.stack([cpu.env_state(i) for i in range(N)])
+    np.testing.assert_allclose(np.stack([gpu.env_state(i) for i in range(N)]), start, atol=1e-6)
+    nstep = 24
+    controls = qpos[:, None, 7:] + rng.uniform(-0.05, 0.05, size=(N, nstep, model.nu))
+    warm = np.zeros((N, model.nv))
+    own = gpu.read().qpos.copy()
+    sc, nc = cpu.rollout(start, controls, warm)
+    sg, ng = gpu.rollout(start, controls, warm)
+    assert sg.shape == sc.shape and ng.shape == nc.shape
+    _close(sg, sc, "rollout states", 1e-3)
+    _close(ng, nc, "rollout sensors", 1e-2, rtol=0.02)
+    np.testing.assert_array_equal(gpu.read().qpos, own)
+    with pytest.raises(InputError, match="rollout"):
+        gpu.rollout(start[:1], controls, warm)
+
+
 def test_running_out_of_constraint_rows_is_an_error_not_dropped_contacts(
     model: mujoco.MjModel,
 ) -> None:
@@ -181,3 +208,22 @@ def test_bad_settings_are_refused(model: mujoco.MjModel) -> None:
         build_backend(replace(cfg, backend="warp"), 1, model=model, device="mps")
     with pytest.raises(InputError, match="njmax"):
         build_backend(replace(cfg, backend="warp", warp=WarpOptions(njmax=0)), 1, model=model)
+
+
+def test_dynamics_retargeting_samples_on_the_warp_backend(shared_data: Path) -> None:
+    """``humimic refine --backend warp``: the sampled rollouts run in MJWarp; the result's
+    stored states are MuJoCo's replay of its controls, and it beats the raw reference."""
+    from humimic.configs import DynamicsConfig, RetargetConfig
+    from humimic.datasets import load_clip
+    from humimic.retarget import Retargeter
+    from humimic.retarget.dynamics import check_replay, refine
+
+    clip = load_clip(shared_data / "cmu" / "35_01.bvh").slice(1, 49)  # 0.4 s
+    walk = Retargeter("g1", "cmu", RetargetConfig(fps=50.0)).run(clip).motion
+    cfg = DynamicsConfig(samples=16, iterations=2, horizon_s=0.2)
+    motion, report = refine(walk, cfg, robustness=0, backend="warp", device="cpu")
+    r = check_replay(motion)
+    assert r["max_qpos_error"] <= 1e-12 and r["max_qvel_error"] <= 1e-12
+    kin, dyn = report["kinematic_replay"], report["dynamics_replay"]
+    assert not dyn["fell"]
+    assert dyn["mpjpe_mm"] < kin["mpjpe_mm"], report

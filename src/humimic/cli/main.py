@@ -104,6 +104,11 @@ class RefineCommand:
     """Sampler settings."""
     robustness: int = 8
     """Replays of the result on perturbed physics, for the report."""
+    backend: Literal["cpu", "warp"] = "cpu"
+    """Simulator of the sampled rollouts: cpu (mujoco.rollout) or warp (MuJoCo Warp on --device;
+    humimic[gpu])."""
+    device: str = "cpu"
+    """Where the warp backend simulates (cuda)."""
     quiet: bool = False
     """No progress bar."""
 
@@ -506,7 +511,8 @@ def run_refine(cmd: RefineCommand) -> dict:
     motion = load_motion(cmd.motion)
     with tqdm(total=motion.num_frames - 1, desc=cmd.motion.name, unit="frame",
               disable=cmd.quiet, leave=False) as bar:  # fmt: skip
-        refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=bar.update)
+        refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=bar.update,
+                                 backend=cmd.backend, device=cmd.device)  # fmt: skip
     report = json_ready(report)
     _save_with_report(refined, cmd.out, report, cmd.report)
     _print_dynamics(report, cmd.out)

@@ -36,7 +36,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal
 
 import mujoco
 import numpy as np
@@ -49,6 +49,7 @@ from humimic.tracking import dr as dr_mod
 from humimic.tracking.backend import MujocoCpuBackend
 from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
 from humimic.tracking.env import build_backend, tracking_model
+from humimic.tracking.warp_backend import MujocoWarpBackend
 from humimic.transforms import quat_to_matrix
 
 _UPPER = ("waist", "shoulder", "elbow", "wrist")
@@ -116,8 +117,11 @@ class DynamicsRetargeter:
             step must divide the frame period).
         cfg: The sampler's settings.
         task: The tracking task whose training model and tracked bodies are used (default:
-            the robot's registered task, without domain randomization).
-        nthread: Rollout threads (default: all cores).
+            the robot's registered task, without domain randomization). Its ``backend``
+            simulates the rollouts: ``cpu`` (``mujoco.rollout``) or ``warp`` (MuJoCo Warp on
+            ``device``).
+        nthread: Rollout threads of the CPU backend (default: all cores).
+        device: Where the ``warp`` backend simulates (``cuda``; ``cpu`` for tests).
 
     Raises:
         InputError: If the settings or the motion do not fit.
@@ -130,6 +134,7 @@ class DynamicsRetargeter:
         *,
         task: TrackingConfig | None = None,
         nthread: int | None = None,
+        device: str = "cpu",
     ) -> None:
         cfg = cfg or DynamicsConfig()
         cfg.validate()
@@ -154,7 +159,9 @@ class DynamicsRetargeter:
         n = cfg.samples * members
         dr = _ensemble_ranges(dr_default()) if cfg.ensemble else task.dr
         bcfg = replace(task, dr=dr, num_threads=nthread)
-        self.backend: MujocoCpuBackend = build_backend(bcfg, n, model=model)
+        self.backend: MujocoCpuBackend | MujocoWarpBackend = build_backend(  # type: ignore[assignment]
+            bcfg, n, model=model, device=device
+        )
         self.model = model
         if cfg.ensemble:
             rng = np.random.default_rng(cfg.seed + 1)
@@ -426,7 +433,7 @@ def evaluate_replay(
 
 
 def perturbed_models(
-    model: mujoco.MjModel, backend: MujocoCpuBackend, count: int, seed: int
+    model: mujoco.MjModel, backend: MujocoCpuBackend | MujocoWarpBackend, count: int, seed: int
 ) -> list[mujoco.MjModel]:
     """``count`` copies of ``model`` with friction, masses, CoM, PD gains and armature drawn
     from the ``default`` domain-randomization ranges (robustness of a replay)."""
@@ -558,6 +565,8 @@ def refine(
     robustness: int = 8,
     progress: Callable[[int], Any] | None = None,
     nthread: int | None = None,
+    backend: Literal["cpu", "warp"] = "cpu",
+    device: str = "cpu",
 ) -> tuple[Motion, dict[str, Any]]:
     """``humimic refine``: the dynamically feasible version of ``motion`` and its report.
 
@@ -566,11 +575,14 @@ def refine(
     state, the controls and the states of every physics step. The report compares the
     open-loop replay of the kinematic reference (its next frame's joints as PD targets) with
     that of the result (:func:`evaluate_replay`), and replays the result on ``robustness``
-    perturbed models (``default`` domain-randomization ranges).
+    perturbed models (``default`` domain-randomization ranges). ``backend`` and ``device``
+    choose the simulator of the sampled rollouts (:class:`DynamicsRetargeter`); the replays
+    are MuJoCo's on the CPU either way.
     """
     from humimic.motion import motion_from_qpos
 
-    dyn = DynamicsRetargeter(motion, cfg, nthread=nthread)
+    task = replace(tracking_task(motion.robot, dr="none"), backend=backend)
+    dyn = DynamicsRetargeter(motion, cfg, task=task, nthread=nthread, device=device)
     res = dyn.run(progress=progress)
     kin = evaluate_replay(dyn, dyn.reference_controls(), res.initial_state)
     mine = evaluate_replay(dyn, res.ctrl, res.initial_state)
@@ -601,7 +613,9 @@ def refine(
         "physics_steps": res.rollouts,
         "samples": dyn.cfg.samples * (dyn.cfg.ensemble + 1),
         "mean_iterations_per_window": float(np.mean(res.iterations)),
-        "threads": dyn.backend.nthread,
+        "backend": backend,
+        "device": device if backend == "warp" else "cpu",
+        "threads": dyn.backend.nthread if isinstance(dyn.backend, MujocoCpuBackend) else None,
     }
     frames = res.frame_qpos()
     out = motion_from_qpos(

@@ -33,6 +33,9 @@ It needs the optional extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``wa
   :class:`~humimic.errors.HumimicError` naming the setting rather than dropping contacts
   silently.
 
+It also serves the dynamics retargeter (:meth:`MujocoWarpBackend.rollout`, the CPU backend's
+open-loop rollouts from given states).
+
 Not supported yet: actuators with a command history (the transport delay of a physics file);
 the backend refuses such a model with a clear error.
 """
@@ -184,6 +187,12 @@ class MujocoWarpBackend(LayoutBackend):
         self._sens, self._overflow = t(d.sensordata), t(d.overflow)
         self._warmstart, self._time = t(d.qacc_warmstart), t(d.time)
         self._act = t(d.act) if model.na else None
+        self._nstate = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        if self._nstate != 1 + model.nq + model.nv + model.na:
+            raise InputError(
+                "the warp backend keeps time, qpos, qvel and act of a full physics state: this "
+                "model's state holds more (mocap bodies, user data or plugins)"
+            )
         self._fields = (
             {f: t(getattr(m, f)) for f in (*DR_FIELDS, *_DERIVED_FIELDS)} if per_env_models else {}
         )
@@ -321,6 +330,61 @@ class MujocoWarpBackend(LayoutBackend):
                 f"MuJoCo Warp ran out of {', '.join(hit)}: contacts were dropped. Raise "
                 "nconmax / njmax (TrackingConfig.warp)"
             )
+
+    @property
+    def sensor_slices(self) -> dict[str, slice]:
+        """Where the read-out sensors sit in a row of sensor data (see
+        :attr:`MujocoCpuBackend.sensor_slices <humimic.tracking.backend.MujocoCpuBackend.sensor_slices>`)."""
+        return dict(self.layout.sensor_slices)
+
+    def _state_parts(self) -> list[torch.Tensor]:
+        """The warp arrays of a full physics state (``mjSTATE_FULLPHYSICS``), in its order."""
+        parts = [self._time[:, None], self._qpos, self._qvel]
+        return parts if self._act is None else [*parts, self._act]
+
+    def env_state(self, env_id: int) -> np.ndarray:
+        """Env ``env_id``'s full physics state (``mjSTATE_FULLPHYSICS``). Shape: (nstate,)."""
+        row = torch.cat([p[env_id] for p in self._state_parts()])
+        return row.double().cpu().numpy()
+
+    def rollout(
+        self, state: np.ndarray, controls: np.ndarray, warmstart: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Open-loop rollouts of every env from given full physics states under a control per
+        physics step, as :meth:`MujocoCpuBackend.rollout
+        <humimic.tracking.backend.MujocoCpuBackend.rollout>` (the same arguments and results);
+        the envs' own states stay as they were.
+
+        Raises:
+            InputError: On wrong shapes.
+        """
+        n, nstep = self.num_envs, int(controls.shape[1])
+        if state.shape != (n, self._nstate) or controls.shape != (n, nstep, self.nu):
+            raise InputError(
+                f"rollout: expected states ({n}, {self._nstate}) and controls ({n}, nstep, "
+                f"{self.nu}), got {state.shape} and {controls.shape}"
+            )
+        if warmstart is not None and warmstart.shape != (n, self.nv):
+            raise InputError(f"rollout: warmstart must be ({n}, {self.nv}), got {warmstart.shape}")
+        parts = self._state_parts()
+        own = [p.clone() for p in (*parts, self._ctrl, self._warmstart, self._sens)]
+        widths = [p.shape[1] for p in parts]
+        start = self._rows(state, n, self._nstate)
+        for dst, src in zip(parts, start.split(widths, dim=1), strict=True):
+            dst.copy_(src)
+        self._warmstart.copy_(0.0 if warmstart is None else self._rows(warmstart, n, self.nv))
+        ctrl = self._rows(controls, n, nstep * self.nu).view(n, nstep, self.nu)
+        out_state = torch.empty(n, nstep, self._nstate, device=self.device)
+        out_sens = torch.empty(n, nstep, self._sens.shape[1], device=self.device)
+        mjw, m, d = self._mjw, self._m, self._d
+        for k in range(nstep):
+            self._ctrl.copy_(ctrl[:, k])
+            self._run("step1", lambda: mjw.step(m, d))
+            out_state[:, k] = torch.cat(parts, dim=1)
+            out_sens[:, k] = self._sens
+        for dst, src in zip((*parts, self._ctrl, self._warmstart, self._sens), own, strict=True):
+            dst.copy_(src)
+        return out_state.double().cpu().numpy(), out_sens.double().cpu().numpy()
 
     def read(self) -> PhysicsReadout:
         self._refresh()
