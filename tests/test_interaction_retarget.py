@@ -90,3 +90,21 @@ def test_cli_interaction_mesh_with_a_scene_file(
     assert report["max_scene_penetration_mm"] <= 10.0
     assert "scene: penetration" in capsys.readouterr().out
     assert load_motion(tmp_path / "m.npz").extras["scene_poses"].shape[1] == 1  # type: ignore[index]
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("still_travel", 0.0),
+        ("still_travel", 1.5),
+        ("still_reach", 0.0),
+        ("still_speed", -0.1),
+    ],
+)
+def test_toe_hold_settings_are_checked(field: str, value: float) -> None:
+    from dataclasses import replace
+
+    from humimic.errors import InputError
+
+    with pytest.raises(InputError, match=f"mesh.{field}"):
+        replace(InteractionConfig(), **{field: value}).validate()

@@ -154,13 +154,17 @@ class InteractionConfig:
             (holosoma's notion of foot sticking): the robot's toe target keeps the horizontal
             position it had when the human's toe stopped (until the human's toe drifts farther
             than the IK's ``plant_radius``: :func:`~humimic.retarget.targets.hold_still_points`),
-            and the front of the robot's sole moves at most 0.75 times as fast (a hard limit,
+            and the front of the robot's sole moves at most ``still_travel`` times as fast (a hard limit,
             dropped for a frame where it conflicts with the non-penetration limits or where the
             frame's warm start has moved that toe more than ``still_reach``). The held targets
             are also the kinematic warm start's. 0 turns both off (the warm start is then
-            exactly ``--method kinematic``). Keep ``0.75 * still_speed / fps`` under 1 cm
-            (holosoma's sliding threshold per frame): at 0.45 and 30 fps the cap lets a toe
-            slide (BENCHMARKS.md). Planted points are held in all three axes whatever this is.
+            exactly ``--method kinematic``). Keep ``still_travel * still_speed / fps`` well
+            under 1 cm (holosoma's sliding threshold per frame): the cap bounds the front
+            contact points, and a point ahead of them (a toe tip) moves up to 1.2 times as far
+            while the foot turns. Planted points are held in all three axes whatever this is.
+        still_travel: The share of ``still_speed`` the front of a sole may move while the
+            human's toe is still (the cap above). Chosen on the climbing clips, where the
+            result is sensitive to it (BENCHMARKS.md: 0.6 best of 0.5-0.75).
         still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
             warm start puts it within this horizontal distance [m] of where it was: farther,
             the targets have moved on and holding the toe back drags the body after it.
@@ -185,6 +189,7 @@ class InteractionConfig:
     contact_gap: float = 0.01
     still_speed: float = 0.32
     still_reach: float = 0.10
+    still_travel: float = 0.6
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--mesh.<field>``)."""
@@ -195,6 +200,8 @@ class InteractionConfig:
                         "stick_weight", "contact_weight", "smooth_weight", "contact_gap",
                         "still_speed")  # fmt: skip
         _check_numbers(self, "mesh", non_negative, positive=False)
+        if not 0 < self.still_travel <= 1:
+            raise InputError(f"mesh.still_travel: must be in (0, 1], got {self.still_travel}")
         if self.iterations < 1 or self.max_scene_points < 0 or self.reattach_iterations < 0:
             raise InputError(
                 "mesh.iterations must be >= 1, mesh.max_scene_points and "

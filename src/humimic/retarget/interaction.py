@@ -147,11 +147,6 @@ def set_scene_pose(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, t: 
         data.mocap_quat[mocap] = p[3:]
 
 
-STILL_TRAVEL = 0.75
-"""While the human's toe moves slower than ``still_speed``, the front contact points of the
-robot's sole move at most this share of it: a point up to a third of the front's width ahead
-of them (a toe tip) then moves at most 0.9 times ``still_speed``, even while the foot turns."""
-
 TOE_DEPTH = 0.01
 """A sole's contact points within this distance [m] of its foremost one are its front."""
 
@@ -222,7 +217,7 @@ class InteractionMeshRetargeter:
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
         # A toe the human barely moves horizontally: the front of the robot's sole moves at
-        # most STILL_TRAVEL times as fast.
+        # most still_travel times as fast.
         toe_feet, travel = self._toe_travel(model, kin.foot_points)
         limits = [*kin.limits, scene_limit, travel]
         samples = scene_r.surface_points(icfg.scene_spacing)
@@ -240,7 +235,7 @@ class InteractionMeshRetargeter:
         toe_speed = np.zeros((T, toes.size))
         toe_speed[1:] = np.linalg.norm(np.diff(tg.human[:, toes, :2], axis=0), axis=-1) * tg.fps
         still = toe_speed[:, toe_feet] < icfg.still_speed  # (T, toe points)
-        cap = STILL_TRAVEL * icfg.still_speed / tg.fps
+        cap = icfg.still_travel * icfg.still_speed / tg.fps
         smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
         touch = SceneContactTask(
             model, body_geoms(model, contact_bodies(self.map)),
