@@ -319,10 +319,13 @@ class InteractionMeshRetargeter:
                 if float(np.abs(dq).max()) < icfg.tol:
                     break
             # Repair: the limits are linearized, so the last step can end inside an object;
-            # step again without the pull onto surfaces while it does.
+            # step again without the pull onto surfaces while it does. Every robot-scene pair
+            # is checked: a step can carry a geom into an object it was farther from than the
+            # limit's detection distance (a foot 20 mm inside a box, seq_1 of the climbing
+            # clips, went unseen by a check of the pairs that were near before the step).
             frame.tasks = [task for task in tasks if task is not touch]
             for _ in range(self.cfg.repair_iters):
-                if scene_limit.active_min_distance(conf) >= -REPAIR_DEPTH:
+                if _deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH:
                     break
                 conf.integrate_inplace(solve(frame), 1.0)
                 n += 1
