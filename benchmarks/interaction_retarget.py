@@ -15,6 +15,7 @@ score our result in its scene (moved into its frame) beside its own result.
 
 Usage: .venv/bin/python benchmarks/interaction_retarget.py [--clips DIR ...] [--fps 30]
     [--peer-python /path/to/peer/venv/bin/python] [--scale holosoma|NUMBER]
+    [--still-speed V] [--still-reach R] [--still-travel S]
 """
 
 from __future__ import annotations
@@ -58,29 +59,24 @@ def main() -> None:
         action="store_true",
         help="with --peer-python: only holosoma's evaluation of our result",
     )
-    parser.add_argument(
-        "--still-speed",
-        type=float,
-        default=None,
-        help="--mesh.still_speed for our retargeter (default: its default)",
-    )
-    parser.add_argument(
-        "--still-reach",
-        type=float,
-        default=None,
-        help="--mesh.still_reach for our retargeter (default: its default)",
-    )
+    for name in ("still_speed", "still_reach", "still_travel"):
+        parser.add_argument(
+            "--" + name.replace("_", "-"),
+            type=float,
+            default=None,
+            help=f"--mesh.{name} for our retargeter (default: its default)",
+        )
     args = parser.parse_args()
     if not args.clips:
         raise SystemExit(f"no clips: expected holosoma_climb clip folders under {DATA}")
     scale = args.scale
     if scale is None and args.peer_python is not None:
         scale = HOLOSOMA_SCALE  # holosoma's evaluation scores a result in its own scene.
-    mesh = InteractionConfig()
-    if args.still_speed is not None:
-        mesh = dataclasses.replace(mesh, still_speed=args.still_speed)
-    if args.still_reach is not None:
-        mesh = dataclasses.replace(mesh, still_reach=args.still_reach)
+    mesh = dataclasses.replace(
+        InteractionConfig(),
+        **{k: v for k in ("still_speed", "still_reach", "still_travel")
+           if (v := getattr(args, k)) is not None},
+    )  # fmt: skip
     try:
         mesh.validate()
     except InputError as e:

@@ -3,9 +3,9 @@
 Domain randomization changes masses, inertias, centres of mass and armatures; MuJoCo derives
 from them constants the solver reads: ``body_subtreemass``, ``dof_invweight0`` and
 ``body_invweight0`` (the regularization of contacts and joint limits) and ``actuator_acc0``.
-The CPU backend recomputes them with ``mj_setConst``, per model. On a GPU, with hundreds of envs
-reset at every step, that per-env host work (about 70 us each) is what limits the env's
-throughput, and ``mujoco_warp.set_const`` launches over a thousand kernels per call.
+The CPU backend recomputes them with ``mj_setConst``, per model. On a GPU, where many envs
+reset at every step, that per-env host work limits the env's throughput, and
+``mujoco_warp.set_const`` launches kernels per dof and per body row of every call.
 
 At ``qpos0`` the kinematics do not depend on these fields, so the body Jacobians are computed
 once, and each model's constants are a few batched tensor operations::

@@ -20,9 +20,9 @@ It needs the optional extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``wa
   accelerations) are batched per world (``put_model``'s ``batch_sizes``). The constants of the
   envs being reset are computed in a few batched tensor operations on the device
   (:class:`~humimic.tracking.setconst.InertiaConstants`, equal to ``mj_setConst``'s to
-  float64 round-off): ``mj_setConst`` per env on the host (about 70 us each, hundreds of
-  resets per step) and ``mujoco_warp.set_const`` (over a thousand kernel launches per call)
-  both measured too slow for a reset at every step (BENCHMARKS.md).
+  float64 round-off): ``mj_setConst`` per env on the host (its cost grows with the resets
+  per step) and ``mujoco_warp.set_const`` (a kernel launch per dof and per body row) were
+  both slower (BENCHMARKS.md).
 * **Resets** write the state of the reset worlds with tensor ops, and one forward pass
   (captured) recomputes their sensors when the state is next read, whatever number of resets
   and pushes came before.
