@@ -359,6 +359,30 @@ class LayoutBackend:
         self.kp = layout.kp
         self.effort_limit = layout.effort_limit
 
+    @property
+    def sensor_slices(self) -> dict[str, slice]:
+        """Where the read-out sensors sit in a row of sensor data: ``pos``, ``quat``,
+        ``lin``, ``ang`` (Shape: (3B,) / (4B,) / (3B,) / (3B,)), ``found`` and ``force``."""
+        return dict(self.layout.sensor_slices)
+
+    def nominal_params(self, n: int) -> PhysicsParams:
+        """Parameters that leave the model nominal, for ``n`` envs."""
+        return self.layout.nominal_params(n)
+
+    def _readout(self, qpos: np.ndarray, qvel: np.ndarray, sens: np.ndarray) -> PhysicsReadout:
+        """The readout of these batched states and sensor rows (views where possible)."""
+        n, sl = len(qpos), self.layout.sensor_slices
+        return PhysicsReadout(
+            qpos=qpos,
+            qvel=qvel,
+            body_pos_w=sens[:, sl["pos"]].reshape(n, -1, 3),
+            body_quat_w=sens[:, sl["quat"]].reshape(n, -1, 4),
+            body_lin_vel_w=sens[:, sl["lin"]].reshape(n, -1, 3),
+            body_ang_vel_w=sens[:, sl["ang"]].reshape(n, -1, 3),
+            contact_found=sens[:, sl["found"]],
+            foot_force=np.linalg.norm(sens[:, sl["force"]].reshape(n, -1, 3), axis=-1),
+        )
+
 
 def training_model(
     robot: RobotConfig,
@@ -512,7 +536,6 @@ class MujocoCpuBackend(LayoutBackend):
         self._model = model
         lay = ModelLayout.of(model, body_names, contact_body_names, foot_body_names, com_body)
         self._take_layout(model, lay)
-        self._sl = lay.sensor_slices
         self._per_env = per_env_models
         self._models = [copy.copy(model) for _ in range(num_envs)] if per_env_models else []
         self._ctrl = np.zeros((num_envs, self.nu))
@@ -622,12 +645,6 @@ class MujocoCpuBackend(LayoutBackend):
         self._qvel[:] = self._state[:, 1 + self.nq : 1 + self.nq + self.nv]
         self._sens[:] = self._out_sens[:, -1]
 
-    @property
-    def sensor_slices(self) -> dict[str, slice]:
-        """Where the read-out sensors sit in a row of sensor data: ``pos``, ``quat``,
-        ``lin``, ``ang`` (Shape: (3B,) / (4B,) / (3B,) / (3B,)), ``found`` and ``force``."""
-        return dict(self._sl)
-
     def env_state(self, env_id: int) -> np.ndarray:
         """Env ``env_id``'s full physics state (a copy). Shape: (``mj_stateSize``,)."""
         return self._state[env_id].copy()
@@ -698,17 +715,7 @@ class MujocoCpuBackend(LayoutBackend):
             f.result()
 
     def read(self) -> PhysicsReadout:
-        n, s = self.num_envs, self._sens
-        return PhysicsReadout(
-            qpos=self._qpos,
-            qvel=self._qvel,
-            body_pos_w=s[:, self._sl["pos"]].reshape(n, -1, 3),
-            body_quat_w=s[:, self._sl["quat"]].reshape(n, -1, 4),
-            body_lin_vel_w=s[:, self._sl["lin"]].reshape(n, -1, 3),
-            body_ang_vel_w=s[:, self._sl["ang"]].reshape(n, -1, 3),
-            contact_found=s[:, self._sl["found"]],
-            foot_force=np.linalg.norm(s[:, self._sl["force"]].reshape(n, -1, 3), axis=-1),
-        )
+        return self._readout(self._qpos, self._qvel, self._sens)
 
     # ------------------------------------------------------------------------ parameters
 
@@ -727,10 +734,6 @@ class MujocoCpuBackend(LayoutBackend):
             qpos, qvel = d.qpos.copy(), d.qvel.copy()
             mujoco.mj_setConst(m, d)
             d.qpos[:], d.qvel[:] = qpos, qvel
-
-    def nominal_params(self, n: int) -> PhysicsParams:
-        """Parameters that leave the model nominal, for ``n`` envs."""
-        return self.layout.nominal_params(n)
 
     def close(self) -> None:
         """Stop the worker threads."""

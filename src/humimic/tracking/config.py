@@ -381,7 +381,7 @@ class TrackingConfig:
     adaptive: AdaptiveSampling = field(default_factory=AdaptiveSampling)
     history_length: int = 5
     backend: Literal["cpu", "warp"] = "cpu"
-    warp: WarpOptions = field(default_factory=lambda: WarpOptions())
+    warp: WarpOptions = field(default_factory=WarpOptions)
     step_method: Literal["rollout", "threads"] = "rollout"
     num_threads: int | None = None
     torch_compile: bool = False

@@ -208,19 +208,20 @@ class _Progress:
                not math.isfinite(v)]  # fmt: skip
         params = list(self.runner.alg.get_policy().parameters())
         finite = all(bool(torch.isfinite(p).all()) for p in params)
+        diverged = bool(bad) or not finite
         time_up = self.max_seconds is not None and row["seconds"] > self.max_seconds
         if ranks.distributed:  # Every rank stops, or none: rank 0's clock decides time-ups.
             row["rank_param_spread"] = parameter_spread(params)
-            flags = agree([int(bool(bad) or not finite), int(time_up and ranks.main)],
-                          self.runner.device)  # fmt: skip
-            finite, time_up = not flags[0] and finite, bool(flags[1])
-            bad = bad or ([] if flags[0] == 0 else ["values on another rank"])
-        if bad or not finite:
+            flags = agree([int(diverged), int(time_up and ranks.main)], self.runner.device)
+            diverged, time_up = bool(flags[0]), bool(flags[1])
+        if diverged:
+            what = ", ".join(bad) or (
+                "policy parameters" if not finite else "values on another rank"
+            )
             last = _checkpoints(self.run)
             raise TrainingDiverged(
-                f"training diverged at iteration {done}: non-finite "
-                f"{', '.join(bad) or 'policy parameters'}; the last good checkpoint is "
-                f"{last[-1] if last else 'none'}"
+                f"training diverged at iteration {done}: non-finite {what}; the last good "
+                f"checkpoint is {last[-1] if last else 'none'}"
             )
         if row.get("rank_param_spread", 0.0) != 0.0:
             raise HumimicError(

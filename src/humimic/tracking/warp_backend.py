@@ -300,16 +300,17 @@ class MujocoWarpBackend(LayoutBackend):
             for _ in range(n_substeps):
                 mjw.step(m, d)
 
-        # A step recomputes every world's sensors: pending resets need no forward pass.
-        self._reset_mask.zero_()
-        self._pending = False
+        if self._pending:  # A step recomputes every world's sensors: no forward pass needed.
+            self._reset_mask.zero_()
+            self._pending = False
         self._run(f"step{n_substeps}", steps)
         self._steps += 1
         if self._steps % _CHECK_EVERY == 0:
             self.check_overflow()
 
     def check_overflow(self) -> None:
-        """Raise if any world ran out of contacts or constraint rows since it was reset.
+        """Raise if any world has run out of contacts or constraint rows since the backend was
+        built (MJWarp's overflow flags stay set).
 
         Raises:
             HumimicError: Naming the setting to raise.
@@ -330,12 +331,6 @@ class MujocoWarpBackend(LayoutBackend):
                 f"MuJoCo Warp ran out of {', '.join(hit)}: contacts were dropped. Raise "
                 "nconmax / njmax (TrackingConfig.warp)"
             )
-
-    @property
-    def sensor_slices(self) -> dict[str, slice]:
-        """Where the read-out sensors sit in a row of sensor data (see
-        :attr:`MujocoCpuBackend.sensor_slices <humimic.tracking.backend.MujocoCpuBackend.sensor_slices>`)."""
-        return dict(self.layout.sensor_slices)
 
     def _state_parts(self) -> list[torch.Tensor]:
         """The warp arrays of a full physics state (``mjSTATE_FULLPHYSICS``), in its order."""
@@ -388,18 +383,8 @@ class MujocoWarpBackend(LayoutBackend):
 
     def read(self) -> PhysicsReadout:
         self._refresh()
-        n, s = self.num_envs, self._sens.double().cpu().numpy()
-        sl = self.layout.sensor_slices
-        return PhysicsReadout(
-            qpos=self._qpos.double().cpu().numpy(),
-            qvel=self._qvel.double().cpu().numpy(),
-            body_pos_w=s[:, sl["pos"]].reshape(n, -1, 3),
-            body_quat_w=s[:, sl["quat"]].reshape(n, -1, 4),
-            body_lin_vel_w=s[:, sl["lin"]].reshape(n, -1, 3),
-            body_ang_vel_w=s[:, sl["ang"]].reshape(n, -1, 3),
-            contact_found=s[:, sl["found"]],
-            foot_force=np.linalg.norm(s[:, sl["force"]].reshape(n, -1, 3), axis=-1),
-        )
+        qpos, qvel, sens = (t.double().cpu().numpy() for t in (self._qpos, self._qvel, self._sens))
+        return self._readout(qpos, qvel, sens)
 
     def read_into(self, out: torch.Tensor) -> None:
         """The state in the env's layout, written into ``out`` on the backend's device: joint
@@ -436,10 +421,6 @@ class MujocoWarpBackend(LayoutBackend):
         )
         for f, v in values.items():
             self._fields[f][ids] = v.to(self._fields[f].dtype)
-
-    def nominal_params(self, n: int) -> PhysicsParams:
-        """Parameters that leave the model nominal, for ``n`` envs."""
-        return self.layout.nominal_params(n)
 
     def close(self) -> None:
         """Drop the captured graphs."""
