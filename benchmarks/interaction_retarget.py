@@ -11,11 +11,14 @@ The peer, holosoma's own retargeter, runs in its own virtual environment: see
 
 With ``--peer-python``, the clips are retargeted at holosoma's fixed scale (1.32 / 1.78; ours
 is otherwise the clip's leg ratio, about 1.8% larger), so that holosoma's own evaluation can
-score our result in its scene (moved into its frame) beside its own result.
+score our result in its scene (moved into its frame) beside its own result. With
+``--no-peer-retarget`` holosoma is not rerun; our metrics are then given for the result its
+last full run left in ``/tmp/humimic_peer_<clip>`` where there is one.
 
 Usage: .venv/bin/python benchmarks/interaction_retarget.py [--clips DIR ...] [--fps 30]
-    [--peer-python /path/to/peer/venv/bin/python] [--scale holosoma|NUMBER]
-    [--still-speed V] [--still-reach R] [--still-travel S]
+    [--peer-python /path/to/peer/venv/bin/python [--no-peer-retarget]]
+    [--scale holosoma|NUMBER] [--still-speed V] [--still-reach R] [--still-travel S]
+    [--stick-height-scale H]
 """
 
 from __future__ import annotations
@@ -37,12 +40,16 @@ from humimic.configs import InteractionConfig, RetargetConfig
 from humimic.datasets import load_clip
 from humimic.errors import InputError
 from humimic.retarget import Retargeter
+from humimic.retarget.interaction import feet_planted
 from humimic.retarget.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "holosoma_climb"
+MESH_FLAGS = ("still_speed", "still_reach", "still_travel", "stick_height_scale")
+"""``--mesh.*`` settings the benchmark takes (``--still-speed`` ...)."""
 _KEYS = ("max_scene_penetration_mm", "mean_scene_penetration_mm", "scene_penetration_frames",
-         "human_contacts", "contact_preservation", "scene_foot_skating_mm_per_s")  # fmt: skip
+         "human_contacts", "contact_preservation", "scene_foot_skating_mm_per_s",
+         "planted_foot_gap_mm", "floating_planted_feet")  # fmt: skip
 
 
 def main() -> None:
@@ -59,7 +66,7 @@ def main() -> None:
         action="store_true",
         help="with --peer-python: only holosoma's evaluation of our result",
     )
-    for name in ("still_speed", "still_reach", "still_travel"):
+    for name in MESH_FLAGS:
         parser.add_argument(
             "--" + name.replace("_", "-"),
             type=float,
@@ -74,8 +81,7 @@ def main() -> None:
         scale = HOLOSOMA_SCALE  # holosoma's evaluation scores a result in its own scene.
     mesh = dataclasses.replace(
         InteractionConfig(),
-        **{k: v for k in ("still_speed", "still_reach", "still_travel")
-           if (v := getattr(args, k)) is not None},
+        **{k: v for k in MESH_FLAGS if (v := getattr(args, k)) is not None},
     )  # fmt: skip
     try:
         mesh.validate()
@@ -115,8 +121,16 @@ def main() -> None:
             row["interaction_mesh"]["holosoma_evaluation"] = _peer_evaluation(
                 args.peer_python, folder, result.motion.qpos, extras["scene_poses"]
             )
+            planted = feet_planted(rt.map, extras["human_contacts"], extras["scene_contacts"])
             if not args.no_peer_retarget:
-                row["holosoma"] = _peer(args.peer_python, folder, rt, extras["scene_contacts"])
+                row["holosoma"] = _peer(args.peer_python, folder, rt, extras["scene_contacts"],
+                                        planted)  # fmt: skip
+            elif (stored := _peer_dir(folder) / "result" / f"{folder.name}_original.npz").exists():
+                row["holosoma"] = {  # Our metrics on the result of an earlier full run.
+                    "stored_result": str(stored),
+                    "our_metrics": _our_metrics_of_peer(stored, folder, rt,
+                                                        extras["scene_contacts"], planted),
+                }  # fmt: skip
         rows.append(row)
         print(json.dumps(row), flush=True)
     out = {
@@ -132,10 +146,17 @@ def main() -> None:
     print(json.dumps(out, indent=2))
 
 
-def _peer(python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> dict:
+def _peer_dir(folder: Path) -> Path:
+    """Where holosoma's run on a clip goes."""
+    return Path("/tmp") / f"humimic_peer_{folder.name}"
+
+
+def _peer(
+    python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray, planted: np.ndarray
+) -> dict:
     """holosoma's retargeter on the same clip (``benchmarks/peer_holosoma.py``), its own
     evaluation, and its result measured with our scene metrics."""
-    out = Path("/tmp") / f"humimic_peer_{folder.name}"
+    out = _peer_dir(folder)
     cmd = [sys.executable, str(ROOT / "benchmarks" / "peer_holosoma.py"),
            "--peer-python", str(python), "--clip", str(folder), "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -143,7 +164,8 @@ def _peer(python: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> d
         return {"error": res.stderr.strip()[-2000:]}
     peer = json.loads(res.stdout)
     peer.pop("eval_raw", None)
-    peer["our_metrics"] = _our_metrics_of_peer(Path(peer["output_npz"]), folder, rt, contacts)
+    peer["our_metrics"] = _our_metrics_of_peer(Path(peer["output_npz"]), folder, rt, contacts,
+                                               planted)  # fmt: skip
     return peer
 
 
@@ -194,15 +216,17 @@ def _peer_evaluation(python: Path, folder: Path, qpos: np.ndarray, scene_poses: 
     if res.returncode != 0:
         return {"error": res.stderr.strip()[-2000:]}
     report = json.loads(res.stdout)
-    return {"metrics": report["metrics"], "eval_wall_s": report["eval_wall_s"]}
+    return {k: report[k] for k in ("metrics", "penetrating_pairs", "eval_wall_s")}
 
 
-def _our_metrics_of_peer(result: Path, folder: Path, rt: Retargeter, contacts: np.ndarray) -> dict:
+def _our_metrics_of_peer(
+    result: Path, folder: Path, rt: Retargeter, contacts: np.ndarray, planted: np.ndarray
+) -> dict:
     """Our scene metrics on holosoma's result, in holosoma's own frame (its scene: the boxes
     scaled by 0.7416 about the origin; its human: the capture, toes' lowest point moved to 0,
     scaled the same), on our G1 model (same joints; our hands are meshes, its are spheres).
-    The human's contacts are ours (``contacts``, from our run on the same frames), so both
-    results are scored on the same (frame, key point, object) contacts."""
+    The human's contacts are ours (``contacts`` and the feet's ``planted``, from our run on
+    the same frames), so both results are scored on the same contacts."""
     from humimic.retarget.interaction import contact_bodies
     from humimic.retarget.kinematic import ik_model
     from humimic.retarget.metrics import evaluate_scene
@@ -215,7 +239,8 @@ def _our_metrics_of_peer(result: Path, folder: Path, rt: Retargeter, contacts: n
     model, _ = ik_model(rt.robot, m, scene=scene)
     report, _ = evaluate_scene(model, qpos, scene, 30.0, keypoint_bodies=contact_bodies(m),
                                human_contacts=contacts,
-                               foot_bodies=[f.body for f in m.feet.values()])  # fmt: skip
+                               foot_bodies=[f.body for f in m.feet.values()],
+                               feet_planted=planted)  # fmt: skip
     lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
     out = {k: getattr(report, k) for k in _KEYS}
     out["joint_limit_violations"] = int(

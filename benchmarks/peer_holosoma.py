@@ -117,6 +117,32 @@ with open(tmp, 'wb') as f:
 os.replace(tmp, dst)
 print(json.dumps({'frames': int(q.shape[0]), 'cost_given': 'cost' in keys, 'keys': keys}))"""
 
+DEEP = """import json, sys, mujoco, numpy as np
+xml, npz, tol = sys.argv[1], sys.argv[2], float(sys.argv[3])
+m = mujoco.MjModel.from_xml_path(xml)
+d = mujoco.MjData(m)
+q = np.load(npz)['qpos']
+name = lambda g: m.geom(g).name or m.body(m.geom_bodyid[g]).name
+scene = [g for g in range(m.ngeom) if 'ground' in name(g) or 'box' in name(g).lower()]
+robot = [g for g in range(m.ngeom) if g not in scene and m.geom_bodyid[g] > 0
+         and (m.geom_contype[g] or m.geom_conaffinity[g])]
+ft, out = np.zeros(6), []
+for t in range(len(q)):
+    d.qpos[:] = 0.0
+    d.qpos[: q.shape[1]] = q[t]
+    mujoco.mj_kinematics(m, d)
+    for g in robot:
+        for o in scene:
+            dist = mujoco.mj_geomDistance(m, d, g, o, 0.05, ft)
+            if dist < -tol:
+                out.append([t, name(g), name(o), round(-1000 * dist, 1)])
+print(json.dumps(out))"""
+"""Every robot geom deeper than holosoma's tolerance in the floor or a box, per frame, on
+holosoma's own model (its geoms are not ours: sphere hands, the foot mesh)."""
+
+PENETRATION_TOL = 0.01
+"""holosoma's evaluation counts a frame as penetrating past this depth [m]."""
+
 METRIC_RE = re.compile(r"^(\w+): mean=([-+\d.eEinfna]+), std=([-+\d.eEinfna]+)\s*$", re.M)
 TQDM_RE = re.compile(r"(\d+)/(\d+) \[(?:(\d+):)?(\d+):(\d+)<")
 
@@ -365,6 +391,13 @@ def evaluate_only(
     """Score a result someone else produced (written by write_eval_input) with holosoma's eval."""
     eval_cmd, ev_wall, ev_log, metrics = run_eval(st, nice)
     cost_given = bool(info["cost_given"])
+    # Where its penetration check fires: the pairs, on the scaled scene its evaluation wrote.
+    scaled = sorted((st.data_root / st.clip.name).glob("*_w_multi_boxes_scaled_*.xml"))
+    deep = (
+        json.loads(run_py(st.python, DEEP, str(scaled[0]), str(st.result), str(PENETRATION_TOL)))
+        if scaled
+        else None
+    )
     report: dict[str, object] = {
         **st.head(),
         "frames_out": info["frames"],
@@ -379,6 +412,7 @@ def evaluate_only(
         **report,
         "eval_wall_s": round(ev_wall, 2),
         "metrics": metrics,
+        "penetrating_pairs": deep,
         "eval_raw": ev_log.strip(),
         "qpos_layout": QPOS_LAYOUT,
         "commands": {"eval": eval_cmd, "cwd": str(st.pkg)},

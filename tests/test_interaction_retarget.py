@@ -89,7 +89,12 @@ def test_cli_interaction_mesh_with_a_scene_file(
     assert report["method"] == "interaction-mesh" and report["scene_objects"] == ["pad"]
     assert report["max_scene_penetration_mm"] <= 10.0
     assert "scene: penetration" in capsys.readouterr().out
-    assert load_motion(tmp_path / "m.npz").extras["scene_poses"].shape[1] == 1  # type: ignore[index]
+    motion = load_motion(tmp_path / "m.npz")
+    assert motion.extras["scene_poses"].shape[1] == 1  # type: ignore[index]
+    # A walk: the pelvis moves less than 10 cm per frame (an earlier version kept out of the
+    # pad at frame 38 by a 23 cm jump up and 53 cm down), and the feet rest on the pad.
+    assert np.abs(np.diff(motion.qpos[:, :3], axis=0)).max() < 0.1
+    assert report["planted_foot_gap_mm"] <= 3.0
 
 
 @pytest.mark.parametrize(
@@ -108,3 +113,18 @@ def test_toe_hold_settings_are_checked(field: str, value: float) -> None:
 
     with pytest.raises(InputError, match=f"mesh.{field}"):
         replace(InteractionConfig(), **{field: value}).validate()
+
+
+def test_planted_feet_rest_on_the_floor_while_climbing_down(shared_data: Path) -> None:
+    """A real climb down (seq_1, 2.7 s): where the human's foot rests, the robot's rests too.
+    Holding a planted foot at its previous frame's height kept one that landed high floating
+    through its stance (a mean gap of 14 mm here, 86 floating (frame, foot) pairs)."""
+    from humimic.retarget.scene import load_scene
+
+    folder = shared_data / "holosoma_climb" / "mocap_climb_seq_1"
+    clip = load_clip(next(folder.glob("*.npy"))).slice(1760, 2080)
+    r = Retargeter("g1", "holosoma", RetargetConfig(fps=30.0), method="interaction-mesh",
+                   mesh=InteractionConfig()).run(clip, scene=load_scene(folder)).report  # fmt: skip
+    assert r["planted_foot_gap_mm"] <= 3.0, r["planted_foot_gap_mm"]
+    assert r["floating_planted_feet"] <= 8, r["floating_planted_feet"]
+    assert r["max_scene_penetration_mm"] <= 10.0 and r["contact_preservation"] >= 0.9

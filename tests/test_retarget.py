@@ -142,3 +142,23 @@ def test_toe_targets_hold_where_the_humans_toe_is_still() -> None:
     np.testing.assert_array_equal(out.positions[:, 0, 2], pos[:, 0, 2])  # Heights untouched.
     assert np.all(out.position_weights[:10] == 1.0) and np.all(out.position_weights[30:] == 1.0)
     np.testing.assert_array_equal(tg.positions, pos)  # The input is not changed.
+
+
+def test_floating_base_steps_are_bounded_after_the_first_frame() -> None:
+    """The trust region bounds the floating base too, except from frame 0's cold start: a
+    key-point target 3 m away moves the base 3 m in one QP there, max_step after."""
+    from humimic.retarget.kinematic import _Frame
+
+    kin = _retargeter("g1", "cmu").ik
+    conf = kin.configuration
+    q = kin.model.qpos0.copy()
+    q[2] = 0.8
+    conf.update(q)
+    kin.keypoints.targets = conf.data.site_xpos[kin.keypoints.site_ids] + np.array([3.0, 0, 0])
+    kin.keypoints.set_costs(np.ones(len(kin.keypoints.site_ids)))
+    steps = []
+    for t in (0, 1):
+        dq = kin._solve(_Frame(source="test", t=t, tasks=[kin.keypoints]), [])
+        steps.append(float(np.abs(dq[:6]).max()))
+    assert steps[0] > 1.0, steps
+    assert steps[1] <= kin.cfg.max_step + 1e-9, steps

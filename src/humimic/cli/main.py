@@ -458,8 +458,10 @@ def _print_summary(r: dict, path: Path) -> None:
             f"{r['scene_penetration_frames']} frames (kinematic: {k['max_scene_penetration_mm']:.1f}"
             f" mm in {k['scene_penetration_frames']}) | contacts kept "
             f"{100 * r['contact_preservation']:.0f}% of {r['human_contacts']} (kinematic: "
-            f"{100 * k['contact_preservation']:.0f}%) | skating {r['scene_foot_skating_mm_per_s']:.0f}"
-            f" mm/s | interaction {r['interaction_frames_per_second']:.0f} frames/s"
+            f"{100 * k['contact_preservation']:.0f}%) | planted feet {r['planted_foot_gap_mm']:.1f} mm"
+            f" above the surface (kinematic: {k['planted_foot_gap_mm']:.1f}) | skating "
+            f"{r['scene_foot_skating_mm_per_s']:.0f} mm/s | interaction "
+            f"{r['interaction_frames_per_second']:.0f} frames/s"
         )
 
 

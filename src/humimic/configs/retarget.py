@@ -137,7 +137,13 @@ class InteractionConfig:
         collision_detection: Robot-scene pairs closer than this are constrained [m].
         collision_gain: Fraction of a robot-scene gap that may close per iteration.
         stick_weight: Cost [1/m] holding a foot point where it was in the previous frame
-            while the human's foot point is in contact.
+            (horizontally) while the human's foot point is in contact.
+        stick_height_scale: The planted foot point's height target is the kinematic warm
+            start's (unless the warm start sinks the foot into an object: then the previous
+            frame's height), with ``stick_weight`` times this. Holding the previous frame's
+            height everywhere kept a foot that landed high floating through its stance (1-4 cm
+            on most planted frames of the climbing clips). Chosen on those clips: 1 costs
+            joint jerk as the heel lifts, 0.01 lets feet float again (BENCHMARKS.md).
         contact_weight: Cost [1/m] of the distance between a body and the scene object its
             human key point touches (:func:`humimic.retarget.scene.human_contacts`).
         contact_distance: A robot body within this distance of a surface touches it, for the
@@ -155,7 +161,7 @@ class InteractionConfig:
             position it had when the human's toe stopped (until the human's toe drifts farther
             than the IK's ``plant_radius``: :func:`~humimic.retarget.targets.hold_still_points`),
             and the front of the robot's sole moves at most ``still_travel`` times as fast (a hard limit,
-            dropped for a frame where it conflicts with the non-penetration limits or where the
+            made soft where it conflicts with the non-penetration limits, and dropped where the
             frame's warm start has moved that toe more than ``still_reach``). The held targets
             are also the kinematic warm start's. 0 turns both off (the warm start is then
             exactly ``--method kinematic``). Keep ``still_travel * still_speed / fps`` well
@@ -164,10 +170,13 @@ class InteractionConfig:
             while the foot turns. Planted points are held in all three axes whatever this is.
         still_travel: The share of ``still_speed`` the front of a sole may move while the
             human's toe is still (the cap above). Chosen on the climbing clips, where the
-            result is sensitive to it (BENCHMARKS.md: 0.6 best of 0.5-0.75).
+            result was sensitive to it before the changes of 2026-11-24 (0.5-0.75 now give the
+            same there: BENCHMARKS.md).
         still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
             warm start puts it within this horizontal distance [m] of where it was: farther,
             the targets have moved on and holding the toe back drags the body after it.
+            (At 0.10 a toe slid on one climbing clip, where the warm start drifted 10-14 cm
+            from the output over a long stand; 0.25 and 1.0 give the same results there.)
     """
 
     mesh_weight: float = 20.0
@@ -182,13 +191,14 @@ class InteractionConfig:
     collision_detection: float = 0.05
     collision_gain: float = 0.85
     stick_weight: float = 1000.0
+    stick_height_scale: float = 0.1
     contact_weight: float = 1000.0
     contact_distance: float = 0.02
     smooth_weight: float = 5.0
     reattach_iterations: int = 3
     contact_gap: float = 0.01
     still_speed: float = 0.32
-    still_reach: float = 0.10
+    still_reach: float = 0.25
     still_travel: float = 0.6
 
     def validate(self) -> None:
@@ -197,8 +207,8 @@ class InteractionConfig:
                     "still_reach")  # fmt: skip
         _check_numbers(self, "mesh", positive, positive=True)
         non_negative = ("mesh_weight", "keypoint_scale", "tol", "penetration_margin",
-                        "stick_weight", "contact_weight", "smooth_weight", "contact_gap",
-                        "still_speed")  # fmt: skip
+                        "stick_weight", "stick_height_scale", "contact_weight", "smooth_weight",
+                        "contact_gap", "still_speed")  # fmt: skip
         _check_numbers(self, "mesh", non_negative, positive=False)
         if not 0 < self.still_travel <= 1:
             raise InputError(f"mesh.still_travel: must be in (0, 1], got {self.still_travel}")

@@ -19,6 +19,7 @@ from humimic.retarget.interaction import (
     InteractionMeshRetargeter,
     InteractionResult,
     contact_bodies,
+    feet_planted,
 )
 from humimic.retarget.kinematic import (
     KEYPOINT_SITE_PREFIX,
@@ -194,6 +195,7 @@ class Retargeter:
             "keypoint_bodies": contact_bodies(self.map),
             "human_contacts": ires.human_contacts,
             "foot_bodies": [f.body for f in self.map.feet.values()],
+            "feet_planted": feet_planted(self.map, tg.contacts, ires.human_contacts),
             "contact_distance": icfg.contact_distance,
         }
         mine, frames = evaluate_scene(ires.model, ires.qpos, ires.scene, tg.fps, **args)
@@ -207,6 +209,7 @@ class Retargeter:
             "kinematic_seconds": ires.kinematic.solve_seconds,
             "interaction_qp_iterations_per_frame": float(np.mean(ires.iterations)),
             "interaction_relaxed_qp_iterations": ires.relaxed_iterations,
+            "interaction_toe_limit_yielded_qp_iterations": ires.yielded_iterations,
             "mesh_scene_points_mean": float(np.mean(ires.mesh_scene_points)),
             "scene": ires.scene.source,
             "scene_objects": [o.name for o in ires.scene.objects],

@@ -6,14 +6,16 @@ interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
 
 1. The kinematic result (:class:`~humimic.retarget.kinematic.KinematicRetargeter`, on the
    same targets, whose toe targets ``still_speed`` holds where the human's toes are still:
-   :func:`~humimic.retarget.targets.hold_still_points`) is the warm start.
+   :func:`~humimic.retarget.targets.hold_still_points`) is the warm start: a frame's QPs
+   start from the previous output moved as the warm start moves.
 2. The frame's interaction mesh is the Delaunay tetrahedralization of the scaled human's key
    points and the scene points near them (the scene is mapped into the robot's frame with the
    human's heading, origin, scale and height calibration); its Laplacian coordinates are the
    target (:mod:`humimic.retarget.interaction_mesh`).
 3. A few QPs, each solved directly with daqp: minimize the mesh's deformation, weak key-point
    anchors, the body orientations, posture and smoothness to the previous frame, and hold a
-   foot point still while the human's is in contact; subject to joint ranges and speeds, a
+   foot point still while the human's is in contact (at the warm start's height); subject to
+   joint ranges and speeds, a
    trust region, the floor under the feet, self-collision, no penetration of the robot's
    collision geoms into the scene (MuJoCo distance queries, linearized with the contact
    normal's Jacobian) and, with ``still_speed``, a cap on how far the front of a sole travels
@@ -65,6 +67,7 @@ class InteractionResult:
         solve_seconds: Wall time of the interaction stage alone.
         iterations: QPs per frame. Shape: (T,).
         relaxed_iterations: QPs whose conflicting limits had to be made soft.
+        yielded_iterations: QPs in which the toes' travel limit alone was made soft.
         mesh_scene_points: Scene points in each frame's mesh. Shape: (T,).
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
@@ -77,6 +80,7 @@ class InteractionResult:
     solve_seconds: float
     iterations: np.ndarray
     relaxed_iterations: int
+    yielded_iterations: int
     mesh_scene_points: np.ndarray
     human_contacts: np.ndarray
 
@@ -113,6 +117,18 @@ def contact_bodies(m: RetargetMap) -> list[list[str]]:
                 bodies.append(parent)
         out.append(bodies)
     return out
+
+
+def feet_planted(m: RetargetMap, floor: np.ndarray, scene: np.ndarray) -> np.ndarray:
+    """Frames where the human's foot rests, per foot of ``m.feet``: a floor contact of its
+    ankle or toe (``floor``: :attr:`Targets.contacts`, (T, feet, 2)), or either touches an
+    object (``scene``: the object per key point, -1 for none, (T, K)). Shape: (T, feet)."""
+    names = list(m.keypoints)
+    on_object = [
+        (scene[:, [names.index(f.ankle), names.index(f.toe)]] >= 0).any(axis=1)
+        for f in m.feet.values()
+    ]
+    return floor.any(axis=-1) | np.stack(on_object, axis=1)
 
 
 def body_geoms(model: mujoco.MjModel, bodies: list[list[str]]) -> list[list[int]]:
@@ -216,6 +232,12 @@ class InteractionMeshRetargeter:
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
+        stick_foot = np.repeat(np.arange(len(foot_idx)), foot_idx.shape[1])  # Foot per point.
+        foot_pairs = [  # Each foot's collision geoms against the objects.
+            [(g, o) for g in robot_geoms if model.geom_bodyid[g] == model.body(foot.body).id
+             for o in obj_geoms]
+            for foot in self.map.feet.values()
+        ]  # fmt: skip
         # A toe the human barely moves horizontally: the front of the robot's sole moves at
         # most still_travel times as fast.
         toe_feet, travel = self._toe_travel(model, kin.foot_points)
@@ -243,6 +265,8 @@ class InteractionMeshRetargeter:
         )  # fmt: skip
 
         prev = mujoco.MjData(model)  # The previous output frame, for its foot sites.
+        warm = mujoco.MjData(model)  # The frame's kinematic warm start.
+        vel = np.zeros(model.nv)
         out = np.zeros((T, model.nq))
         iters = np.zeros(T, dtype=int)
         n_scene = np.zeros(T, dtype=int)
@@ -252,21 +276,34 @@ class InteractionMeshRetargeter:
             if self.cfg.velocity_limit_scale > 0
             else None
         )
-        free = [lim for lim in limits if lim is not travel]
 
         def solve(frame: _Frame) -> np.ndarray:
             """One QP; where the limits conflict, the toes' travel limit yields first."""
-            relaxed = frame.relaxed
-            dq = kin._solve(frame, limits)
-            if frame.relaxed > relaxed and np.isfinite(travel.radius).any():
-                frame.relaxed = relaxed
-                dq = kin._solve(frame, free)
-            return dq
+            return kin._solve(frame, limits, yielding=travel)
 
         t0 = time.perf_counter()
         for t in range(T):
             set_scene_pose(model, conf.data, scene_r, t)
-            conf.update(kres.qpos[t])
+            # Start from the previous output moved as the warm start moves (within the joint
+            # ranges), not from the warm start: the kinematic method ignores the scene, and a
+            # warm start 6 cm inside a box on most frames once failed to pull out within a
+            # frame's QPs.
+            warm.qpos[:] = kres.qpos[t]
+            warm.mocap_pos[:], warm.mocap_quat[:] = conf.data.mocap_pos, conf.data.mocap_quat
+            mujoco.mj_kinematics(model, warm)
+            if t > 0:
+                mujoco.mj_differentiatePos(model, vel, 1.0, kres.qpos[t - 1], kres.qpos[t])
+                q0 = out[t - 1].copy()
+                mujoco.mj_integratePos(model, q0, vel, 1.0)
+                q0[7:] = np.clip(q0[7:], kin._range_lo, kin._range_hi)
+                conf.update(q0)
+            else:
+                conf.update(kres.qpos[0])
+            # The warm start's height of each planted point, where its foot is out of the
+            # objects (the warm start knows the floor, not the scene: a foot it sinks into a
+            # box keeps its previous frame's height instead).
+            warm_z = warm.site_xpos[stick.site_ids, 2].copy()
+            sunk = np.array([_deepest(model, warm, p) < -REPAIR_DEPTH for p in foot_pairs])
             pts = self._scene_points(scene_r, samples, tg.scaled[t], t)
             n_scene[t] = len(pts)
             mesh_task.set_mesh(build_mesh(tg.scaled[t], pts, weighting=icfg.weighting))
@@ -299,13 +336,17 @@ class InteractionMeshRetargeter:
                     # Only where the warm start's toe is near: a limit far from it would drag
                     # the whole body after a foot the targets have moved on.
                     anchors = travel.positions(prev)
-                    moved = travel.positions(conf.data)[:, :2] - anchors[:, :2]
+                    moved = travel.positions(warm)[:, :2] - anchors[:, :2]
                     near = np.linalg.norm(moved, axis=1) < icfg.still_reach
                     travel.set(anchors, np.where(still[t] & near, cap, np.inf))
                 if held.any():
+                    # Planted points stay where they were horizontally, at the warm start's
+                    # height, held more loosely (stick_height_scale): holding the previous
+                    # height kept a foot that landed high floating through its stance.
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
+                    stick.targets[:, 2] = np.where(sunk[stick_foot], stick.targets[:, 2], warm_z)
                     cost = np.zeros((held.size, 3))
-                    cost[held] = icfg.stick_weight
+                    cost[held] = icfg.stick_weight * np.array([1.0, 1.0, icfg.stick_height_scale])
                     stick.cost = cost.ravel()
                     tasks.append(stick)
             frame.t, frame.tasks = t, tasks
@@ -362,6 +403,7 @@ class InteractionMeshRetargeter:
             solve_seconds=time.perf_counter() - t0,
             iterations=iters,
             relaxed_iterations=frame.relaxed,
+            yielded_iterations=frame.yielded,
             mesh_scene_points=n_scene,
             human_contacts=contacts,
         )
@@ -405,5 +447,6 @@ __all__ = [
     "body_geoms",
     "contact_bodies",
     "contact_radii",
+    "feet_planted",
     "set_scene_pose",
 ]

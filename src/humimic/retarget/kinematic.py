@@ -144,6 +144,7 @@ class _Frame:
     q_prev: np.ndarray | None = None
     step: np.ndarray | None = None
     relaxed: int = 0
+    yielded: int = 0
 
 
 class KinematicRetargeter:
@@ -327,8 +328,11 @@ class KinematicRetargeter:
             n += 1
         return n
 
-    def _solve(self, frame: _Frame, limits: list[mink.Limit]) -> np.ndarray:
-        """One QP: tasks as the objective, joint box as bounds, limits as inequalities."""
+    def _solve(
+        self, frame: _Frame, limits: list[mink.Limit], yielding: mink.Limit | None = None
+    ) -> np.ndarray:
+        """One QP: tasks as the objective, joint box as bounds, limits as inequalities. Where
+        the limits conflict, ``yielding``'s rows are made soft first, then all of them."""
         conf = self.configuration
         nv = self.model.nv
         H = np.eye(nv) * self.cfg.damping
@@ -347,7 +351,7 @@ class KinematicRetargeter:
             hi = np.minimum(hi, frame.q_prev + frame.step - q)
         lo = np.minimum(np.maximum(lo, -self.cfg.max_step), 0.0)
         hi = np.maximum(np.minimum(hi, self.cfg.max_step), 0.0)
-        rows, ub = [], []
+        rows, ub, owner = [], [], []
         for lim in limits:
             cons = lim.compute_qp_inequalities(conf, 1.0)
             if cons.G is None or cons.h is None:
@@ -355,11 +359,20 @@ class KinematicRetargeter:
             keep = np.isfinite(cons.h)
             rows.append(cons.G[keep])
             ub.append(cons.h[keep])
+            owner += [lim is yielding] * int(keep.sum())
         A = np.vstack(rows) if rows else np.zeros((0, nv))
-        bupper = np.concatenate([np.full(6, 1e30), hi, *ub])
-        blower = np.concatenate([np.full(6, -1e30), lo, np.full(A.shape[0], -1e30)])
+        # The floating base under the same trust region, except from the cold start of frame 0
+        # (which may have to turn the whole body): unbounded, limits linearized in its rotation
+        # can be met by a step of tens of metres (seen in a climbing clip, output frame 679).
+        base = 1e30 if frame.t == 0 else self.cfg.max_step
+        bupper = np.concatenate([np.full(6, base), hi, *ub])
+        blower = np.concatenate([np.full(6, -base), lo, np.full(A.shape[0], -1e30)])
         sense = np.zeros(bupper.size, dtype=np.int32)
         x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+        if exitflag < 1 and any(owner):
+            sense[nv:][np.array(owner)] = 8
+            x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+            frame.yielded += 1
         if exitflag < 1 and A.shape[0]:
             # The limits conflict (e.g. the speed limit forbids resolving a collision in one
             # frame): solve with the floor and collision rows soft, and count it.

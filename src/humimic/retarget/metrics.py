@@ -176,6 +176,11 @@ class SceneReport:
         scene_foot_skating_mm_per_s: Mean horizontal speed of the feet's contact points while
             they rest (lowest point within 10 mm) on the floor or an object, in two
             consecutive frames.
+        planted_foot_gap_mm: Mean height of a robot foot's lowest contact point over the
+            nearest surface (the floor or an object) in the frames where the human's foot
+            rests (``feet_planted``): a foot that floats above the step raises it.
+        floating_planted_feet: (frame, foot) pairs among those in which the robot's foot is
+            more than 10 mm above every surface.
     """
 
     max_scene_penetration_mm: float
@@ -184,6 +189,8 @@ class SceneReport:
     human_contacts: int
     contact_preservation: float
     scene_foot_skating_mm_per_s: float
+    planted_foot_gap_mm: float
+    floating_planted_feet: int
 
 
 def evaluate_scene(
@@ -195,6 +202,7 @@ def evaluate_scene(
     keypoint_bodies: list[list[str]],
     human_contacts: np.ndarray,
     foot_bodies: list[str],
+    feet_planted: np.ndarray,
     contact_distance: float = 0.02,
 ) -> tuple[SceneReport, dict[str, np.ndarray]]:
     """Measure a motion against its scene (a :class:`~humimic.retarget.scene.Scene` in the
@@ -211,6 +219,8 @@ def evaluate_scene(
         human_contacts: The scene object each human key point touches, -1 for none
             (:func:`~humimic.retarget.scene.human_contacts`). Shape: (T, K).
         foot_bodies: Foot bodies (their collision geoms give the contact points).
+        feet_planted: Frames where the human's foot of each foot body rests (on the floor or
+            an object). Shape: (T, len(foot_bodies)).
         contact_distance: Touching distance [m].
 
     Returns:
@@ -232,6 +242,7 @@ def evaluate_scene(
     preserved = np.full((T, K), -1, dtype=np.int8)
     foot_xy = np.zeros((T, len(ids), 2))
     resting = np.zeros((T, len(ids)), dtype=bool)
+    gap = np.zeros((T, len(ids)))  # Each contact point's height over the nearest surface.
     reach = 0.1  # Distance queries beyond this are not needed [m].
     for t in range(T):
         data.qpos[:] = qpos[t]
@@ -263,9 +274,12 @@ def evaluate_scene(
             else np.full(len(ids), np.inf)
         )
         resting[t] = (bottom < CONTACT_HEIGHT) | (d_scene < CONTACT_HEIGHT)
+        gap[t] = np.minimum(bottom, d_scene)
     both = resting[1:] & resting[:-1]
     speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
     contacts = int(np.sum(preserved >= 0))
+    foot_gap = np.stack([gap[:, ids == model.body(b).id].min(axis=1) for b in foot_bodies], 1)
+    planted_gap = foot_gap[feet_planted]
     report = SceneReport(
         max_scene_penetration_mm=float(pen.max() * 1e3) if T else 0.0,
         mean_scene_penetration_mm=float(pen.mean() * 1e3) if T else 0.0,
@@ -273,5 +287,7 @@ def evaluate_scene(
         human_contacts=contacts,
         contact_preservation=float(np.sum(preserved == 1) / contacts) if contacts else 1.0,
         scene_foot_skating_mm_per_s=float(speed[both].mean() * 1e3) if both.any() else 0.0,
+        planted_foot_gap_mm=float(planted_gap.mean() * 1e3) if planted_gap.size else 0.0,
+        floating_planted_feet=int(np.sum(planted_gap > CONTACT_HEIGHT)),
     )
     return report, {"scene_penetration": pen, "contact_preserved": preserved}
