@@ -141,8 +141,8 @@ class InteractionConfig:
         stick_height_scale: The planted foot point's height target is the kinematic warm
             start's (unless the warm start sinks the foot into an object: then the previous
             frame's height), with ``stick_weight`` times this. Holding the previous frame's
-            height everywhere kept a foot that landed high floating through its stance (1-4 cm
-            on most planted frames of the climbing clips). Chosen on those clips: 1 costs
+            height everywhere kept a foot that landed high floating through its stance.
+            Chosen on the climbing clips: 1 costs
             joint jerk as the heel lifts, 0.01 lets feet float again (BENCHMARKS.md).
         contact_weight: Cost [1/m] of the distance between a body and the scene object its
             human key point touches (:func:`humimic.retarget.scene.human_contacts`).
@@ -175,8 +175,8 @@ class InteractionConfig:
         still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
             warm start puts it within this horizontal distance [m] of where it was: farther,
             the targets have moved on and holding the toe back drags the body after it.
-            (At 0.10 a toe slid on one climbing clip, where the warm start drifted 10-14 cm
-            from the output over a long stand; 0.25 and 1.0 give the same results there.)
+            (At 0.10 a toe slid on one climbing clip, where the warm start drifted more than
+            that from the output over a long stand: BENCHMARKS.md.)
     """
 
     mesh_weight: float = 20.0

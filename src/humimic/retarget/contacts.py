@@ -42,6 +42,21 @@ def detect_contacts(
     return c
 
 
+def step_speed(xy: np.ndarray, fps: float) -> np.ndarray:
+    """Speed of points from the previous frame to each frame, 0 at frame 0.
+
+    Args:
+        xy: Positions (horizontal ones for a horizontal speed). Shape: (T, ..., D).
+        fps: Frames per second.
+
+    Returns:
+        Speeds. Shape: (T, ...).
+    """
+    v = np.zeros(xy.shape[:-1])
+    v[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=-1) * fps
+    return v
+
+
 def runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """``[start, stop)`` index pairs of the runs of True in a boolean array."""
     f = np.concatenate([[False], np.asarray(flags, dtype=bool), [False]])

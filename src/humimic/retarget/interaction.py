@@ -37,6 +37,7 @@ import numpy as np
 from humimic.configs.retarget import InteractionConfig, RetargetConfig
 from humimic.datasets.clip import HumanClip
 from humimic.errors import RetargetError
+from humimic.retarget.contacts import step_speed
 from humimic.retarget.interaction_mesh import build_mesh
 from humimic.retarget.kinematic import (
     KEYPOINT_SITE_PREFIX,
@@ -248,14 +249,11 @@ class InteractionMeshRetargeter:
         # A foot point is planted on the floor (the kinematic targets' contacts) or on an
         # object (a scene contact while the human's point moves slower than contact_speed).
         feet_flat = foot_idx.ravel()
-        speed = np.zeros((T, feet_flat.size))
-        speed[1:] = np.linalg.norm(np.diff(tg.scaled[:, feet_flat, :2], axis=0), axis=-1) * tg.fps
+        speed = step_speed(tg.scaled[:, feet_flat, :2], tg.fps)
         planted = tg.contacts.reshape(T, -1) | (
             (contacts[:, feet_flat] >= 0) & (speed < self.cfg.contact_speed)
         )
-        toes = foot_idx[:, 1]
-        toe_speed = np.zeros((T, toes.size))
-        toe_speed[1:] = np.linalg.norm(np.diff(tg.human[:, toes, :2], axis=0), axis=-1) * tg.fps
+        toe_speed = step_speed(tg.human[:, foot_idx[:, 1], :2], tg.fps)
         still = toe_speed[:, toe_feet] < icfg.still_speed  # (T, toe points)
         cap = icfg.still_travel * icfg.still_speed / tg.fps
         smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
@@ -286,8 +284,8 @@ class InteractionMeshRetargeter:
             set_scene_pose(model, conf.data, scene_r, t)
             # Start from the previous output moved as the warm start moves (within the joint
             # ranges), not from the warm start: the kinematic method ignores the scene, and a
-            # warm start 6 cm inside a box on most frames once failed to pull out within a
-            # frame's QPs.
+            # warm start inside a box on most frames once failed to pull out within a frame's
+            # QPs.
             warm.qpos[:] = kres.qpos[t]
             warm.mocap_pos[:], warm.mocap_quat[:] = conf.data.mocap_pos, conf.data.mocap_quat
             mujoco.mj_kinematics(model, warm)
@@ -299,11 +297,6 @@ class InteractionMeshRetargeter:
                 conf.update(q0)
             else:
                 conf.update(kres.qpos[0])
-            # The warm start's height of each planted point, where its foot is out of the
-            # objects (the warm start knows the floor, not the scene: a foot it sinks into a
-            # box keeps its previous frame's height instead).
-            warm_z = warm.site_xpos[stick.site_ids, 2].copy()
-            sunk = np.array([_deepest(model, warm, p) < -REPAIR_DEPTH for p in foot_pairs])
             pts = self._scene_points(scene_r, samples, tg.scaled[t], t)
             n_scene[t] = len(pts)
             mesh_task.set_mesh(build_mesh(tg.scaled[t], pts, weighting=icfg.weighting))
@@ -342,9 +335,13 @@ class InteractionMeshRetargeter:
                 if held.any():
                     # Planted points stay where they were horizontally, at the warm start's
                     # height, held more loosely (stick_height_scale): holding the previous
-                    # height kept a foot that landed high floating through its stance.
+                    # height kept a foot that landed high floating through its stance. The
+                    # warm start knows the floor, not the scene: a foot it sinks into an
+                    # object keeps its previous height.
+                    sunk = np.array([_deepest(model, warm, p) < -REPAIR_DEPTH for p in foot_pairs])
                     stick.targets = prev.site_xpos[stick.site_ids].copy()
-                    stick.targets[:, 2] = np.where(sunk[stick_foot], stick.targets[:, 2], warm_z)
+                    stick.targets[:, 2] = np.where(sunk[stick_foot], stick.targets[:, 2],
+                                                   warm.site_xpos[stick.site_ids, 2])  # fmt: skip
                     cost = np.zeros((held.size, 3))
                     cost[held] = icfg.stick_weight * np.array([1.0, 1.0, icfg.stick_height_scale])
                     stick.cost = cost.ravel()

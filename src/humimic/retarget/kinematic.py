@@ -363,7 +363,7 @@ class KinematicRetargeter:
         A = np.vstack(rows) if rows else np.zeros((0, nv))
         # The floating base under the same trust region, except from the cold start of frame 0
         # (which may have to turn the whole body): unbounded, limits linearized in its rotation
-        # can be met by a step of tens of metres (seen in a climbing clip, output frame 679).
+        # can be met by a step far beyond the joints' (seen in a climbing clip, frame 679).
         base = 1e30 if frame.t == 0 else self.cfg.max_step
         bupper = np.concatenate([np.full(6, base), hi, *ub])
         blower = np.concatenate([np.full(6, -base), lo, np.full(A.shape[0], -1e30)])

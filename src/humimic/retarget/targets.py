@@ -27,7 +27,7 @@ import numpy as np
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip, estimate_height
 from humimic.errors import MotionDataError
-from humimic.retarget.contacts import detect_contacts, plant_segments, runs
+from humimic.retarget.contacts import detect_contacts, plant_segments, runs, step_speed
 from humimic.robots.maps import RetargetMap
 from humimic.transforms import axis_angle_matrix, frame_from_left_up
 
@@ -298,11 +298,8 @@ def hold_still_points(
         weight_scale: Weight factor of a held point.
     """
     pos, weights = tg.positions.copy(), tg.position_weights.copy()
-    T = pos.shape[0]
     for n, key in enumerate(keys):
-        v = np.zeros(T)
-        v[1:] = np.linalg.norm(np.diff(tg.human[:, key, :2], axis=0), axis=-1) * tg.fps
-        still = (v < speed) & ~planted[:, n]
+        still = (step_speed(tg.human[:, key, :2], tg.fps) < speed) & ~planted[:, n]
         for start, stop in plant_segments(still, tg.human[:, key, :2], radius):
             if stop - start < 2:
                 continue
