@@ -161,3 +161,71 @@ def test_reference_flight_measures_how_ballistic_a_hop_is(g: float) -> None:
     assert report["flight_frames"] == int((lift > 0.05).sum()) > 0
     assert report["com_z_acc_in_flight"] == pytest.approx(-g, rel=1e-6)
     assert report["gravity_z"] == pytest.approx(-9.81)
+    # The closest free fall misses the hop by its curvature's excess over the flight frames:
+    # (9.81 - g) / 2 t^2 less its best straight line.
+    ts = t[lift > 0.05]
+    bend = ts**2 - np.polyval(np.polyfit(ts, ts**2, 1), ts)
+    gap = 1000 * (9.81 - g) / 2 * np.sqrt(np.mean(bend**2))
+    assert report["ballistic_gap_mm"] == pytest.approx(gap, abs=1e-6)
+    assert (report["ballistic_gap_mm"] > 5.0) == (g < 9.0)
+
+
+def test_inverse_dynamics_targets_hold_a_crouch() -> None:
+    """Standing still in a crouch (knees bent 0.8 rad, the feet flat on the floor), the
+    inverse-dynamics torques (the weight carried by the two feet) added to the PD targets
+    hold the pose; the pose alone as target sags under gravity. Simulated for 0.5 s on the
+    training model, which the torques never see run."""
+    import mujoco
+
+    from humimic.retarget.dynamics import inverse_dynamics_torques
+    from humimic.robots import get_robot
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.env import tracking_model
+
+    model = tracking_model(g1_tracking("none"))
+    joints = tuple(model.joint(model.actuator_trnid[i, 0]).name for i in range(model.nu))
+    feet = tuple(get_robot("g1").feet.values())
+    pose = model.key_qpos[0].copy()
+    data = mujoco.MjData(model)
+    data.qpos[:] = pose
+    mujoco.mj_kinematics(model, data)
+    foot_z = data.xpos[model.body(feet[0]).id, 2]
+    for side in ("left", "right"):
+        for joint, angle in (("hip_pitch", -0.4), ("knee", 0.8), ("ankle_pitch", -0.4)):
+            pose[7 + joints.index(f"{side}_{joint}_joint")] = angle
+    data.qpos[:] = pose
+    mujoco.mj_kinematics(model, data)
+    pose[2] -= data.xpos[model.body(feet[0]).id, 2] - foot_z  # Feet back on the floor.
+    q = np.tile(pose, (5, 1))
+    tau = inverse_dynamics_torques(model, q, 50.0, joints, feet)
+    assert tau.shape == (5, model.nu)
+    np.testing.assert_allclose(tau, tau[:1].repeat(5, axis=0), atol=1e-9)  # Static: constant.
+    assert tau[0, joints.index("left_knee_joint")] < -10.0  # Extending: the knees carry it.
+
+    def sag(ctrl: np.ndarray) -> float:
+        data.qpos[:], data.qvel[:] = pose, 0.0
+        data.ctrl[:] = ctrl
+        for _ in range(100):
+            mujoco.mj_step(model, data)
+        return float(np.abs(data.qpos[7:] - pose[7:]).max())
+
+    plain, held = sag(pose[7:]), sag(pose[7:] + tau[0] / model.actuator_gainprm[:, 0])
+    assert plain > 0.05, plain
+    assert held < 0.2 * plain, (held, plain)
+
+
+def test_dynamics_targets_may_pass_the_joint_range() -> None:
+    """The sampler's targets reach past a joint's range by effort / kp (the model does not
+    clamp them), so that a low-gain servo can reach its torque limit at the range's ends."""
+    from humimic.motion import motion_from_qpos
+    from humimic.retarget.dynamics import DynamicsRetargeter
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.env import tracking_model
+
+    model = tracking_model(g1_tracking("none"))
+    motion = motion_from_qpos(model, np.tile(model.key_qpos[0], (4, 1)), 50.0, "g1")
+    dyn = DynamicsRetargeter(motion, SMALL, nthread=1)
+    reach = dyn.effort / dyn.kp
+    np.testing.assert_allclose(dyn.ctrl_lo, dyn.joint_lo - reach)
+    np.testing.assert_allclose(dyn.ctrl_hi, dyn.joint_hi + reach)
+    assert not model.actuator_ctrllimited.any()

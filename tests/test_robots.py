@@ -108,12 +108,12 @@ def test_nominal_model_actuators_are_explicit_position_servos(
         np.testing.assert_array_equal(model.actuator_gainprm[i, 1:], 0.0)
         np.testing.assert_array_equal(model.actuator_biasprm[i, :3], [0.0, -kp, -kd])
         np.testing.assert_array_equal(model.actuator_biasprm[i, 3:], 0.0)
-        # Limits: force = +-effort, control = the joint's range.
+        # Limits: force = +-effort; targets are not clamped (beyond the range they still
+        # command torque, as on a motor driver).
         assert model.actuator_forcelimited[i]
         np.testing.assert_array_equal(model.actuator_forcerange[i], [-effort, effort])
-        assert model.actuator_ctrllimited[i]
+        assert not model.actuator_ctrllimited[i]
         assert model.jnt_limited[j]
-        np.testing.assert_array_equal(model.actuator_ctrlrange[i], model.jnt_range[j])
         assert model.jnt_range[j, 0] < model.jnt_range[j, 1]
         np.testing.assert_array_equal(model.jnt_actfrcrange[j], [-effort, effort])
         # Armature: the simulated joint gets the motor's reflected inertia.
@@ -127,6 +127,20 @@ def test_nominal_model_actuators_are_explicit_position_servos(
         assert kp == pytest.approx(armature * wn**2, rel=1e-5)
         assert kd == pytest.approx(2.0 * zeta * armature * wn, rel=1e-5)
         assert effort == motor.effort_limit
+
+
+def test_targets_beyond_the_range_command_the_effort_limit(g1_model: mujoco.MjModel) -> None:
+    """A target past the ankle roll's +-0.26 rad range still pushes, up to the motor's
+    50 Nm: clamped to the range, kp 28.5 would give 7.4 Nm at the joint's centre."""
+    data = mujoco.MjData(g1_model)
+    data.qpos[:] = g1_model.key_qpos[0]
+    i = g1_model.actuator("left_ankle_roll_joint").id
+    j = _joint_of_actuator(g1_model, i)
+    data.qpos[g1_model.jnt_qposadr[j]] = 0.0
+    data.ctrl[i] = g1_model.jnt_range[j, 0] - 2.0
+    mujoco.mj_forward(g1_model, data)
+    assert data.actuator_force[i] == pytest.approx(g1_model.actuator_forcerange[i, 0])
+    assert g1_model.actuator_forcerange[i, 0] < -40.0
 
 
 def test_g1_gains_follow_recipe_from_simulated_armature(g1_model: mujoco.MjModel) -> None:

@@ -262,6 +262,11 @@ class DynamicsConfig:
         foot_weight: Cost of a foot's horizontal speed while the reference's foot is on the
             ground (low and slow), per (0.3 m/s)^2.
         effort_weight: Cost of the mean squared torque, relative to the motors' limits.
+        feedforward: Scale of the inverse-dynamics torque in the nominal PD targets that
+            the sampler's offsets are added to: 1 makes the servo produce the reference's
+            inverse-dynamics torque at the middle of each frame
+            (:func:`humimic.retarget.dynamics.inverse_dynamics_torques`); 0 targets the next
+            frame's joint positions (PD on the reference alone).
         fall_height: The robot has fallen when its pelvis is lower than this fraction of the
             reference's pelvis height, or tilted more than ``fall_tilt`` [rad] from it.
         fall_tilt: See ``fall_height``.
@@ -275,7 +280,7 @@ class DynamicsConfig:
 
     samples: int = 128
     horizon_s: float = 0.5
-    knot_dt: float = 0.1
+    knot_dt: float = 0.05
     commit_s: float = 0.1
     iterations: int = 8
     min_improvement: float = 0.01
@@ -291,6 +296,7 @@ class DynamicsConfig:
     velocity_weight: float = 0.05
     foot_weight: float = 0.2
     effort_weight: float = 0.01
+    feedforward: float = 1.0
     fall_height: float = 0.6
     fall_tilt: float = 0.8
     fall_cost: float = 100.0
@@ -304,7 +310,8 @@ class DynamicsConfig:
         _check_numbers(self, "dyn", positive, positive=True)
         non_negative = ("min_improvement", "noise", "horizon_noise", "upper_body_noise",
                         "body_weight", "root_weight", "joint_weight", "velocity_weight",
-                        "effort_weight", "fall_cost", "fall_tilt", "foot_weight")  # fmt: skip
+                        "effort_weight", "fall_cost", "fall_tilt", "foot_weight",
+                        "feedforward")  # fmt: skip
         _check_numbers(self, "dyn", non_negative, positive=False)
         if self.samples < 2 or self.iterations < 1 or self.elites < 1 or self.ensemble < 0:
             raise InputError(

@@ -6,10 +6,17 @@ Dexterous Retargeting", 2025) and DIAL-MPC (Xue et al., "Full-Order Sampling-Bas
 Torque-Level Locomotion Control via Diffusion-Style Annealing", 2024), retargeting becomes
 optimal control solved by sampling in the simulator:
 
-* decision variables: offsets added to the reference's joint targets at knots ``knot_dt``
-  apart over a ``horizon_s`` window, linearly interpolated to the control rate (the
-  reference's frame rate) and held over each control step's physics steps; the first knot is
-  the previous window's plan (continuity of the targets);
+* nominal PD targets: with ``feedforward`` (the default), the targets whose PD torque is the
+  reference's inverse-dynamics torque (:func:`inverse_dynamics_torques`: the base's share
+  carried by the planted feet), so that the sampler starts from a plan that holds the robot
+  up against gravity and accelerates it along the reference; without, the next frame's
+  joint positions. Targets may lie beyond the joint range (the robot model's actuators do
+  not clamp them, as on the real motor drivers): a low-gain servo needs that to reach its
+  torque limit near the range's ends;
+* decision variables: offsets added to the nominal targets at knots ``knot_dt`` apart over a
+  ``horizon_s`` window, linearly interpolated to the control rate (the reference's frame
+  rate) and held over each control step's physics steps; after the first window, the first
+  knot is the previous window's plan (continuity of the targets);
 * each iteration draws ``samples`` plans around the current mean (the mean itself is one of
   them) with noise that grows along the window and shrinks across iterations, rolls every one
   out in MuJoCo from the window's start state (``mujoco.rollout`` threads, through the
@@ -204,6 +211,29 @@ class DynamicsRetargeter:
         fv[1:] = np.linalg.norm(np.diff(self.ref_body[:, self.feet, :2], axis=0), axis=-1)
         fv *= motion.fps
         self.ref_planted = (fz < fz.min(axis=0) + 0.03) & (fv < 0.3)  # (T, feet)
+        # PD targets beyond a joint's range still command torque, up to the motor's limit at
+        # the range's end (unless the actuator clamps its control, as a ctrlrange does).
+        reach = self.effort / self.kp
+        self.ctrl_lo, self.ctrl_hi = self.joint_lo - reach, self.joint_hi + reach
+        limited = model.actuator_ctrllimited.astype(bool)
+        self.ctrl_lo[limited] = np.maximum(self.ctrl_lo, model.actuator_ctrlrange[:, 0])[limited]
+        self.ctrl_hi[limited] = np.minimum(self.ctrl_hi, model.actuator_ctrlrange[:, 1])[limited]
+        # The nominal targets of the control steps (row t: frame t to t + 1), around which
+        # the sampler searches: the next frame's joints, or with feedforward the targets
+        # whose PD torque at the step's middle is the reference's inverse-dynamics torque.
+        self.nominal = self.ref_joint[1:].copy()
+        if cfg.feedforward > 0:
+            if motion.qpos.shape[1] != model.nq:
+                raise InputError(
+                    f"the motion's qpos has {motion.qpos.shape[1]} values, the model {model.nq}"
+                )
+            tau = inverse_dynamics_torques(
+                model, motion.qpos, motion.fps, be.joint_names, be.foot_body_names
+            )
+            ff = (tau + self.kd * self.ref_joint_vel) / self.kp  # kp (u - q) - kd qd = tau
+            mid = 0.5 * (self.ref_joint[1:] + self.ref_joint[:-1])
+            self.nominal = mid + cfg.feedforward * 0.5 * (ff[1:] + ff[:-1])
+        self.nominal = np.clip(self.nominal, self.ctrl_lo, self.ctrl_hi)
 
     # ------------------------------------------------------------------------------ costs
 
@@ -280,7 +310,7 @@ class DynamicsRetargeter:
                 src = np.arange(plan_prev.shape[0])
                 for j in range(self.nu):
                     mean[:, j] = np.interp(tk, src, plan_prev[:, j], right=0.0)
-            ref_u = self.ref_joint[f0 + 1 : f0 + 1 + H]  # (H, J): next frame's joints
+            ref_u = self.nominal[f0 : f0 + H]  # (H, J): targets toward the next frames
             # The window's start state and solver warm start, for every rollout.
             start = np.ascontiguousarray(np.broadcast_to(state, (N * members, state.size)))
             warm = np.ascontiguousarray(
@@ -288,7 +318,8 @@ class DynamicsRetargeter:
             )
             ramp = 1.0 + (cfg.horizon_noise - 1.0) * np.arange(K) / max(K - 1, 1)
             sigma0 = cfg.noise * ramp[:, None] * self.joint_noise[None]  # (K, J)
-            sigma0[0] = 0.0  # The first knot continues the committed targets.
+            if plan_prev is not None:
+                sigma0[0] = 0.0  # The first knot continues the committed targets.
             best_c, best = np.inf, None
             stall, it = 0, 0
             for it in range(cfg.iterations):
@@ -296,9 +327,9 @@ class DynamicsRetargeter:
                 knots = mean + rng.standard_normal((N, K, self.nu)) * sigma
                 knots[0] = mean
                 if it == 0 and plan_prev is not None:
-                    knots[1] = 0.0  # The plain reference, as a candidate.
+                    knots[1] = 0.0  # The nominal targets, as a candidate.
                 offs = np.einsum("hk,nkj->nhj", W, knots)  # (N, H, J)
-                u = np.clip(ref_u + offs, self.joint_lo, self.joint_hi)
+                u = np.clip(ref_u + offs, self.ctrl_lo, self.ctrl_hi)
                 u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
                 ctrl = np.tile(u_steps, (members, 1, 1))
                 states, sens = be.rollout(start, ctrl, warm)
@@ -369,6 +400,78 @@ class DynamicsRetargeter:
         frame's joints over each frame). Shape: ((T - 1) decimation, nu)."""
         u = np.clip(self.ref_joint[1:], self.joint_lo, self.joint_hi)
         return np.repeat(u, self.decimation, axis=0)
+
+
+def inverse_dynamics_torques(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    fps: float,
+    joint_names: tuple[str, ...],
+    foot_body_names: tuple[str, ...],
+    *,
+    planted_height: float = 0.03,
+    moment_weight: float = 10.0,
+) -> np.ndarray:
+    """Joint torques that move the robot along ``qpos``: inverse dynamics of its finite-
+    difference velocities and accelerations, the floating base's share carried by the feet
+    on the ground.
+
+    ``mj_inverse`` on the model without constraints gives each frame's generalized force.
+    Its six base rows, which no motor produces, are explained by one wrench per planted foot
+    (within ``planted_height`` of the foot's lowest in the clip) of least weighted norm
+    (moments count ``moment_weight`` times as much as forces); the joint rows less those
+    wrenches' share are the torques. In flight (no foot planted) the base rows stay
+    unexplained: a reference whose flight is not ballistic has no exact torques.
+
+    Args:
+        model: The robot with a free base (dofs 0-5).
+        qpos: The motion. Shape: (T, nq).
+        fps: Its frame rate.
+        joint_names: The joints whose torques are returned, in this order.
+        foot_body_names: The bodies that carry the base's wrench when on the ground.
+
+    Returns:
+        Shape: (T, len(joint_names)).
+    """
+    import copy
+
+    mi = copy.copy(model)
+    mi.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
+    data = mujoco.MjData(mi)
+    T = qpos.shape[0]
+    qv = np.zeros((T, mi.nv))
+    for t in range(T):
+        a, b = max(t - 1, 0), min(t + 1, T - 1)
+        mujoco.mj_differentiatePos(mi, qv[t], (b - a) / fps, qpos[a], qpos[b])
+    qa = np.gradient(qv, 1.0 / fps, axis=0) if T > 1 else np.zeros_like(qv)
+    feet = [mi.body(b).id for b in foot_body_names]
+    fz = np.zeros((T, len(feet)))
+    for t in range(T):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(mi, data)
+        fz[t] = data.xpos[feet, 2]
+    planted = fz < fz.min(axis=0) + planted_height
+    dofs = [int(mi.joint(j).dofadr[0]) for j in joint_names]
+    out = np.zeros((T, len(dofs)))
+    jp, jr = np.zeros((3, mi.nv)), np.zeros((3, mi.nv))
+    w_inv = np.r_[np.ones(3), np.full(3, 1.0 / moment_weight)]
+    for t in range(T):
+        data.qpos[:], data.qvel[:], data.qacc[:] = qpos[t], qv[t], qa[t]
+        mujoco.mj_inverse(mi, data)
+        f = data.qfrc_inverse.copy()
+        jac = []
+        for k, b in enumerate(feet):
+            if planted[t, k]:
+                mujoco.mj_jacBody(mi, data, jp, jr, b)
+                jac.append(np.vstack([jp, jr]))
+        if jac:
+            J = np.vstack(jac)  # (6k, nv): the planted feet's wrenches in generalized forces
+            A = J[:, :6].T  # (6, 6k)
+            wi = np.tile(w_inv, len(jac))
+            lam = np.linalg.lstsq((A * wi) @ A.T, f[:6], rcond=None)[0]
+            f = f - J.T @ (wi * (A.T @ lam))  # A w = f[:6] with w = wi A^T lam
+        out[t] = f[dofs]
+    return out
 
 
 def evaluate_replay(
@@ -533,11 +636,15 @@ def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float |
     whole-body centre of mass there (of ``model``'s masses under the motion's qpos). A physical
     flight falls at gravity (-9.81 m/s^2 on Earth's model); a retargeted one often does not
     (the human's timing with the robot's scaled heights), and then no feasible motion follows
-    its timing.
+    its timing exactly. How far a feasible one must stay from it: ``ballistic_gap_mm``, the
+    RMS distance between the centre of mass's height and the closest (least-squares) arc of
+    free fall through each flight phase of 3 frames or more (the arcs' start height and
+    vertical speed fitted per phase).
 
     Returns:
         ``flight_frames``, ``frames``, ``com_z_acc_in_flight`` [m/s^2] (NaN without flight),
-        ``gravity_z`` [m/s^2].
+        ``gravity_z`` [m/s^2], ``ballistic_gap_mm`` (NaN without a flight phase of 3
+        frames).
     """
     data = mujoco.MjData(model)
     feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
@@ -549,12 +656,25 @@ def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float |
         mujoco.mj_comPos(model, data)
         com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
     acc_z = (com[2:, 2] - 2 * com[1:-1, 2] + com[:-2, 2]) * motion.fps**2
-    flight = (foot_z[1:-1] > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
+    airborne = (foot_z > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
+    flight = airborne[1:-1]
+    gz = float(model.opt.gravity[2])
+    gaps = []
+    edges = np.flatnonzero(np.diff(np.r_[0, airborne.astype(int), 0]))
+    for a, b in zip(edges[::2], edges[1::2], strict=True):  # Each flight phase [a, b).
+        if b - a < 3:
+            continue
+        t = np.arange(b - a) / motion.fps
+        free = com[a:b, 2] - 0.5 * gz * t**2  # Linear in t for a free fall.
+        basis = np.stack([np.ones_like(t), t], axis=1)
+        gaps.append(free - basis @ np.linalg.lstsq(basis, free, rcond=None)[0])
+    gap = np.concatenate(gaps) if gaps else np.zeros(0)
     return {
         "flight_frames": int(flight.sum()),
         "frames": T,
         "com_z_acc_in_flight": float(acc_z[flight].mean()) if flight.any() else float("nan"),
-        "gravity_z": float(model.opt.gravity[2]),
+        "gravity_z": gz,
+        "ballistic_gap_mm": 1000.0 * float(np.sqrt(np.mean(gap**2))) if gap.size else float("nan"),
     }
 
 

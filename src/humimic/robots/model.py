@@ -41,10 +41,13 @@ def nominal_spec(
     """The robot's spec with the explicit PD actuator model applied.
 
     Every actuator becomes a position servo written with explicit numbers:
-    ``gainprm = [kp]``, ``biasprm = [0, -kp, -kd]``, ``forcerange = +-effort``,
-    ``ctrlrange`` = the joint range; each joint's ``armature`` is the motor's reflected inertia
-    and its ``actuatorfrcrange`` the effort limit. Nothing is left to compile-time defaults
-    such as ``dampratio`` or ``inheritrange``.
+    ``gainprm = [kp]``, ``biasprm = [0, -kp, -kd]``, ``forcerange = +-effort``, and no
+    ``ctrlrange``: a target beyond the joint range commands torque up to the effort limit,
+    as a real motor driver's position loop does (and mjlab's position actuators); clamping
+    targets to the range would cap a low-gain servo's torque near the range's ends (the G1's
+    ankle roll, +-0.26 rad at kp 28.5, at 7.4 of its 50 Nm). Each joint's ``armature`` is the
+    motor's reflected inertia and its ``actuatorfrcrange`` the effort limit. Nothing is left
+    to compile-time defaults such as ``dampratio`` or ``inheritrange``.
 
     Returns:
         The spec and the resolved actuator of every actuated joint.
@@ -79,8 +82,7 @@ def nominal_spec(
         act.gainprm = gain
         act.biasprm = bias
         act.inheritrange = 0.0
-        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        act.ctrlrange = np.array(joint.range)
+        act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.forcerange = np.array([-a.effort_limit, a.effort_limit])
     return spec, acts
