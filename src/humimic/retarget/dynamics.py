@@ -51,6 +51,7 @@ import numpy as np
 from humimic.configs.retarget import DynamicsConfig
 from humimic.errors import InputError
 from humimic.motion import Motion
+from humimic.retarget.contacts import runs, step_speed
 from humimic.robots.registry import get_robot
 from humimic.tracking import dr as dr_mod
 from humimic.tracking.backend import MujocoCpuBackend
@@ -207,22 +208,18 @@ class DynamicsRetargeter:
         self.feet = [self.body_names.index(b) for b in self.foot_body_names]
         # The reference's feet on the ground: low (within 3 cm of their lowest) and slow.
         fz = self.ref_body[:, self.feet, 2]
-        fv = np.zeros_like(fz)
-        fv[1:] = np.linalg.norm(np.diff(self.ref_body[:, self.feet, :2], axis=0), axis=-1)
-        fv *= motion.fps
+        fv = step_speed(self.ref_body[:, self.feet, :2], motion.fps)
         self.ref_planted = (fz < fz.min(axis=0) + 0.03) & (fv < 0.3)  # (T, feet)
         # PD targets beyond a joint's range still command torque, up to the motor's limit at
-        # the range's end (unless the actuator clamps its control, as a ctrlrange does).
+        # the range's end (the model's actuators do not clamp their controls).
         reach = self.effort / self.kp
         self.ctrl_lo, self.ctrl_hi = self.joint_lo - reach, self.joint_hi + reach
-        limited = model.actuator_ctrllimited.astype(bool)
-        self.ctrl_lo[limited] = np.maximum(self.ctrl_lo, model.actuator_ctrlrange[:, 0])[limited]
-        self.ctrl_hi[limited] = np.minimum(self.ctrl_hi, model.actuator_ctrlrange[:, 1])[limited]
         # The nominal targets of the control steps (row t: frame t to t + 1), around which
         # the sampler searches: the next frame's joints, or with feedforward the targets
         # whose PD torque at the step's middle is the reference's inverse-dynamics torque.
-        self.nominal = self.ref_joint[1:].copy()
-        if cfg.feedforward > 0:
+        if cfg.feedforward == 0:
+            self.nominal = self.ref_joint[1:]
+        else:
             if motion.qpos.shape[1] != model.nq:
                 raise InputError(
                     f"the motion's qpos has {motion.qpos.shape[1]} values, the model {model.nq}"
@@ -660,8 +657,7 @@ def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float |
     flight = airborne[1:-1]
     gz = float(model.opt.gravity[2])
     gaps = []
-    edges = np.flatnonzero(np.diff(np.r_[0, airborne.astype(int), 0]))
-    for a, b in zip(edges[::2], edges[1::2], strict=True):  # Each flight phase [a, b).
+    for a, b in runs(airborne):  # Each flight phase [a, b).
         if b - a < 3:
             continue
         t = np.arange(b - a) / motion.fps
