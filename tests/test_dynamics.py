@@ -56,6 +56,10 @@ def test_refined_motion_replays_open_loop_and_tracks_closer(shared_data: Path) -
     assert not dyn["fell"]
     assert dyn["mpjpe_mm"] < kin["mpjpe_mm"], report  # Sampling beats the raw reference.
     assert report["robustness"]["replays"] == 2 and report["physics_steps"] > 0
+    torque = report["reference_torque"]
+    assert torque["max_over_limit"] > 0 and 0 <= torque["frames_over_limit"] <= walk.num_frames
+    # The iLQR polish lowers the windows' costs below the best samples'.
+    assert report["window_cost"]["committed"] < 0.9 * report["window_cost"]["sampled"], report
 
 
 def test_motion_file_keeps_the_dynamic_section(shared_data: Path, tmp_path: Path) -> None:
@@ -82,13 +86,16 @@ def test_replay_detects_changed_controls_and_missing_sections(
     assert main(["replay", str(plain)]) == 2
     with pytest.raises(InputError, match=r"dyn\.samples"):
         DynamicsConfig(samples=1).validate()
+    with pytest.raises(InputError, match=r"dyn\.polish_iterations"):
+        DynamicsConfig(polish_iterations=-1).validate()
 
 
 def test_cli_refine_writes_motion_and_report(shared_data: Path, tmp_path: Path) -> None:
     src = save_motion(_walk(shared_data), tmp_path / "walk.npz")
     out, rep = tmp_path / "refined.npz", tmp_path / "refined.json"
     args = ["refine", str(src), "--out", str(out), "--report", str(rep), "--quiet",
-            "--dyn.samples", "8", "--dyn.iterations", "1", "--robustness", "0"]  # fmt: skip
+            "--dyn.samples", "8", "--dyn.iterations", "1", "--dyn.polish_iterations", "1",
+            "--robustness", "0"]  # fmt: skip
     assert main(args) == 0
     assert out.is_file() and rep.is_file()
     assert main(["replay", str(out)]) == 0
@@ -229,3 +236,28 @@ def test_dynamics_targets_may_pass_the_joint_range() -> None:
     np.testing.assert_allclose(dyn.ctrl_lo, dyn.joint_lo - reach)
     np.testing.assert_allclose(dyn.ctrl_hi, dyn.joint_hi + reach)
     assert not model.actuator_ctrllimited.any()
+
+
+def test_polish_lowers_a_noisy_plans_cost_on_the_ensemble() -> None:
+    """Standing still, a plan of noisy PD targets: the iLQR polish lowers its exact cost,
+    which is the mean (or worst) over the nominal model and the ensemble's perturbed ones."""
+    from humimic.motion import motion_from_qpos
+    from humimic.retarget.dynamics import DynamicsRetargeter
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.env import tracking_model
+
+    model = tracking_model(g1_tracking("none"))
+    motion = motion_from_qpos(model, np.tile(model.key_qpos[0], (10, 1)), 50.0, "g1")
+    cfg = replace(SMALL, ensemble=2, polish_iterations=2)
+    dyn = DynamicsRetargeter(motion, cfg, nthread=1)
+    assert len(dyn.members) == 3
+    assert all(not np.allclose(m.body_mass, model.body_mass) for m in dyn.members[1:])
+    state, warm = dyn._initial_state(), np.zeros(dyn.nv)
+    rng = np.random.default_rng(0)
+    noisy = dyn.nominal[:9] + 0.15 * rng.standard_normal((9, dyn.nu))
+    before = dyn._plan_cost(state, warm, noisy, 0)
+    polished, after = dyn._polish(state, warm, noisy, 0)
+    assert after == pytest.approx(dyn._plan_cost(state, warm, polished, 0))
+    assert after < 0.2 * before, (after, before)
+    worst = DynamicsRetargeter(motion, replace(cfg, robust="worst"), nthread=1)
+    assert worst._plan_cost(state, warm, noisy, 0) > before  # The worst member over the mean.

@@ -267,6 +267,10 @@ class DynamicsConfig:
             inverse-dynamics torque at the middle of each frame
             (:func:`humimic.retarget.dynamics.inverse_dynamics_torques`); 0 targets the next
             frame's joint positions (PD on the reference alone).
+        polish_iterations: Iterations of iLQR (:mod:`humimic.retarget.ilqr`) that refine each
+            window's best sampled plan along the cost's Gauss-Newton model before its start is
+            committed (0: sampling alone). Each costs about two thirds of a sampling iteration
+            of 128 samples (BENCHMARKS.md, "Dynamics retargeting").
         fall_height: The robot has fallen when its pelvis is lower than this fraction of the
             reference's pelvis height, or tilted more than ``fall_tilt`` [rad] from it.
         fall_tilt: See ``fall_height``.
@@ -282,7 +286,7 @@ class DynamicsConfig:
     horizon_s: float = 0.5
     knot_dt: float = 0.05
     commit_s: float = 0.1
-    iterations: int = 8
+    iterations: int = 4
     min_improvement: float = 0.01
     noise: float = 0.15
     horizon_noise: float = 2.0
@@ -297,6 +301,7 @@ class DynamicsConfig:
     foot_weight: float = 0.2
     effort_weight: float = 0.01
     feedforward: float = 1.0
+    polish_iterations: int = 3
     fall_height: float = 0.6
     fall_tilt: float = 0.8
     fall_cost: float = 100.0
@@ -313,10 +318,10 @@ class DynamicsConfig:
                         "effort_weight", "fall_cost", "fall_tilt", "foot_weight",
                         "feedforward")  # fmt: skip
         _check_numbers(self, "dyn", non_negative, positive=False)
-        if self.samples < 2 or self.iterations < 1 or self.elites < 1 or self.ensemble < 0:
-            raise InputError(
-                "dyn.samples must be >= 2, dyn.iterations and dyn.elites >= 1, dyn.ensemble >= 0"
-            )
+        least = {"samples": 2, "iterations": 1, "elites": 1, "ensemble": 0, "polish_iterations": 0}
+        for name, low in least.items():
+            if getattr(self, name) < low:
+                raise InputError(f"dyn.{name}: must be >= {low}, got {getattr(self, name)}")
         if not 0 < self.anneal <= 1:
             raise InputError(f"dyn.anneal: must be in (0, 1], got {self.anneal}")
         if self.commit_s > self.horizon_s or self.knot_dt > self.horizon_s:

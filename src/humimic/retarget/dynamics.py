@@ -22,10 +22,15 @@ optimal control solved by sampling in the simulator:
   out in MuJoCo from the window's start state (``mujoco.rollout`` threads, through the
   tracking backend's :meth:`~humimic.tracking.backend.MujocoCpuBackend.rollout`), scores it,
   and moves the mean to the MPPI average of the elites;
+* ``polish_iterations`` of iLQR (:mod:`humimic.retarget.ilqr`) then refine the best sample,
+  one control per control step, on the cost's Gauss-Newton model (:meth:`_stage`), each step
+  accepted only if the exact cost falls: sampling finds the basin, the polish removes the
+  noise that a few hundred samples leave in hundreds of knot values;
 * cost per control step: tracked-body positions, pelvis height and tilt, joint angles and
   pelvis velocity against the reference, effort, and a fall penalty; the last step counts
   twice;
-* receding horizon: the best plan evaluated (not the unevaluated mean) is committed for
+* receding horizon: the polished plan (without the polish: the best plan evaluated, not the
+  unevaluated mean) is committed for
   ``commit_s``, stepped with ``mj_step`` on one ``MjData`` that runs through the motion, so
   the stored trajectory is exactly what an open-loop replay of the stored controls produces
   (:func:`replay`); every window's rollouts start from its state and solver warm start;
@@ -38,6 +43,7 @@ the same actuators, contacts and time step as the tracking policy will see.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -52,9 +58,10 @@ from humimic.configs.retarget import DynamicsConfig
 from humimic.errors import InputError
 from humimic.motion import Motion
 from humimic.retarget.contacts import runs, step_speed
+from humimic.retarget.ilqr import ilqr
 from humimic.robots.registry import get_robot
 from humimic.tracking import dr as dr_mod
-from humimic.tracking.backend import MujocoCpuBackend
+from humimic.tracking.backend import MujocoCpuBackend, PhysicsParams
 from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
 from humimic.tracking.env import build_backend, tracking_model
 from humimic.tracking.warp_backend import MujocoWarpBackend
@@ -76,8 +83,10 @@ class DynamicsResult:
         decimation: Physics steps per frame of the reference.
         seconds: Wall-clock time of the optimization [s].
         cpu_seconds: Process CPU time of the optimization, all threads [s].
-        rollouts: Physics steps simulated, all samples and iterations.
+        rollouts: Physics steps simulated by the sampler, all samples and iterations.
         iterations: Sampling iterations of each window. Shape: (windows,).
+        window_costs: Each window's cost after sampling (its best sample's) and of the plan
+            committed from it (after the iLQR polish). Shape: (windows, 2).
     """
 
     initial_state: np.ndarray
@@ -90,6 +99,7 @@ class DynamicsResult:
     cpu_seconds: float
     rollouts: int
     iterations: np.ndarray
+    window_costs: np.ndarray
 
     def frame_qpos(self) -> np.ndarray:
         """The state at each reference frame: the start, then every ``decimation``-th step.
@@ -171,6 +181,9 @@ class DynamicsRetargeter:
             bcfg, n, model=model, device=device
         )
         self.model = model
+        # The models a plan's exact cost is simulated on in the iLQR polish: the nominal, then
+        # the ensemble's (the sampler's draws).
+        self.members = [model]
         if cfg.ensemble:
             rng = np.random.default_rng(cfg.seed + 1)
             smp = dr_mod.sample(bcfg.dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
@@ -178,6 +191,7 @@ class DynamicsRetargeter:
             for e in range(cfg.ensemble):
                 ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
                 self.backend.set_params(ids, smp.physics.select(np.full(len(ids), e)))
+            self.members += _physics_copies(model, self.backend, smp.physics, cfg.ensemble)
 
         be = self.backend
         missing = [n for n in be.joint_names if n not in motion.joint_names] + [
@@ -206,6 +220,9 @@ class DynamicsRetargeter:
         self.body_names = tuple(task.body_names)
         self.foot_body_names = tuple(b for b in be.foot_body_names if b in self.body_names)
         self.feet = [self.body_names.index(b) for b in self.foot_body_names]
+        self.body_ids = [model.body(b).id for b in self.body_names]
+        self.joint_qpos = np.array([model.joint(j).qposadr[0] for j in be.joint_names])
+        self.joint_dofs = np.array([model.joint(j).dofadr[0] for j in be.joint_names])
         # The reference's feet on the ground: low (within 3 cm of their lowest) and slow.
         fz = self.ref_body[:, self.feet, 2]
         fv = step_speed(self.ref_body[:, self.feet, :2], motion.fps)
@@ -214,19 +231,23 @@ class DynamicsRetargeter:
         # the range's end (the model's actuators do not clamp their controls).
         reach = self.effort / self.kp
         self.ctrl_lo, self.ctrl_hi = self.joint_lo - reach, self.joint_hi + reach
+        # The reference's inverse-dynamics torques (None if its qpos is another model's).
+        self.reference_torque: np.ndarray | None = None
+        if motion.qpos.shape[1] == model.nq:
+            self.reference_torque = inverse_dynamics_torques(
+                model, motion.qpos, motion.fps, be.joint_names, be.foot_body_names
+            )
         # The nominal targets of the control steps (row t: frame t to t + 1), around which
         # the sampler searches: the next frame's joints, or with feedforward the targets
         # whose PD torque at the step's middle is the reference's inverse-dynamics torque.
         if cfg.feedforward == 0:
             self.nominal = self.ref_joint[1:]
         else:
-            if motion.qpos.shape[1] != model.nq:
+            tau = self.reference_torque
+            if tau is None:
                 raise InputError(
                     f"the motion's qpos has {motion.qpos.shape[1]} values, the model {model.nq}"
                 )
-            tau = inverse_dynamics_torques(
-                model, motion.qpos, motion.fps, be.joint_names, be.foot_body_names
-            )
             ff = (tau + self.kd * self.ref_joint_vel) / self.kp  # kp (u - q) - kd qd = tau
             mid = 0.5 * (self.ref_joint[1:] + self.ref_joint[:-1])
             self.nominal = mid + cfg.feedforward * 0.5 * (ff[1:] + ff[:-1])
@@ -272,6 +293,64 @@ class DynamicsRetargeter:
         c[:, -1] *= 2.0
         return c.sum(axis=1) / (H + 1)
 
+    def _plan_cost(self, state: np.ndarray, warm: np.ndarray, u: np.ndarray, f0: int) -> float:
+        """The cost of one plan (Shape: (H, nu), a control per control step) from ``state``
+        and solver warm start ``warm`` at frame ``f0``, simulated with ``mj_step`` on every
+        member model and combined as the sampler combines them."""
+        ctrl = np.repeat(u, self.decimation, axis=0)
+        costs = []
+        for m in self.members:
+            states, sens = _simulate(m, state, ctrl, warm)
+            costs.append(self._costs(states[None], sens[None], ctrl[None], f0)[0])
+        return float(np.mean(costs) if self.cfg.robust == "mean" else np.max(costs))
+
+    def _stage(
+        self, data: mujoco.MjData, frame: int, weight: float, u: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The Gauss-Newton model of :meth:`_costs`'s terms at one control step's end
+        (``data`` there, reference ``frame``, the step's weight, its control ``u``) for the
+        iLQR polish: residuals and their Jacobian in the tangent state (Shape: (m, 2 nv)),
+        and the effort's gradient and Hessian in ``u``. The tilt and fall terms are left to
+        the exact cost of the line search."""
+        cfg, m, nv, nb = self.cfg, self.model, self.nv, self.nb
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_comPos(m, data)
+        jp, jr = np.zeros((3, nv)), np.zeros((3, nv))
+        res, jac = [], []
+
+        def add(r: np.ndarray, jq: np.ndarray | None, jv: np.ndarray | None, scale: float) -> None:
+            rows = r.shape[0]
+            res.append(scale * r)
+            jac.append(scale * np.hstack([np.zeros((rows, nv)) if jq is None else jq,
+                                          np.zeros((rows, nv)) if jv is None else jv]))  # fmt: skip
+
+        for i, b in enumerate(self.body_ids):
+            mujoco.mj_jacBody(m, data, jp, jr, b)
+            add(
+                data.xpos[b] - self.ref_body[frame, i],
+                jp,
+                None,
+                math.sqrt(cfg.body_weight / 0.01 / nb),
+            )
+            if i == self.root:
+                z = data.xpos[b, 2:3] - self.ref_body[frame, i, 2:3]
+                add(z, jp[2:3], None, math.sqrt(cfg.root_weight / 0.01))
+                add(jp @ data.qvel - self.ref_root_vel[frame], None, jp.copy(),
+                    math.sqrt(cfg.velocity_weight))  # fmt: skip
+            elif i in self.feet and self.ref_planted[frame, self.feet.index(i)]:
+                add(jp[:2] @ data.qvel, None, jp[:2].copy(), math.sqrt(cfg.foot_weight / 0.09))
+        jq = np.zeros((self.nu, nv))
+        jq[np.arange(self.nu), self.joint_dofs] = 1.0
+        add(data.qpos[self.joint_qpos] - self.ref_joint[frame], jq, None,
+            math.sqrt(cfg.joint_weight / 0.09 / self.nu))  # fmt: skip
+        # Effort: mean squared torque relative to the limits, linear in u (state held).
+        q, qd = data.qpos[self.joint_qpos], data.qvel[self.joint_dofs]
+        tau = self.kp * (u - q) - self.kd * qd
+        g = weight * cfg.effort_weight / self.nu * 2.0 * tau * self.kp / self.effort**2
+        h = np.diag(weight * cfg.effort_weight / self.nu * 2.0 * (self.kp / self.effort) ** 2)
+        r, J = np.concatenate(res), np.vstack(jac)
+        return math.sqrt(weight) * r, math.sqrt(weight) * J, g, h
+
     # ------------------------------------------------------------------------------- solve
 
     def run(self, progress: Callable[[int], Any] | None = None) -> DynamicsResult:
@@ -294,7 +373,7 @@ class DynamicsRetargeter:
         ctrl_out, qpos_out, qvel_out = [], [], []
         f0 = 0
         plan_prev: np.ndarray | None = None  # offsets at the control steps of the last window
-        iters = []
+        iters, costs = [], []
         steps = 0
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         while f0 < T - 1:
@@ -337,7 +416,7 @@ class DynamicsRetargeter:
                 improved = best_c - cost[k]
                 if cost[k] < best_c:
                     best_c = float(cost[k])
-                    best = (offs[k].copy(), u_steps[k].copy())
+                    best = (offs[k].copy(), u[k].copy())
                 # MPPI over the elites, on costs normalized by their spread.
                 order = np.argsort(cost)[: cfg.elites]
                 ce = cost[order]
@@ -352,7 +431,13 @@ class DynamicsRetargeter:
                     stall = 0
             assert best is not None
             offs_b, u_b = best
+            committed = best_c
+            if cfg.polish_iterations:
+                u_b, committed = self._polish(state, live.qacc_warmstart.copy(), u_b, f0)
+                offs_b = u_b - ref_u
+            costs.append((best_c, committed))
             c = min(C, H)
+            u_b = np.repeat(u_b, d, axis=0)
             ctrl_out.append(u_b[: c * d])
             seg_q, seg_v = np.zeros((c * d, self.nq)), np.zeros((c * d, self.nv))
             for s in range(c * d):
@@ -378,7 +463,27 @@ class DynamicsRetargeter:
             cpu_seconds=time.process_time() - t_cpu,
             rollouts=steps,
             iterations=np.array(iters),
+            window_costs=np.array(costs).reshape(-1, 2),
         )
+
+    def _polish(
+        self, state: np.ndarray, warm: np.ndarray, u: np.ndarray, f0: int
+    ) -> tuple[np.ndarray, float]:
+        """``cfg.polish_iterations`` of iLQR on a window's plan (Shape: (H, nu), a control
+        per control step) from ``state``/``warm`` at frame ``f0``
+        (:func:`humimic.retarget.ilqr.ilqr`, on the nominal model's derivatives and the
+        members' exact cost). Returns the polished plan and its cost."""
+        H = u.shape[0]
+
+        def stage(data: mujoco.MjData, t: int, ut: np.ndarray) -> Any:
+            return self._stage(data, f0 + 1 + t, (2.0 if t == H - 1 else 1.0) / (H + 1), ut)
+
+        out = ilqr(
+            self.model, state, warm, u, decimation=self.decimation, stage=stage,
+            cost=lambda plan: self._plan_cost(state, warm, plan, f0),
+            lower=self.ctrl_lo, upper=self.ctrl_hi, iterations=self.cfg.polish_iterations,
+        )  # fmt: skip
+        return out.controls, out.cost
 
     def _initial_state(self) -> np.ndarray:
         """The reference's first frame, at rest relative to its motion (its velocities)."""
@@ -430,8 +535,6 @@ def inverse_dynamics_torques(
     Returns:
         Shape: (T, len(joint_names)).
     """
-    import copy
-
     mi = copy.copy(model)
     mi.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
     data = mujoco.MjData(mi)
@@ -537,19 +640,27 @@ def perturbed_models(
 ) -> list[mujoco.MjModel]:
     """``count`` copies of ``model`` with friction, masses, CoM, PD gains and armature drawn
     from the ``default`` domain-randomization ranges (robustness of a replay)."""
-    import copy
-
-    dr = dr_default()
     rng = np.random.default_rng(seed)
-    smp = dr_mod.sample(dr, count, num_bodies=backend.num_bodies_total, num_joints=backend.nu,
-                        rng=rng)  # fmt: skip
-    out = []
+    smp = dr_mod.sample(dr_default(), count, num_bodies=backend.num_bodies_total,
+                        num_joints=backend.nu, rng=rng)  # fmt: skip
+    return _physics_copies(model, backend, smp.physics, count)
+
+
+def _physics_copies(
+    model: mujoco.MjModel,
+    backend: MujocoCpuBackend | MujocoWarpBackend,
+    physics: PhysicsParams,
+    count: int,
+) -> list[mujoco.MjModel]:
+    """``count`` copies of ``model`` with the first ``count`` draws of ``physics`` (the
+    randomized fields as ``backend`` sets them)."""
     probe = MujocoCpuBackend(model, 1, body_names=backend.body_names,
                              contact_body_names=backend.contact_body_names,
                              foot_body_names=backend.foot_body_names, per_env_models=True,
                              nthread=1)  # fmt: skip
+    out = []
     for i in range(count):
-        probe.set_params(np.array([0]), smp.physics.select(np.array([i])))
+        probe.set_params(np.array([0]), physics.select(np.array([i])))
         out.append(copy.copy(probe.model_of(0)))
     probe.close()
     return out
@@ -569,14 +680,30 @@ def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -
         )
     if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
         raise InputError(f"controls must be (steps, {model.nu}), got {ctrl.shape}")
+    return _simulate(model, initial_state, ctrl)[0]
+
+
+def _simulate(
+    model: mujoco.MjModel, state: np.ndarray, ctrl: np.ndarray, warm: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``mj_step`` from ``state`` (and solver warm start ``warm``, default zeros) under one
+    control per step. Returns the full physics state and the sensor data after each step
+    (what ``mujoco.rollout`` returns). Shape: (S, ``mj_stateSize``), (S, nsensordata)."""
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
     data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, initial_state, spec)
-    out = np.zeros((ctrl.shape[0], initial_state.size))
+    mujoco.mj_setState(model, data, state, spec)
+    if warm is not None:
+        data.qacc_warmstart[:] = warm
+    states, sens = (
+        np.zeros((ctrl.shape[0], state.size)),
+        np.zeros((ctrl.shape[0], model.nsensordata)),
+    )
     for s in range(ctrl.shape[0]):
         data.ctrl[:] = ctrl[s]
         mujoco.mj_step(model, data)
-        mujoco.mj_getState(model, data, out[s], spec)
-    return out
+        mujoco.mj_getState(model, data, states[s], spec)
+        sens[s] = data.sensordata
+    return states, sens
 
 
 def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
@@ -594,6 +721,21 @@ def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
         kp_scale=half(dr.kp_scale, 1.0, True),
         kd_scale=half(dr.kd_scale, 1.0, True),
     )
+
+
+def _torque_report(dyn: DynamicsRetargeter) -> dict[str, Any] | None:
+    """How far the reference's inverse-dynamics torques pass the motors' limits: the largest
+    ratio |torque| / limit, its joint, and the frames where some joint's ratio exceeds 1."""
+    tau = dyn.reference_torque
+    if tau is None:
+        return None
+    ratio = np.abs(tau) / dyn.effort
+    j = int(np.argmax(ratio.max(axis=0)))
+    return {
+        "max_over_limit": float(ratio[:, j].max()),
+        "joint": dyn.backend.joint_names[j],
+        "frames_over_limit": int((ratio > 1.0).any(axis=1).sum()),
+    }
 
 
 def physics_steps_per_frame(fps: float, sim_dt: float) -> int | None:
@@ -712,6 +854,7 @@ def refine(
         "frames": motion.num_frames,
         "motion_seconds": seconds,
         "reference_flight": reference_flight(motion, dyn.model),
+        "reference_torque": _torque_report(dyn),
         "kinematic_replay": kin,
         "dynamics_replay": mine,
         "robustness": {
@@ -729,6 +872,10 @@ def refine(
         "physics_steps": res.rollouts,
         "samples": dyn.cfg.samples * (dyn.cfg.ensemble + 1),
         "mean_iterations_per_window": float(np.mean(res.iterations)),
+        "window_cost": {
+            "sampled": float(res.window_costs[:, 0].mean()),
+            "committed": float(res.window_costs[:, 1].mean()),
+        },
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
         "threads": dyn.backend.nthread if isinstance(dyn.backend, MujocoCpuBackend) else None,
