@@ -310,8 +310,12 @@ class DynamicsRetargeter:
         """The Gauss-Newton model of :meth:`_costs`'s terms at one control step's end
         (``data`` there, reference ``frame``, the step's weight, its control ``u``) for the
         iLQR polish: residuals and their Jacobian in the tangent state (Shape: (m, 2 nv)),
-        and the effort's gradient and Hessian in ``u``. The tilt and fall terms are left to
-        the exact cost of the line search."""
+        and the effort's gradient and Hessian in ``u``. Approximations, which the line
+        search on the exact cost keeps from making a plan worse: the tilt and fall terms are
+        left out; the body terms are read at the step's end, where :meth:`_costs` reads the
+        sensors that ``mj_step`` computed before the step's last physics step (5 ms
+        earlier; about 10% of the cost, ``test_polish_models_the_samplers_cost``); the feet's
+        speed is linearized in the velocities only, and the effort in ``u`` only."""
         cfg, m, nv, nb = self.cfg, self.model, self.nv, self.nb
         mujoco.mj_kinematics(m, data)
         mujoco.mj_comPos(m, data)
@@ -653,10 +657,12 @@ def _physics_copies(
     count: int,
 ) -> list[mujoco.MjModel]:
     """``count`` copies of ``model`` with the first ``count`` draws of ``physics`` (the
-    randomized fields as ``backend`` sets them)."""
+    randomized fields as ``backend`` sets them, its CoM offsets on its ``com_body``)."""
+    cb = backend.layout.com_body
     probe = MujocoCpuBackend(model, 1, body_names=backend.body_names,
                              contact_body_names=backend.contact_body_names,
                              foot_body_names=backend.foot_body_names, per_env_models=True,
+                             com_body=model.body(cb).name if cb >= 0 else None,
                              nthread=1)  # fmt: skip
     out = []
     for i in range(count):
