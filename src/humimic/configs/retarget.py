@@ -277,7 +277,7 @@ class DynamicsConfig:
         fall_cost: Added for every control step from a fall on.
         ensemble: Perturbed physics models every sample is also scored on (0: nominal
             only): friction, masses and PD gains drawn from the ``default`` domain
-            randomization ranges, halved.
+            randomization ranges, halved, and CoM offsets and armature from the whole ranges.
         robust: ``mean`` or ``worst`` of the costs over the ensemble.
         seed: Seed of the sampling noise and of the ensemble's draws.
     """

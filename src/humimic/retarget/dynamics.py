@@ -713,7 +713,8 @@ def _simulate(
 
 
 def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
-    """Half-width ranges around nominal: friction, masses, PD gains (the ensemble's)."""
+    """The ensemble's ranges: half-width around nominal for friction, masses and PD gains;
+    the CoM offsets and armature as ``dr`` has them."""
 
     def half(r: tuple[float, float], nominal: float, log: bool) -> tuple[float, float]:
         if log:
