@@ -314,7 +314,7 @@ class DynamicsRetargeter:
         search on the exact cost keeps from making a plan worse: the tilt and fall terms are
         left out; the body terms are read at the step's end, where :meth:`_costs` reads the
         sensors that ``mj_step`` computed before the step's last physics step (5 ms
-        earlier; about 10% of the cost, ``test_polish_models_the_samplers_cost``); the feet's
+        earlier; within 15% of the cost, ``test_polish_models_the_samplers_cost``); the feet's
         speed is linearized in the velocities only, and the effort in ``u`` only."""
         cfg, m, nv, nb = self.cfg, self.model, self.nv, self.nb
         mujoco.mj_kinematics(m, data)

@@ -173,21 +173,23 @@ def ilqr(
     c = c0 = float(cost(u))
     steps: list[float] = []
     dq = np.zeros(nv)
+    xq, xv = np.zeros((H + 1, model.nq)), np.zeros((H + 1, nv))
+    xa = np.zeros((H + 1, model.na))
+    A, B = np.zeros((H, nx, nx)), np.zeros((H, nx, nu))
+    lx, lxx = np.zeros((H + 1, nx)), np.zeros((H + 1, nx, nx))
+    lu, luu = np.zeros((H, nu)), np.zeros((H, nu, nu))
+    stale = True  # The linearization is not the current plan's (a rejected step keeps it).
     for _ in range(iterations):
-        # Linearize along the current plan.
-        d = start()
-        xq, xv = np.zeros((H + 1, model.nq)), np.zeros((H + 1, nv))
-        xa = np.zeros((H + 1, model.na))
-        xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
-        A, B = np.zeros((H, nx, nx)), np.zeros((H, nx, nu))
-        lx, lxx = np.zeros((H + 1, nx)), np.zeros((H + 1, nx, nx))
-        lu, luu = np.zeros((H, nu)), np.zeros((H, nu, nu))
-        for t in range(H):
-            A[t], B[t] = control_step_jacobians(model, d, u[t], decimation, eps)
-            xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
-            r, J, lu[t], luu[t] = stage(d, t, u[t])
-            lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
-            lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
+        if stale:
+            d = start()
+            xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
+            for t in range(H):
+                A[t], B[t] = control_step_jacobians(model, d, u[t], decimation, eps)
+                xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
+                r, J, lu[t], luu[t] = stage(d, t, u[t])
+                lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
+                lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
+            stale = False
         gains = None
         while gains is None and mu <= 1e4:
             gains = riccati(lx, lxx, lu, luu, A, B, mu)
@@ -209,7 +211,7 @@ def ilqr(
                     mujoco.mj_step(model, d)
             cn = float(cost(un))
             if cn < c:
-                u, c, taken = un, cn, alpha
+                u, c, taken, stale = un, cn, alpha, True
                 break
         steps.append(taken)
         if taken:
