@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Create or reuse the virtual environment .venv in the repository root and install humimic.
 # torch is pinned in the same pip command as rsl-rl-lib: pip then takes the CPU wheel
-# (torch==2.13.0) instead of pulling a multi-GB CUDA build.
+# (torch==2.13.0) instead of pulling a multi-GB CUDA build. Every package's version comes from
+# constraints.txt, so a new clone gets the set CI tested (scripts/update_constraints.sh renews it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-}
@@ -18,11 +19,11 @@ if [ ! -x .venv/bin/python ]; then
   "$PY" -m venv .venv
 fi
 stamp=.venv/.humimic-install-stamp
-want=$(cat pyproject.toml scripts/setup_venv.sh | sha256sum | cut -d' ' -f1)
+want=$(cat pyproject.toml constraints.txt scripts/setup_venv.sh | sha256sum | cut -d' ' -f1)
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && .venv/bin/python -c 'import humimic' 2>/dev/null; then
   exit 0
 fi
 echo "setup: installing dependencies into .venv (first run takes a few minutes)"
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q "torch==2.13.0" "rsl-rl-lib==5.5.1" -e ".[dev]"
+.venv/bin/python -m pip install -q -c constraints.txt "torch==2.13.0" "rsl-rl-lib==5.5.1" -e ".[dev]"
 echo "$want" > "$stamp"

@@ -54,6 +54,10 @@ def test_kinematic_walks_through_the_pad_interaction_mesh_steps_onto_it(shared_d
     # Feet stay on the pad's top. (The human's swing foot passes through the pad too, which
     # counts as a contact the robot, stepping over the pad, does not keep.)
     assert r["human_contacts"] > 0 and r["contact_preservation"] >= 0.75
+    # ... resting on it, not floating above it (with daqp 0.11 a wrongly accepted QP step threw
+    # the robot 0.75 m back: its planted feet were 168 mm above the pad, key points 568 mm off).
+    assert r["planted_foot_gap_mm"] <= 10.0, r["planted_foot_gap_mm"]
+    assert r["keypoint_error_mm_mean"] <= 40.0, r["keypoint_error_mm_mean"]
 
 
 def test_motion_file_has_the_scene_tracks(shared_data: Path, tmp_path: Path) -> None:

@@ -115,6 +115,53 @@ def self_collision_geoms(
     return [(geoms(a), geoms(b)) for a, b in robot.self_collision]
 
 
+DAQP_SOFT = 8
+"""daqp's sense flag of a soft constraint (its slack is penalized, not forbidden)."""
+
+QP_FEASIBILITY_TOL = 1e-5
+"""How far (per unit of a row's norm) a QP solution may lie outside a hard bound or row before
+it is rejected: ten times daqp's default primal tolerance, which it applies to normalized rows."""
+
+
+def solve_qp(
+    H: np.ndarray,
+    c: np.ndarray,
+    A: np.ndarray,
+    bupper: np.ndarray,
+    blower: np.ndarray,
+    sense: np.ndarray,
+) -> tuple[np.ndarray | None, int]:
+    """Solve ``min 0.5 x'Hx + c'x`` s.t. ``blower <= [x[:nb]; A x] <= bupper`` with daqp, and
+    check the answer instead of trusting the exit flag.
+
+    The first ``len(bupper) - A.shape[0]`` bounds are simple bounds on ``x``; rows whose
+    ``sense`` is :data:`DAQP_SOFT` may be violated. A solution counts only when daqp reports it
+    optimal (exit flag 1, or 2 with soft rows in use), it is finite, and it satisfies every
+    hard bound and row within :data:`QP_FEASIBILITY_TOL` times the row's norm.
+    daqp releases differ in the flags they return for a failed solve (0.11 answers 4 with a
+    step outside the trust region where 0.10 answered -1), so the check is what makes the
+    result the same whatever the version.
+
+    Returns:
+        The solution (``None`` when there is none) and daqp's exit flag.
+    """
+    x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+    if exitflag not in (1, 2):
+        return None, int(exitflag)
+    x = np.asarray(x)
+    if not np.all(np.isfinite(x)):
+        return None, int(exitflag)
+    nb = bupper.size - A.shape[0]
+    val = np.concatenate([x[:nb], A @ x])
+    norms = np.concatenate([np.ones(nb), np.linalg.norm(A, axis=1)])
+    tol = QP_FEASIBILITY_TOL * np.maximum(norms, 1.0)
+    hard = (sense & DAQP_SOFT) == 0
+    bad = hard & ((val > bupper + tol) | (val < blower - tol))
+    if bad.any():
+        return None, int(exitflag)
+    return x, int(exitflag)
+
+
 @dataclass(frozen=True, kw_only=True)
 class KinematicResult:
     """Output of :meth:`KinematicRetargeter.run`.
@@ -368,25 +415,23 @@ class KinematicRetargeter:
         bupper = np.concatenate([np.full(6, base), hi, *ub])
         blower = np.concatenate([np.full(6, -base), lo, np.full(A.shape[0], -1e30)])
         sense = np.zeros(bupper.size, dtype=np.int32)
-        x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
-        if exitflag < 1 and any(owner):
-            sense[nv:][np.array(owner)] = 8
-            x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+        x, exitflag = solve_qp(H, c, A, bupper, blower, sense)
+        if x is None and any(owner):
+            sense[nv:][np.array(owner)] = DAQP_SOFT
+            x, exitflag = solve_qp(H, c, A, bupper, blower, sense)
             frame.yielded += 1
-        if exitflag < 1 and A.shape[0]:
+        if x is None and A.shape[0]:
             # The limits conflict (e.g. the speed limit forbids resolving a collision in one
             # frame): solve with the floor and collision rows soft, and count it.
-            sense[nv:] = 8
-            x, _, exitflag, _ = daqp.solve(H, c, A, bupper, blower, sense)
+            sense[nv:] = DAQP_SOFT
+            x, exitflag = solve_qp(H, c, A, bupper, blower, sense)
             frame.relaxed += 1
-        if exitflag >= 1 and not np.all(np.isfinite(x)):
-            exitflag = -100
-        if exitflag < 1:
+        if x is None:
             raise RetargetError(
                 f"{frame.source}: IK QP has no solution at output frame {frame.t} "
                 f"(daqp exit flag {exitflag})"
             )
-        return np.asarray(x)
+        return x
 
     def _set_targets(self, targets: Targets, t: int) -> None:
         self.keypoints.targets = targets.positions[t]
