@@ -31,6 +31,7 @@ from humimic.retarget.limits import (
 from humimic.retarget.scene import Scene
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask
+from humimic.robots.collision import self_collision_pairs
 from humimic.robots.maps import RetargetMap
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
@@ -101,18 +102,9 @@ def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
 def self_collision_geoms(
     model: mujoco.MjModel, robot: RobotConfig
 ) -> list[tuple[list[int], list[int]]]:
-    """Geom-id groups for the robot's self-collision body pairs."""
-
-    def geoms(bodies: tuple[str, ...]) -> list[int]:
-        ids = {model.body(b).id for b in bodies}
-        return [
-            g
-            for g in range(model.ngeom)
-            if model.geom_bodyid[g] in ids
-            and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
-        ]
-
-    return [(geoms(a), geoms(b)) for a, b in robot.self_collision]
+    """The robot's self-collision pairs (:func:`~humimic.robots.collision.self_collision_pairs`,
+    from the model's own geometry) as mink's geom-pair groups, one group per pair."""
+    return [([int(a)], [int(b)]) for a, b in self_collision_pairs(model, robot.root_body)]
 
 
 DAQP_SOFT = 8
@@ -248,7 +240,7 @@ class KinematicRetargeter:
         if cfg.floor_limit:
             self.limits.append(FloorLimit(model, foot_bodies))
         self.self_collision: SelfCollisionLimit | None = None
-        if cfg.self_collision and robot.self_collision:
+        if cfg.self_collision:
             self.self_collision = SelfCollisionLimit(
                 model,
                 self_collision_geoms(model, robot),  # type: ignore[arg-type]

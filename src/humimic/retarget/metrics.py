@@ -29,8 +29,13 @@ class QualityReport:
         median_lowest_foot_in_contact_mm: The same over the frames in which the human has a
             foot on the ground (flight phases of a run excluded); NaN without contact frames.
         joint_limit_violations: (frame, joint) pairs outside the joint range.
+        self_collision_pairs: Geom pairs checked for self-collision: every pair of the
+            robot's collision geoms that MuJoCo could collide and that do not touch in the
+            default pose (:func:`~humimic.robots.collision.self_collision_pairs`).
         self_collision_frames: Frames in which a self-collision pair penetrates deeper than 1 mm.
         max_self_penetration_mm: Deepest penetration among the self-collision pairs.
+        worst_self_collision: The bodies of the deepest penetrating pair, ``"a | b"`` (empty
+            when no pair penetrates).
         mean_joint_jerk: Mean absolute third derivative of the joint angles [rad/s^3].
     """
 
@@ -42,8 +47,10 @@ class QualityReport:
     median_lowest_foot_mm: float
     median_lowest_foot_in_contact_mm: float
     joint_limit_violations: int
+    self_collision_pairs: int
     self_collision_frames: int
     max_self_penetration_mm: float
+    worst_self_collision: str
     mean_joint_jerk: float
 
 
@@ -55,7 +62,7 @@ def evaluate(
     keypoint_sites: list[str],
     keypoint_targets: np.ndarray,
     foot_bodies: list[str],
-    self_collision: list[tuple[list[int], list[int]]],
+    self_collision: np.ndarray,
     floor_geom: str = "floor",
     human_contact: np.ndarray | None = None,
 ) -> tuple[QualityReport, dict[str, np.ndarray]]:
@@ -68,7 +75,7 @@ def evaluate(
         keypoint_sites: Site names of the key points, in target order.
         keypoint_targets: Scaled human key points. Shape: (T, K, 3).
         foot_bodies: Foot bodies (their collision geoms give the contact points).
-        self_collision: Geom-id groups that must not interpenetrate.
+        self_collision: Geom-id pairs that must not interpenetrate. Shape: (P, 2).
         floor_geom: Name of the floor geom.
         human_contact: Frames in which the human has a foot on the ground. Shape: (T,).
 
@@ -79,15 +86,15 @@ def evaluate(
     """
     data = mujoco.MjData(model)
     T = qpos.shape[0]
-    site_ids = np.array([model.site(s).id for s in keypoint_sites])
+    site_ids = np.array([model.site(s).id for s in keypoint_sites], dtype=int)
     ids, pts, rad = foot_contact_points(model, foot_bodies)
     from humimic.retarget.kinematic import robot_collision_geoms
 
     floor = model.geom(floor_geom).id
     robot_geoms = robot_collision_geoms(model)  # Not the floor's, not a scene's.
-    pairs = [(a, b) for ga, gb in self_collision for a in ga for b in gb]
-    pair_a = np.array([p[0] for p in pairs], dtype=int)
-    pair_b = np.array([p[1] for p in pairs], dtype=int)
+    pairs = np.asarray(self_collision, dtype=int).reshape(-1, 2)
+    pair_a, pair_b = pairs[:, 0], pairs[:, 1]
+    worst_pair, worst_depth = "", 0.0
     fromto = np.zeros(6)
 
     kp_err = np.zeros((T, len(site_ids)))
@@ -119,6 +126,9 @@ def evaluate(
             for a, b in zip(pair_a[near], pair_b[near], strict=True):
                 d = mujoco.mj_geomDistance(model, data, int(a), int(b), 0.01, fromto)
                 worst = max(worst, -d)
+                if -d > worst_depth:
+                    worst_depth = -d
+                    worst_pair = " | ".join(model.body(model.geom_bodyid[g]).name for g in (a, b))
             self_pen[t] = worst
 
     touching = foot_bottom < CONTACT_HEIGHT
@@ -144,8 +154,10 @@ def evaluate(
             else float("nan")
         ),
         joint_limit_violations=violations,
+        self_collision_pairs=len(pairs),
         self_collision_frames=int(np.sum(self_pen > 1e-3)),
         max_self_penetration_mm=float(self_pen.max() * 1e3),
+        worst_self_collision=worst_pair,
         mean_joint_jerk=float(np.abs(jerk).mean()),
     )
     frames = {

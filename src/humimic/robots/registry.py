@@ -23,8 +23,6 @@ class RobotConfig:
         root_body: The floating base body.
         feet: Side (``left``/``right``) -> foot body. Maps must put their feet on these bodies;
             the bodies' collision geoms are the feet's contact geometry.
-        self_collision: Pairs of body-name groups that must not interpenetrate (checked by the
-            retargeter and the quality report). Each group is a tuple of body names.
         actuators: Gain recipe for the PD servos.
         floor_geom: Name of the floor geom in the scene.
     """
@@ -37,26 +35,12 @@ class RobotConfig:
     license: str
     root_body: str
     feet: dict[str, str]
-    self_collision: tuple[tuple[tuple[str, ...], tuple[str, ...]], ...] = ()
     actuators: ActuatorRecipe
     floor_geom: str = "floor"
 
 
-def _g1_arm(side: str) -> tuple[str, ...]:
-    return tuple(
-        f"{side}_{b}_link"
-        for b in ("shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
-    )
-
-
-def _g1_leg(side: str) -> tuple[str, ...]:
-    return tuple(f"{side}_{b}_link" for b in ("hip_yaw", "knee", "ankle_pitch", "ankle_roll"))
-
-
 def g1() -> RobotConfig:
     """Unitree G1, 29 DoF (MuJoCo Menagerie ``unitree_g1``, BSD-3-Clause)."""
-    trunk = ("pelvis", "torso_link", "left_hip_roll_link", "right_hip_roll_link")
-    thighs = ("left_hip_yaw_link", "right_hip_yaw_link", "left_knee_link", "right_knee_link")
     return RobotConfig(
         name="g1",
         description="Unitree G1 humanoid, 29 DoF",
@@ -65,11 +49,6 @@ def g1() -> RobotConfig:
         license="BSD-3-Clause (Unitree Robotics), via MuJoCo Menagerie",
         root_body="pelvis",
         feet={"left": "left_ankle_roll_link", "right": "right_ankle_roll_link"},
-        self_collision=(
-            (_g1_arm("left"), (*trunk, *thighs)),
-            (_g1_arm("right"), (*trunk, *thighs)),
-            (_g1_leg("left"), _g1_leg("right")),
-        ),
         actuators=g1_actuators(),
     )
 
@@ -84,14 +63,6 @@ def t1() -> RobotConfig:
         license="Apache-2.0 (Booster Robotics), via MuJoCo Menagerie",
         root_body="Trunk",
         feet={"left": "left_foot_link", "right": "right_foot_link"},
-        self_collision=(
-            (("AL3", "left_hand_link"), ("Trunk", "Hip_Yaw_Left", "Shank_Left")),
-            (("AR3", "right_hand_link"), ("Trunk", "Hip_Yaw_Right", "Shank_Right")),
-            (
-                ("Hip_Yaw_Left", "Shank_Left", "left_foot_link"),
-                ("Hip_Yaw_Right", "Shank_Right", "right_foot_link"),
-            ),
-        ),
         actuators=t1_actuators(),
     )
 
@@ -100,13 +71,19 @@ ROBOTS: dict[str, Callable[[], RobotConfig]] = {"g1": g1, "t1": t1}
 """Registry: name -> factory."""
 
 
-def get_robot(name: str) -> RobotConfig:
-    """Look a robot up by name; :class:`UnknownNameError` lists the registered ones."""
+def get_robot(name: str, source: str | None = None) -> RobotConfig:
+    """Look a robot up by name; :class:`UnknownNameError` lists the registered ones.
+
+    Args:
+        name: Registry name.
+        source: Where the name came from, for the message: a flag (``"--robot"``) or a file.
+    """
     try:
         return ROBOTS[name]()
     except KeyError:
+        where = f"{source}: " if source else ""
         raise UnknownNameError(
-            f"unknown robot {name!r}; registered robots: {', '.join(sorted(ROBOTS))}"
+            f"{where}unknown robot {name!r}; registered robots: {', '.join(sorted(ROBOTS))}"
         ) from None
 
 
