@@ -31,6 +31,35 @@ def check_writable(path: str | os.PathLike[str]) -> Path:
     return p
 
 
+def check_not_input(
+    output: str | os.PathLike[str] | None,
+    inputs: dict[str, str | os.PathLike[str] | None],
+    flag: str,
+) -> None:
+    """Refuse an output path that names one of the command's inputs (or another output).
+
+    Args:
+        output: The output path (``None``: nothing to check).
+        inputs: What the output must not overwrite: a label (the flag or argument that gave
+            it, e.g. ``"the motion"`` or ``"--out"``) -> its path. Paths are compared
+            resolved, so ``./a.npz`` and ``/abs/a.npz`` are the same file.
+        flag: The output's flag, for the message (e.g. ``"--report"``).
+
+    Raises:
+        OutputPathError: The output resolves to an input's path.
+    """
+    if output is None:
+        return
+    out = Path(output).resolve()
+    for label, path in inputs.items():
+        if path is None:
+            continue
+        if out == Path(path).resolve():
+            raise OutputPathError(
+                f"{flag} {output}: would overwrite {label} ({path}); choose another path"
+            )
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
@@ -81,20 +110,96 @@ def json_ready(value: Any) -> Any:
     return value
 
 
-def read_yaml(path: str | os.PathLike[str]) -> Any:
+def read_yaml(
+    path: str | os.PathLike[str], *, max_depth: int = 64, max_values: int = 1_000_000
+) -> Any:
     """The parsed contents of a YAML file (``None`` for an empty one).
 
+    Hostile files are refused, never crash: a tree nested deeper than ``max_depth`` (a deep
+    file exhausts the parser's recursion, and code that walks the result recurses too), an
+    alias that contains itself, or aliases that expand to more than ``max_values`` values
+    (a "billion laughs" file is small but expands to gigabytes when walked).
+
+    Args:
+        path: The YAML file.
+        max_depth: Most levels of nested mappings and lists accepted.
+        max_values: Most values accepted, counting each alias as a copy of what it names.
+
     Raises:
-        InputError: The file is missing, unreadable or not valid YAML (names the file).
+        InputError: The file is missing, unreadable, not valid YAML, nested too deeply, recursive
+            or too large once its aliases are expanded (the message names the file).
     """
+    import re
+
     import yaml
 
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder, expected a YAML file")
     if not p.is_file():
         raise InputError(f"{p}: no such file")
     try:
-        return yaml.safe_load(p.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read: {e}") from None
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    too_deep = InputError(
+        f"{p}: nested too deeply (more than {max_depth} levels of mappings and lists)"
+    )
+    # PyYAML's scanner takes time quadratic in the depth of [ ] and { } nesting (minutes for a
+    # small hostile file), so that depth is bounded before parsing. Brackets inside quoted
+    # text count too: a false refusal needs more than max_depth unclosed ones.
+    flow = deepest = 0
+    for m in re.finditer(r"[\[\]{}]", text):
+        flow = flow + 1 if m.group() in "[{" else max(flow - 1, 0)
+        deepest = max(deepest, flow)
+    if deepest > max_depth:
+        raise too_deep
+    try:
+        data = yaml.safe_load(text)
+    except RecursionError:
+        raise too_deep from None
     except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({e})") from None
+        detail = " ".join(str(e).split())  # One line: PyYAML's messages span several.
+        raise InputError(f"{p}: invalid YAML ({detail})") from None
+    except (ValueError, TypeError, OverflowError) as e:
+        # PyYAML's constructors let these through for values such as 2001-13-01 or !!int abc.
+        raise InputError(f"{p}: invalid YAML value ({e})") from None
+
+    # Walk the tree without recursion. A node is a container object, shared when an alias
+    # names it, so the depth and expanded size of each are memoized by id.
+    containers = (dict, list, tuple, set, frozenset)
+
+    def children(node: Any) -> list[Any]:
+        items = [*node.keys(), *node.values()] if isinstance(node, dict) else list(node)
+        return [c for c in items if isinstance(c, containers)]
+
+    depth: dict[int, int] = {}
+    size: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(data, False)] if isinstance(data, containers) else []
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            kids = children(node)
+            depth[key] = 1 + max((depth[id(c)] for c in kids), default=0)
+            scalars = (2 * len(node) if isinstance(node, dict) else len(node)) - len(kids)
+            size[key] = 1 + scalars + sum(size[id(c)] for c in kids)
+            on_path.discard(key)
+            if depth[key] > max_depth:
+                raise too_deep
+            if size[key] > max_values:
+                raise InputError(
+                    f"{p}: too large once its aliases are expanded (more than {max_values} values)"
+                )
+            continue
+        if key in depth:
+            continue
+        if key in on_path:
+            raise InputError(f"{p}: an alias refers to the mapping or list that contains it")
+        on_path.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children(node) if id(c) not in depth)
+    return data

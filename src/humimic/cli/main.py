@@ -26,7 +26,7 @@ from humimic.configs.runs import (
     TrainSettings,
 )
 from humimic.errors import HumimicError, InputError
-from humimic.io import atomic_write_text, check_writable, json_ready
+from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
 
 if TYPE_CHECKING:
     from humimic.motion import Motion
@@ -129,11 +129,13 @@ class DemoCommand:
     """Fetch a real climbing clip (PyPI package holosoma-retargeting) and retarget it."""
 
     robot: str = "g1"
+    """Robot name from the registry (`humimic robots list`)."""
     out: Path = Path("out/demo")
     """Output folder."""
     clip: int = 0
     """Which climbing sequence (0-2)."""
     quiet: bool = False
+    """No progress bars; print only the report."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -153,6 +155,8 @@ class ViewCommand:
     host: str = "127.0.0.1"
     """Address to bind; 127.0.0.1 keeps the viewer on this machine (0.0.0.0 exposes it)."""
     port: int = 8080
+    """TCP port (1-65535; 0: any free port). A taken port moves on to the next free one, and
+    the printed URL says which."""
     frame: int = 0
     """Frame to show first."""
     screenshot: Path | None = None
@@ -166,7 +170,9 @@ class ConvertCommand:
     """Convert a motion between .npz and .mcap (lossless both ways)."""
 
     src: Annotated[Path, tyro.conf.Positional]
+    """The motion to read (.npz or .mcap)."""
     dst: Annotated[Path, tyro.conf.Positional]
+    """The file to write (.npz or .mcap); it must not be the source."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -194,6 +200,7 @@ class RobotsCommand:
         Annotated[RobotsList, tyro.conf.subcommand("list")]
         | Annotated[RobotsExport, tyro.conf.subcommand("export")]
     ]
+    """list or export."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -201,12 +208,14 @@ class SysidSimulate:
     """Write a realistic fixed-base robot log (MCAP) from the nominal model plus injected effects."""
 
     robot: str = "g1"
+    """Robot name from the registry (`humimic robots list`)."""
     inject: tyro.conf.UseAppendAction[tuple[str, ...]] = ()
     """An effect as EFFECT:JOINT[,JOINT...]=VALUE, e.g. coulomb_friction:left_knee_joint=2.0;
     repeat the flag for more."""
     duration: float = 40.0
     """Seconds."""
     seed: int = 0
+    """Seed of the excitation signal and the sensor noise."""
     out: Path
     """Output .mcap file."""
 
@@ -247,6 +256,7 @@ class SysidCommand:
         | Annotated[SysidResidual, tyro.conf.subcommand("residual")]
         | Annotated[SysidDiagnose, tyro.conf.subcommand("diagnose")]
     ]
+    """simulate, residual or diagnose."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -301,7 +311,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     from humimic.retarget.scene import Scene, load_scene
     from humimic.robots import get_robot
 
-    get_robot(cmd.robot)  # Unknown robot: fail before any work.
+    get_robot(cmd.robot, "--robot")  # Unknown robot: fail before any work.
     cmd.ik.validate()
     cmd.mesh.validate()
     if cmd.method == "dynamics":
@@ -334,7 +344,14 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
         if cmd.out.suffix != ".npz":
             raise InputError(f"{cmd.out}: the output motion file must end in .npz")
         outs = [(cmd.out, cmd.report)]
+    inputs = {f"the input {f}": f for f, _ in files}
+    if cmd.map is not None:
+        inputs["--map"] = cmd.map
+    if cmd.scene is not None and str(cmd.scene) != "auto":
+        inputs["--scene"] = cmd.scene
     for motion_path, report_path in outs:
+        check_not_input(motion_path, inputs, "--out")
+        check_not_input(report_path, {**inputs, "--out": motion_path}, "--report")
         check_writable(motion_path)
         if report_path is not None:
             check_writable(report_path)
@@ -509,6 +526,8 @@ def run_refine(cmd: RefineCommand) -> dict:
         raise InputError(f"{cmd.out}: the refined motion must end in .npz")
     if cmd.robustness < 0:
         raise InputError(f"--robustness: must be >= 0, got {cmd.robustness}")
+    check_not_input(cmd.out, {"the motion": cmd.motion}, "--out")
+    check_not_input(cmd.report, {"the motion": cmd.motion, "--out": cmd.out}, "--report")
     check_writable(cmd.out)
     if cmd.report is not None:
         check_writable(cmd.report)
@@ -541,6 +560,7 @@ def run_convert(cmd: ConvertCommand) -> None:
 
     if cmd.dst.suffix not in (".npz", ".mcap"):
         raise InputError(f"{cmd.dst}: convert to .npz or .mcap")
+    check_not_input(cmd.dst, {"the source": cmd.src}, "the destination")
     motion = read_any_motion(cmd.src)
     if cmd.dst.suffix == ".mcap":
         write_motion_mcap(motion, cmd.dst)
@@ -574,10 +594,17 @@ def run_view(cmd: ViewCommand) -> None:
     from humimic.datasets import load_clip
     from humimic.robots import get_robot, nominal_model
     from humimic.viewer import Viewer, load_scene_meshes
+    from humimic.viewer.app import check_host, check_port
 
     t0 = time.perf_counter()
+    check_port(cmd.port)  # Bad addresses fail at once, before the motion loads.
+    check_host(cmd.host)
+    if cmd.screenshot is not None:
+        inputs = {"the motion": cmd.motion, "--human": cmd.human, "--rollout": cmd.rollout}
+        check_not_input(cmd.screenshot, inputs, "--screenshot")
+        check_writable(cmd.screenshot)
     motion = read_any_motion(cmd.motion)
-    model = nominal_model(get_robot(motion.robot))
+    model = nominal_model(get_robot(motion.robot, str(cmd.motion)))
     names = tuple(model.joint(j).name for j in range(1, model.njnt))
     if names != motion.joint_names:
         raise InputError(f"{cmd.motion}: joint names do not match robot {motion.robot}")
@@ -592,7 +619,9 @@ def run_view(cmd: ViewCommand) -> None:
     try:
         viewer.start(frame=cmd.frame)
     except OSError as e:
-        raise InputError(f"cannot serve on {cmd.host}:{cmd.port}: {e.strerror}") from None
+        raise InputError(
+            f"--host {cmd.host} --port {cmd.port}: cannot serve there ({e.strerror})"
+        ) from None
     print(
         f"humimic view: {viewer.url} ({motion.num_frames} frames, loaded in "
         f"{time.perf_counter() - t0:.1f} s); Ctrl-C to stop",
@@ -602,7 +631,6 @@ def run_view(cmd: ViewCommand) -> None:
         if cmd.screenshot is not None:
             from humimic.viewer.browser import screenshot
 
-            check_writable(cmd.screenshot)
             screenshot(viewer.url, cmd.screenshot, wait=8.0)
             print(f"wrote {cmd.screenshot}")
         else:
@@ -649,7 +677,7 @@ def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
     from humimic.robots import get_robot
 
     if isinstance(cmd, SysidSimulate):
-        robot = get_robot(cmd.robot)
+        robot = get_robot(cmd.robot, "--robot")
         injections = [parse_injection(text) for text in cmd.inject]
         if cmd.out.suffix != ".mcap":
             raise InputError(f"{cmd.out}: the log must be an .mcap file")
@@ -665,6 +693,7 @@ def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
         run_diagnose(cmd)
         return
     if cmd.report is not None:
+        check_not_input(cmd.report, {"the log": cmd.log}, "--report")
         check_writable(cmd.report)
     from humimic.real2sim.report import load_fixed_base_log
 
@@ -688,7 +717,9 @@ def run_robots(cmd: RobotsList | RobotsExport) -> None:
             cfg = get_robot(name)
             print(f"{name:6s} {cfg.description} [{cfg.license}]")
         return
-    path = export_nominal(get_robot(cmd.name), cmd.out, menagerie_root=cmd.menagerie_root)
+    path = export_nominal(
+        get_robot(cmd.name, "robots export"), cmd.out, menagerie_root=cmd.menagerie_root
+    )
     print(f"wrote {path} (meshes in {path.parent / (path.stem + '_assets')})")
 
 

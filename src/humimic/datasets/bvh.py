@@ -38,6 +38,10 @@ AUTO_HEIGHT_RANGE_M: tuple[float, float] = (1.0, 2.3)
 AUTO_LEG_LENGTH_M = 0.9
 """Leg length (metres) the skeleton is scaled to when no named unit gives a plausible height."""
 
+MAX_JOINT_DEPTH = 200
+"""Most levels of ``JOINT`` blocks below the root (real skeletons nest 10 to 30): the parser
+recurses once per level, so a hostile file would otherwise exhaust Python's recursion."""
+
 _ROTATIONS = {"xrotation": "x", "yrotation": "y", "zrotation": "z"}
 _POSITIONS = {"xposition": 0, "yposition": 1, "zposition": 2}
 _TOKEN = re.compile(r"[{}]|[^\s{}]+")
@@ -62,11 +66,12 @@ class _Token:
     line: int
 
 
-def metres_per_unit(units: str | float) -> float:
+def metres_per_unit(units: str | float, where: object = None) -> float:
     """Metres per file unit for a unit name or an explicit positive factor.
 
     Args:
         units: A key of :data:`UNIT_FACTORS` or a positive finite number (metres per file unit).
+        where: The file the units are for; its path prefixes the error message.
 
     Returns:
         The factor.
@@ -74,16 +79,22 @@ def metres_per_unit(units: str | float) -> float:
     Raises:
         InputError: Unknown unit name or a factor that is not a positive finite number.
     """
+    prefix = "" if where is None else f"{where}: "
     if isinstance(units, str):
         if units not in UNIT_FACTORS:
             raise InputError(
-                f"unknown units {units!r}; expected one of {', '.join(UNIT_FACTORS)} or a positive "
-                "number of metres per file unit"
+                f"{prefix}unknown units {units!r}; expected one of {', '.join(UNIT_FACTORS)} or a "
+                "positive number of metres per file unit"
             )
         return UNIT_FACTORS[units]
-    factor = float(units)
+    try:
+        factor = float(units)
+    except (TypeError, ValueError, OverflowError):
+        factor = math.nan
     if not math.isfinite(factor) or factor <= 0:
-        raise InputError(f"units must be a positive number of metres per file unit, got {units!r}")
+        raise InputError(
+            f"{prefix}units must be a positive number of metres per file unit, got {units!r}"
+        )
     return factor
 
 
@@ -118,16 +129,18 @@ def load_bvh(
     p = Path(path)
     if up not in ("y", "z"):
         raise InputError(f"{p}: unknown up axis {up!r}; expected 'y' or 'z'")
-    factor = None if units == "auto" else metres_per_unit(units)
+    factor = None if units == "auto" else metres_per_unit(units, p)
     lines = _read_lines(p)
     joints, motion_line = _parse_hierarchy(p, lines)
     num_channels = sum(len(j.channels) for j in joints)
-    frame_time, data, extra = _parse_motion(p, lines, motion_line, num_channels)
+    frame_time, data = _parse_motion(p, lines, motion_line, num_channels)
 
     up_matrix = Y_UP_TO_Z_UP if up == "y" else np.eye(3)
     parents = tuple(j.parent for j in joints)
 
     rest = _rest_positions(joints) @ up_matrix.T  # (J, 3), file units, z up.
+    if not np.isfinite(rest).all():  # Each OFFSET is finite; their sums can overflow.
+        raise BvhParseError(p, None, "the joint OFFSETs add up to a rest pose too large for floats")
     rest_height = float(rest[:, 2].max() - rest[:, 2].min())
     if factor is None:
         factor, how = _auto_units(p, rest, parents, rest_height)
@@ -148,8 +161,6 @@ def load_bvh(
         "frame_time": f"{frame_time:.9g}",
         "end_sites": str(sum(j.is_end for j in joints)),
     }
-    if extra:
-        meta["ignored_lines"] = f"{extra} non-empty lines after the last of {len(data)} frames"
     return HumanClip(
         names=names,
         parents=parents,
@@ -197,7 +208,8 @@ def _auto_units(
         if lo <= rest_height * f <= hi:
             return f, f"auto: {name} (rest-pose height {rest_height * f:.3f} m)"
     leg = rest_leg_length(rest, parents)
-    if leg <= 0:
+    # A leg of 1e-320 units is as unusable as none: 0.9 / leg overflows to inf.
+    if leg <= 0 or not math.isfinite(AUTO_LEG_LENGTH_M / leg):
         raise InputError(
             f"{path}: units='auto' cannot size this skeleton (its rest pose has no height); "
             "pass units= explicitly"
@@ -296,7 +308,7 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[list[_Joint], int]:
                 raise s.error(tok.line, "unbalanced braces: '}' without a matching '{'")
             raise s.error(tok.line, f"expected 'ROOT' or 'MOTION', found {tok.text!r}")
         s.i += 1
-        _parse_joint(s, joints, names, parent=-1, keyword_line=tok.line, is_end=False)
+        _parse_joint(s, joints, names, parent=-1, keyword_line=tok.line, is_end=False, depth=0)
     if not joints:
         raise s.error(tok.line, "expected at least one 'ROOT' joint before 'MOTION'")
     for joint in joints:  # End Sites: <Parent>_End, never clashing with a named joint.
@@ -316,7 +328,15 @@ def _parse_joint(
     parent: int,
     keyword_line: int,
     is_end: bool,
+    depth: int,
 ) -> None:
+    """Parse one ROOT/JOINT/End Site block, recursing into its children (``depth`` below the
+    root, at most :data:`MAX_JOINT_DEPTH`)."""
+    if depth > MAX_JOINT_DEPTH:
+        raise s.error(
+            keyword_line,
+            f"joints nested more than {MAX_JOINT_DEPTH} levels deep (a real skeleton has tens)",
+        )
     if is_end:
         name = f"{joints[parent].name}_End"  # Made unique once all joint names are known.
     else:
@@ -350,12 +370,16 @@ def _parse_joint(
         elif key == "CHANNELS":
             joint.channels = _parse_channels(s, name)
         elif key == "JOINT":
-            _parse_joint(s, joints, names, parent=index, keyword_line=tok.line, is_end=False)
+            _parse_joint(
+                s, joints, names, parent=index, keyword_line=tok.line, is_end=False, depth=depth + 1
+            )
         elif key == "END":
             site = s.next("'Site' after 'End'")
             if site.text.upper() != "SITE":
                 raise s.error(site.line, f"expected 'Site' after 'End', found {site.text!r}")
-            _parse_joint(s, joints, names, parent=index, keyword_line=tok.line, is_end=True)
+            _parse_joint(
+                s, joints, names, parent=index, keyword_line=tok.line, is_end=True, depth=depth + 1
+            )
         elif key == "MOTION":
             raise s.error(
                 tok.line,
@@ -413,12 +437,14 @@ def _parse_channels(s: _TokenStream, name: str) -> list[str]:
 
 def _parse_motion(
     path: Path, lines: list[str], motion_line: int, num_channels: int
-) -> tuple[float, np.ndarray, int]:
+) -> tuple[float, np.ndarray]:
     """Parse ``Frames:``, ``Frame Time:`` and the data lines after MOTION (1-based line).
 
+    The number of non-empty data lines must equal ``Frames:``: fewer is a truncated file, more
+    is a header that does not match its data (either way one of them is wrong).
+
     Returns:
-        Frame time (s), channel values (T, C), and the number of non-empty lines after the
-        last frame (ignored).
+        Frame time (s) and channel values (T, C).
     """
     n = motion_line  # 0-based index of the line after MOTION.
 
@@ -480,9 +506,16 @@ def _parse_motion(
                 f"expected {num_channels} values (one per channel) on this frame line, "
                 f"found {len(row)}",
             )
-    extra = sum(1 for line in lines[data_lines[-1] + 1 :] if line.strip())
+    after = [k for k in range(data_lines[-1] + 1, len(lines)) if lines[k].strip()]
+    if after:
+        raise BvhParseError(
+            path,
+            after[0] + 1,
+            f"more frame lines than 'Frames:' says: {frames + len(after)} non-empty lines "
+            f"after 'Frame Time:', but 'Frames:' (line {frames_line}) says {frames}",
+        )
     if num_channels == 0:
-        return frame_time, np.zeros((frames, 0)), extra
+        return frame_time, np.zeros((frames, 0))
     try:
         data = np.array(rows, dtype=np.float64)
     except ValueError:
@@ -494,7 +527,7 @@ def _parse_motion(
                     raise BvhParseError(
                         path, k + 1, f"expected a number in column {col + 1}, found {text!r}"
                     ) from None
-        raise  # pragma: no cover - numpy and float() disagree.
+        raise BvhParseError(path, None, "frame data is not all numbers") from None
     bad = ~np.isfinite(data)
     if bad.any():
         t, col = np.argwhere(bad)[0]
@@ -503,7 +536,7 @@ def _parse_motion(
             data_lines[t] + 1,
             f"expected finite numbers, found {rows[t][col]!r} in column {col + 1} (frame {t})",
         )
-    return frame_time, data, extra
+    return frame_time, data
 
 
 def _rest_positions(joints: list[_Joint]) -> np.ndarray:

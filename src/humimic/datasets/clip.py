@@ -10,6 +10,10 @@ import numpy as np
 from humimic.errors import MotionDataError, UnknownNameError
 from humimic.transforms import quat_slerp
 
+MAX_RESAMPLED_FRAMES = 100_000_000
+"""Most frames :meth:`HumanClip.resample` makes (over 9 days at 120 fps): a rate or a duration
+far out of range would otherwise ask for terabytes."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class HumanClip:
@@ -45,6 +49,11 @@ class HumanClip:
             )
         if not np.isfinite(self.fps) or self.fps <= 0:
             raise MotionDataError(f"{self.source}: fps must be a positive number, got {self.fps}")
+        if not np.isfinite(self.duration):  # A tiny fps such as 1e-320.
+            raise MotionDataError(
+                f"{self.source}: fps {self.fps:g} is too small: {self.num_frames} frames last "
+                "longer than a float can hold"
+            )
         if self.quats_w is not None:
             if self.quats_w.shape != (*self.positions_w.shape[:2], 4):
                 raise MotionDataError(
@@ -93,10 +102,15 @@ class HumanClip:
     def resample(self, fps: float) -> HumanClip:
         """Resample to ``fps`` over the same duration: linear for positions, slerp for rotations."""
         if fps <= 0 or not np.isfinite(fps):
-            raise MotionDataError(f"target fps must be a positive number, got {fps}")
+            raise MotionDataError(f"{self.source}: target fps must be a positive number, got {fps}")
         if abs(fps - self.fps) < 1e-9 or self.num_frames == 1:
             return replace(self, fps=float(fps))
         n = self.num_frames_at(fps)
+        if n > MAX_RESAMPLED_FRAMES:
+            raise MotionDataError(
+                f"{self.source}: resampling {self.duration:g} s to {fps:g} fps gives {n} frames, "
+                f"more than {MAX_RESAMPLED_FRAMES}"
+            )
         t = np.arange(n) / fps * self.fps  # Fractional source frame indices.
         i0 = np.clip(np.floor(t).astype(int), 0, self.num_frames - 1)
         i1 = np.clip(i0 + 1, 0, self.num_frames - 1)

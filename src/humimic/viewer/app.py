@@ -8,6 +8,10 @@ key-point error over time.
 
 from __future__ import annotations
 
+import errno
+import ipaddress
+import socket
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -24,6 +28,15 @@ from humimic.viewer.scene import PoseTrack, pose_track, skeleton_segments, visua
 
 HUMAN_BESIDE_OFFSET = np.array([0.0, 1.0, 0.0])
 """Where the human skeleton stands, relative to the robot, in "beside" mode [m]."""
+
+RESOLVE_TIMEOUT_S = 10.0
+"""How long looking up ``--host`` may take before the viewer gives up [s]."""
+
+PORT_SEARCH = 100
+"""How many ports after a taken ``--port`` the viewer tries before it gives up."""
+
+SockAddr = tuple[int, tuple[Any, ...]]
+"""An address family and a socket address (host, port, ...) to listen on."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -116,9 +129,153 @@ def align_scene(motion: Motion, meshes: list[SceneMesh]) -> list[SceneMesh]:
     ]
 
 
+def resolve_host(host: str) -> list[SockAddr]:
+    """The addresses a server bound to ``host`` listens on (as asyncio resolves them).
+
+    The lookup runs in a thread with a time limit (:data:`RESOLVE_TIMEOUT_S`), so that a
+    name whose DNS server does not answer cannot hang the viewer.
+
+    Raises:
+        InputError: ``host`` is empty, cannot be resolved, or the lookup timed out.
+    """
+    if not isinstance(host, str) or not host.strip():
+        raise InputError(
+            f"--host {host!r}: expected an address of this machine (127.0.0.1, 0.0.0.0, ::) "
+            "or a host name"
+        )
+    box: dict[str, Any] = {}
+
+    def lookup() -> None:
+        try:
+            box["infos"] = socket.getaddrinfo(
+                host, None, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+            )
+        except (OSError, ValueError) as e:  # ValueError: a NUL byte, a bad IDNA label.
+            box["error"] = e
+
+    thread = threading.Thread(target=lookup, name="humimic-resolve-host", daemon=True)
+    thread.start()
+    thread.join(RESOLVE_TIMEOUT_S)
+    if thread.is_alive():
+        raise InputError(
+            f"--host {host}: looking up this name took over {RESOLVE_TIMEOUT_S:g} s; "
+            "expected an address of this machine, e.g. 127.0.0.1"
+        )
+    if "error" in box:
+        e = box["error"]
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        shown = host if host.isprintable() else repr(host)
+        raise InputError(f"--host {shown}: cannot resolve this name ({reason})")
+    addrs: list[SockAddr] = []
+    for family, _, _, _, sockaddr in box["infos"]:
+        if family in (socket.AF_INET, socket.AF_INET6) and (family, sockaddr) not in addrs:
+            addrs.append((family, tuple(sockaddr)))
+    if not addrs:
+        raise InputError(f"--host {host}: resolves to no IPv4 or IPv6 address")
+    return addrs
+
+
+def try_bind(addrs: list[SockAddr], port: int) -> None:
+    """Bind a socket to each address at ``port`` and close it again, as asyncio's
+    ``create_server`` (which viser uses) binds them: ``SO_REUSEADDR``, IPv6 only on IPv6.
+
+    Raises:
+        OSError: An address cannot be bound (the first such error).
+    """
+    for family, sockaddr in addrs:
+        try:
+            sock = socket.socket(family, socket.SOCK_STREAM)
+        except OSError:
+            continue  # asyncio skips a family this machine lacks, too.
+        with sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind((sockaddr[0], port, *sockaddr[2:]))
+
+
+def check_host(host: str) -> list[SockAddr]:
+    """Resolve ``host`` and check that this machine can listen on it (a test bind, no traffic).
+
+    Raises:
+        InputError: Naming ``--host`` and the operating system's reason.
+    """
+    addrs = resolve_host(host)
+    try:
+        try_bind(addrs, 0)
+    except OSError as e:
+        raise InputError(
+            f"--host {host}: cannot listen on this address ({e.strerror or e}); expected an "
+            "address of this machine, e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (all)"
+        ) from None
+    return addrs
+
+
+def check_port(port: int) -> int:
+    """``port`` if it is a TCP port number (0: any free port).
+
+    Raises:
+        InputError: Naming ``--port``.
+    """
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise InputError(
+            f"--port {port}: expected a TCP port from 1 to 65535 (or 0 for any free port)"
+        )
+    return port
+
+
+def free_port_from(addrs: list[SockAddr], host: str, port: int) -> int:
+    """``port``, or when it is taken on ``host`` the first free one of the next
+    :data:`PORT_SEARCH` (as viser would move on, but never past 65535).
+
+    Raises:
+        InputError: ``port`` cannot be used for another reason (e.g. no permission), or it
+            and the next ports are all taken.
+    """
+    if port == 0:
+        return 0  # The system picks a free one; viser reports which.
+    last = min(port + PORT_SEARCH, 65535)
+    for p in range(port, last + 1):
+        try:
+            try_bind(addrs, p)
+        except OSError as e:
+            if e.errno == errno.EADDRINUSE:
+                continue
+            raise InputError(
+                f"--port {port}: cannot listen on {host} port {p} ({e.strerror or e})"
+            ) from None
+        return p
+    raise InputError(
+        f"--port {port}: ports {port} to {last} are all taken on {host}; expected a free "
+        "port (or 0 for any free port)"
+    )
+
+
+def exposure_warning(host: str, addrs: list[SockAddr]) -> str | None:
+    """A one-line warning when ``host`` is not loopback only (others can open the viewer)."""
+    ips = [ipaddress.ip_address(sockaddr[0].split("%")[0]) for _, sockaddr in addrs]
+    if all(ip.is_loopback for ip in ips):
+        return None
+    where = (
+        "on every network interface"
+        if any(ip.is_unspecified for ip in ips)
+        else "on a network address"
+    )
+    return (
+        f"--host {host} serves the viewer {where}: anyone who can reach this machine can "
+        "open it (--host 127.0.0.1 keeps it on this machine)"
+    )
+
+
 class Viewer:
     """Serve a motion in the browser. :meth:`start` returns at once; :meth:`serve_forever`
-    plays until interrupted."""
+    plays until interrupted.
+
+    ``host`` and ``port`` are checked when the viewer is made (:class:`InputError` naming
+    ``--host`` or ``--port``). A taken port is replaced by the next free one: :attr:`url`
+    is the address actually served, and :attr:`warnings` (also printed on stderr by
+    :meth:`start`) says so, as it says when the viewer can be reached from the network.
+    """
 
     def __init__(
         self,
@@ -131,6 +288,9 @@ class Viewer:
         host: str = "127.0.0.1",
         port: int = 8080,
     ) -> None:
+        # Bad addresses fail here, before anything is computed or served.
+        self._port_requested = check_port(port)
+        self._addrs = check_host(host)
         self.motion = motion
         self.model = model
         self.meshes = visual_meshes(model)
@@ -155,20 +315,65 @@ class Viewer:
         ) else None  # fmt: skip
         self._scene_handles: list[Any] = []
         self.host, self.port = host, port
+        self.warnings: list[str] = []
+        """One-line warnings about how the viewer is served (printed on stderr by start)."""
         self.frame = 0
         self._lock = threading.Lock()
         self._server: Any = None
+        self._serving = False
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}"
+        """The address to open: the port actually served; loopback for a wildcard host."""
+        host = self.host
+        try:
+            ip = ipaddress.ip_address(host.split("%")[0])
+        except ValueError:
+            ip = None  # A host name.
+        if ip is not None and ip.is_unspecified:
+            host = "127.0.0.1" if ip.version == 4 else "::1"
+            ip = ipaddress.ip_address(host)
+        if ip is not None and ip.version == 6:
+            host = f"[{host}]"
+        return f"http://{host}:{self.port}"
 
     def start(self, frame: int = 0) -> None:
-        """Start the server and build the scene and the panel, showing ``frame``."""
+        """Start the server and build the scene and the panel, showing ``frame``.
+
+        Prints :attr:`warnings` on stderr. On any error the server is stopped again.
+
+        Raises:
+            InputError: ``frame`` is not a frame of the motion (naming ``--frame``), or the
+                port cannot be used (naming ``--port``).
+        """
         import viser
 
-        server = viser.ViserServer(host=self.host, port=self.port, label="humimic", verbose=False)
-        self._server = server
+        n = self.motion.num_frames
+        if not 0 <= frame < n:
+            raise InputError(f"--frame {frame}: the motion has {n} frames (0 to {n - 1})")
+        port = free_port_from(self._addrs, self.host, self._port_requested)
+        self.warnings = []
+        server = viser.ViserServer(host=self.host, port=port, label="humimic", verbose=False)
+        self._server, self._serving = server, True
+        try:
+            # viser moves on by itself when a port is taken after the check: ask it.
+            self.port = int(server.get_port())
+            if self._port_requested and self.port != self._port_requested:
+                self.warnings.append(
+                    f"--port {self._port_requested} is taken on {self.host}; serving on port "
+                    f"{self.port} instead"
+                )
+            exposed = exposure_warning(self.host, self._addrs)
+            if exposed is not None:
+                self.warnings.append(exposed)
+            for w in self.warnings:
+                print(f"humimic: warning: {w}", file=sys.stderr, flush=True)
+            self._build_scene(server, frame)
+        except BaseException:
+            self.stop()
+            raise
+
+    def _build_scene(self, server: Any, frame: int) -> None:
         server.scene.set_up_direction("+z")
         pelvis = self.track.body_pos[frame, 0]
         server.initial_camera.look_at = pelvis
@@ -385,5 +590,7 @@ class Viewer:
             self.step(period)
 
     def stop(self) -> None:
-        if self._server is not None:
+        """Stop the server (if started); safe to call more than once."""
+        if self._server is not None and self._serving:
+            self._serving = False
             self._server.stop()

@@ -8,13 +8,14 @@ way on the human and on the robot, so no per-file rest-pose convention is needed
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-import yaml
-
-from humimic.errors import MapError
+from humimic.errors import InputError, MapError
+from humimic.io import read_yaml
 
 SCHEMA_VERSION = 1
 
@@ -94,8 +95,10 @@ class RetargetMap:
             raise MapError(
                 f"{where}: feet: expected exactly 'left' and 'right', got {sorted(self.feet)}"
             )
-        if not (self.posture_weight >= 0):
-            raise MapError(f"{where}: posture_weight must be >= 0, got {self.posture_weight}")
+        if not (0 <= self.posture_weight <= MAX_WEIGHT):
+            raise MapError(
+                f"{where}: posture_weight must be in [0, {MAX_WEIGHT:g}], got {self.posture_weight}"
+            )
         if self.root not in self.keypoints:
             raise MapError(f"{where}: root {self.root!r} is not a key point")
         seen: set[str] = set()
@@ -115,8 +118,10 @@ class RetargetMap:
                 )
             if kp.frame is not None and kp.frame not in self.frames:
                 raise MapError(f"{where}: keypoints.{name}.frame: no frame {kp.frame!r}")
-            if not (kp.weight >= 0):
-                raise MapError(f"{where}: keypoints.{name}.weight must be >= 0")
+            if not (0 <= kp.weight <= MAX_WEIGHT):
+                raise MapError(
+                    f"{where}: keypoints.{name}.weight must be in [0, {MAX_WEIGHT:g}], got {kp.weight}"
+                )
             seen.add(name)
         for name, fr in self.frames.items():
             if fr.body not in robot_bodies:
@@ -137,6 +142,11 @@ class RetargetMap:
                 )
 
 
+MAX_WEIGHT = 1e6
+"""Largest task weight a map may give: weights are relative, and far larger ones only make the
+IK's QP ill-conditioned (1e300 overflowed it)."""
+
+
 def _pair(value: object, where: str) -> tuple[str, str]:
     if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, str) for v in value)):
         raise MapError(f"{where}: expected a list of two key point names, got {value!r}")
@@ -148,8 +158,10 @@ def _build(cls: type, data: object, where: str, convert: dict | None = None):
         raise MapError(f"{where}: expected a mapping, got {type(data).__name__}")
     allowed = set(cls.__dataclass_fields__)
     unknown = set(data) - allowed
-    if unknown:
-        raise MapError(f"{where}: unknown field(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+    if unknown:  # Sorted as text: YAML keys may be numbers, dates or null.
+        raise MapError(
+            f"{where}: unknown field(s) {sorted(unknown, key=str)}; allowed: {sorted(allowed)}"
+        )
     kwargs = dict(data)
     for key, fn in (convert or {}).items():
         if key in kwargs:
@@ -157,26 +169,47 @@ def _build(cls: type, data: object, where: str, convert: dict | None = None):
     for key, value in kwargs.items():
         expected = cls.__dataclass_fields__[key].type
         if "float" in str(expected) and "tuple" not in str(expected):
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise MapError(f"{where}.{key}: expected a number, got {value!r}")
-            kwargs[key] = float(value)
+            kwargs[key] = _finite(value, f"{where}.{key}", "a number")
         elif str(expected) in ("str", "str | None") and not (
             isinstance(value, str) or (value is None and "None" in str(expected))
         ):
             raise MapError(f"{where}.{key}: expected a name (text), got {value!r}")
+    missing = [
+        k
+        for k, f in cls.__dataclass_fields__.items()
+        if k not in kwargs
+        and f.default is dataclasses.MISSING
+        and f.default_factory is dataclasses.MISSING
+    ]
+    if missing:
+        raise MapError(f"{where}: missing field(s) {missing}")
+    return cls(**kwargs)
+
+
+def _finite(value: object, where: str, expected: str) -> float:
+    """``value`` as a finite float; YAML booleans, text, ``.nan``, ``.inf`` and integers too
+    large for a float are refused."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise MapError(f"{where}: expected {expected}, got {value!r}")
     try:
-        return cls(**kwargs)
-    except TypeError as e:
-        raise MapError(f"{where}: {e}") from None
+        out = float(value)
+    except OverflowError:
+        out = math.inf
+    if not math.isfinite(out):
+        raise MapError(f"{where}: expected {expected} (finite), got {value!r}")
+    return out
 
 
 def _offset(value: object, where: str) -> tuple[float, float, float]:
     if not (isinstance(value, list) and len(value) == 3):
         raise MapError(f"{where}: expected [x, y, z] in metres, got {value!r}")
-    try:
-        return (float(value[0]), float(value[1]), float(value[2]))
-    except (TypeError, ValueError):
+    try:  # Text such as "0.5" is accepted, as float() reads it.
+        x, y, z = (float(v) for v in value)
+    except (TypeError, ValueError, OverflowError):
         raise MapError(f"{where}: expected numbers, got {value!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, z)):
+        raise MapError(f"{where}: expected finite numbers, got {value!r}")
+    return (x, y, z)
 
 
 def parse_map(data: object, source: str) -> RetargetMap:
@@ -194,27 +227,32 @@ def parse_map(data: object, source: str) -> RetargetMap:
         k: _build(KeypointMap, v, f"{source}: keypoints.{k}", {"offset": _offset})
         for k, v in kps.items()
     }
+    frames, feet = (body.get(k) or {} for k in ("frames", "feet"))
+    for name, value in (("frames", frames), ("feet", feet)):
+        if not isinstance(value, dict):
+            raise MapError(f"{source}: {name}: expected a mapping, got {type(value).__name__}")
     body["frames"] = {
         k: _build(FrameMap, v, f"{source}: frames.{k}", {"left": _pair, "up": _pair})
-        for k, v in (body.get("frames") or {}).items()
+        for k, v in frames.items()
     }
-    body["feet"] = {
-        k: _build(FootMap, v, f"{source}: feet.{k}") for k, v in (body.get("feet") or {}).items()
-    }
+    body["feet"] = {k: _build(FootMap, v, f"{source}: feet.{k}") for k, v in feet.items()}
     return _build(RetargetMap, {**body, "source": source}, source)
 
 
 def load_map_file(path: str | Path) -> RetargetMap:
-    """Load and parse a map YAML file."""
+    """Load and parse a map YAML file.
+
+    Raises:
+        MapError: The file is missing or unreadable, not valid YAML (or nested too deeply,
+            see :func:`humimic.io.read_yaml`), or not a valid map; the message names the file.
+    """
     p = Path(path)
+    if not p.exists():
+        raise MapError(f"{p}: cannot read: no such file")
     try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as e:
-        raise MapError(f"{p}: cannot read: {e.strerror}") from None
-    except yaml.YAMLError as e:
-        raise MapError(f"{p}: invalid YAML: {e}") from None
-    except UnicodeDecodeError:
-        raise MapError(f"{p}: not a UTF-8 text file") from None
+        data = read_yaml(p)
+    except InputError as e:
+        raise MapError(str(e)) from None
     return parse_map(data, str(p))
 
 
