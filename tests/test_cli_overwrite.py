@@ -128,3 +128,22 @@ def test_unknown_robot_names_the_flag(tmp_path: Path, capsys: pytest.CaptureFixt
         capsys,
     )
     assert "--robot" in err and "'h1'" in err and "g1" in err
+
+
+def test_a_failed_command_leaves_no_empty_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The up-front checks of an output path create nothing: the folders appear with the file."""
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT Hips\n{\n")
+    err = _run(["retarget", str(bad), "--out", str(tmp_path / "new" / "sub" / "m.npz")],
+               tmp_path, capsys)  # fmt: skip
+    assert "bad.bvh" in err
+    assert not (tmp_path / "new").exists()
+    # A file where a folder must be is named.
+    (tmp_path / "afile").write_text("x")
+    clip = tmp_path / "walk.npy"
+    np.save(clip, np.zeros((3, 2, 3)))
+    err = _run(["retarget", str(clip), "--out", str(tmp_path / "afile" / "m.npz")],
+               tmp_path, capsys)  # fmt: skip
+    assert "afile" in err and "not a folder" in err

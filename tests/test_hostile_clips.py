@@ -309,7 +309,7 @@ def test_valid_arrays_load_exactly(tmp_path: Path, array: np.ndarray) -> None:
         ("parents", np.array([-1, np.inf, 0]), "'parents' must hold whole numbers"),
         ("parents", np.array([-1, 0.5, 0]), "'parents' must hold whole numbers"),
         ("parents", np.array([[-1, 0, 0]]), "'parents' must be a 1-D array of integers"),
-        ("joint_names", np.array([b"a", b"b", b"c"]), "'joint_names' must be a 1-D array"),
+        ("joint_names", np.array([b"a", b"b", b"c"]), "'joint_names': dtype |S1 is not"),
         ("positions", np.array([None] * 3, dtype=object), "holds Python objects"),
     ],
 )

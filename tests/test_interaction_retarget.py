@@ -133,3 +133,26 @@ def test_planted_feet_rest_on_the_floor_while_climbing_down(shared_data: Path) -
     assert r["planted_foot_gap_mm"] <= 3.0, r["planted_foot_gap_mm"]
     assert r["floating_planted_feet"] <= 8, r["floating_planted_feet"]
     assert r["max_scene_penetration_mm"] <= 10.0 and r["contact_preservation"] >= 0.9
+
+
+def test_a_large_object_sampled_coarsely_is_reported(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A 90 m floor slab cannot be sampled every 5 cm within the point budget: the spacing
+    widens, and the report and a warning say by how much (no silent fallback)."""
+    lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
+    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
+    clip = tmp_path / "walk.bvh"
+    clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
+    scene = tmp_path / "slab.yaml"
+    scene.write_text(
+        "schema_version: 1\nobjects:\n  - name: slab\n    box: [90.0, 90.0, 0.02]\n"
+        "    pos: [0.0, 0.0, -0.5]\n    quat: [1, 0, 0, 0]\n"
+    )
+    out, report = tmp_path / "m.npz", tmp_path / "m.json"
+    argv = ["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(scene)]
+    assert main([*argv, "--out", str(out), "--report", str(report), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    spacing = json.loads(report.read_text())["scene_spacing_mm"]["slab"]
+    assert spacing > 2 * 1e3 * InteractionConfig().scene_spacing
+    assert "slab every" in err and "coarsely" in err

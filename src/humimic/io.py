@@ -14,20 +14,35 @@ from typing import IO, Any
 from humimic.errors import InputError, OutputPathError
 
 
-def check_writable(path: str | os.PathLike[str]) -> Path:
+def check_writable(path: str | os.PathLike[str], *, create: bool = False) -> Path:
     """Fail early, before any work, when ``path`` cannot be written.
 
-    Creates missing parent folders. Raises :class:`OutputPathError` naming the path.
+    Args:
+        path: The file to be written.
+        create: Create the missing parent folders now (for a writer that needs them at
+            once). Otherwise nothing is created: the nearest existing folder above ``path``
+            must be writable, and :func:`atomic_write` makes the rest when it writes, so a
+            command that fails later leaves no empty folder behind.
+
+    Raises:
+        OutputPathError: ``path`` is a folder, a file stands where a folder must be, or the
+            folder is not writable (names the path).
     """
     p = Path(path)
-    if p.exists() and p.is_dir():
+    if p.is_dir():
         raise OutputPathError(f"{p}: is a folder, expected a file path")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputPathError(f"{p}: cannot create folder {p.parent}: {e.strerror}") from e
-    if not os.access(p.parent, os.W_OK):
-        raise OutputPathError(f"{p}: folder {p.parent} is not writable")
+    if create:
+        try:
+            p.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OutputPathError(f"{p}: cannot create folder {p.parent}: {e.strerror}") from e
+    base = p.parent
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if not base.is_dir():
+        raise OutputPathError(f"{p}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{p}: folder {base} is not writable")
     return p
 
 
@@ -73,7 +88,7 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]
     The file gets the usual permissions (0666 less the umask). Operating-system errors become
     :class:`OutputPathError` naming the path; the temporary file is removed on any failure.
     """
-    p = check_writable(path)
+    p = check_writable(path, create=True)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     except OSError as e:

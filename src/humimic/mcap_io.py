@@ -13,21 +13,20 @@ Log times are nanoseconds. Message headers carry ``stamp: {sec, nanosec}``.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
-import struct
 import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from humimic.errors import InputError, MotionDataError
+from humimic.errors import HumimicError, InputError
 from humimic.io import check_writable
 
 _NUM = {"type": "number"}
@@ -263,7 +262,7 @@ class McapWriter:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, profile: str = "humimic") -> None:
-        self.path = check_writable(path)
+        self.path = check_writable(path, create=True)
         if self.path.suffix != ".mcap":
             raise InputError(f"{self.path}: MCAP files must end in .mcap")
         fd, tmp = tempfile.mkstemp(
@@ -373,6 +372,50 @@ class McapLog:
         return self.metadata[name]
 
 
+class _Bounded:
+    """A read-only file that never asks the OS for more bytes than the file has left: a
+    corrupt record length then costs a short read, not an allocation of its size."""
+
+    def __init__(self, f: IO[bytes]) -> None:
+        self._f = f
+        self._size = os.fstat(f.fileno()).st_size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self._f.tell(), 0)
+        return self._f.read(left if n is None or n < 0 else min(n, left))
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        return self._f.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def seekable(self) -> bool:
+        return True
+
+    def readable(self) -> bool:
+        return True
+
+
+def _check_is_mcap(p: Path) -> None:
+    """Refuse, saying what it is, a file that is not MCAP (an ``.npz`` motion, text...)."""
+    from humimic.motion import sniff
+
+    try:
+        kind = sniff(p)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror}") from None
+    if kind == "mcap":
+        return
+    if kind == "npz":
+        raise McapFormatError(
+            f"{p}: is a zip archive (an .npz motion?), not an MCAP file; rename it to "
+            f"{p.with_suffix('.npz').name}"
+        )
+    what = {"empty": "an empty file", "text": "a text file", "npy": "an .npy array"}
+    raise McapFormatError(f"{p}: {what.get(kind, 'not an MCAP file')}: expected an MCAP file")
+
+
 def read_mcap(
     path: str | os.PathLike[str],
     *,
@@ -395,12 +438,13 @@ def read_mcap(
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: no such file")
+    _check_is_mcap(p)
     log = McapLog(path=p)
     wanted = None if topics is None else set(topics)
     validators: dict[str, Checker] = {}
     try:
-        with p.open("rb") as f:
-            reader = make_reader(f)
+        with p.open("rb") as raw:
+            reader = make_reader(_Bounded(raw), validate_crcs=True)  # type: ignore[arg-type]
             for schema, channel, message in reader.iter_messages(
                 topics=None if wanted is None else sorted(wanted)
             ):
@@ -415,7 +459,7 @@ def read_mcap(
                     )
                 try:
                     msg = json.loads(message.data)
-                except (UnicodeDecodeError, json.JSONDecodeError) as e:
+                except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as e:
                     raise McapFormatError(
                         f"{p}: topic {topic}: message is not JSON ({e})"
                     ) from None
@@ -429,11 +473,12 @@ def read_mcap(
                 msgs.append((message.log_time, msg))
             for record in reader.iter_metadata():
                 log.metadata[record.name] = dict(record.metadata)
-    except McapFormatError:
+    except HumimicError:
         raise
-    except (McapError, struct.error, EOFError, ValueError, KeyError) as e:
+    except Exception as e:  # The mcap package, its decompressors and seeks raise many types.
+        text = " ".join(f"{type(e).__name__}: {e}".split())[:200]
         raise McapFormatError(
-            f"{p}: not a readable MCAP file (truncated or corrupt): {e!r}"
+            f"{p}: not a readable MCAP file (truncated or corrupt): {text}"
         ) from None
     for topic in require:
         log.topic(topic)
@@ -487,7 +532,15 @@ def tf_message(t_ns: int, names: Iterable[str], pos: np.ndarray, quat: np.ndarra
 
 
 def write_motion_mcap(motion: Any, path: str | os.PathLike[str]) -> Path:
-    """Write a :class:`humimic.motion.Motion` as MCAP, losslessly (plus ``/tf`` for Foxglove)."""
+    """Write a :class:`humimic.motion.Motion` as MCAP, losslessly (plus ``/tf`` for Foxglove).
+
+    Raises:
+        MotionDataError: The motion fails :func:`humimic.motion.validate_motion` (nothing is
+            written).
+    """
+    from humimic.motion import validate_motion
+
+    validate_motion(motion, f"{path}: not written: the motion")
     with McapWriter(path) as w:
         write_motion_topics(w, motion)
     return Path(path)
@@ -559,35 +612,115 @@ def write_motion_topics(w: McapWriter, motion: Any) -> None:
                                           "arrays": arrays})  # fmt: skip
 
 
+_MOTION_LABELS = {
+    "robot": "metadata motion.robot",
+    "fps": "metadata motion.fps",
+    "joint_names": "metadata motion.joint_names",
+    "body_names": "metadata motion.body_names",
+    "info_json": "metadata motion.info",
+    "qpos": "topic /reference/qpos field qpos",
+    "joint_pos": "topic /reference/joint_states field position",
+    "joint_vel": "topic /reference/joint_states field velocity",
+    "body_pos_w": "topic /reference/body_states field position",
+    "body_quat_w": "topic /reference/body_states field orientation",
+    "body_lin_vel_w": "topic /reference/body_states field linear_velocity",
+    "body_ang_vel_w": "topic /reference/body_states field angular_velocity",
+    "extra_": "topic /reference/extras field arrays.",
+    "dynamics_": "dynamic section ",
+    "dynamics_physics_dt": "metadata dynamics.physics_dt",
+    "dynamics_initial_state": "metadata dynamics.initial_state",
+    "dynamics_ctrl": "topic /dynamics/step field arrays.ctrl",
+    "dynamics_qpos": "topic /dynamics/step field arrays.qpos",
+    "dynamics_qvel": "topic /dynamics/step field arrays.qvel",
+}
+"""How :func:`humimic.motion.validate_motion` names a motion's fields in an MCAP file."""
+
+_EXTRA_KINDS = "biuf"  # Extras are numbers or booleans: never objects, which would be pickled.
+
+
+def _json_field(p: Path, record: str, meta: dict[str, str], key: str, kind: type) -> Any:
+    """A JSON value of a metadata record, of type ``kind``."""
+    if key not in meta:
+        raise McapFormatError(f"{p}: metadata {record!r}: missing field {key}")
+    try:
+        value = json.loads(meta[key])
+    except (json.JSONDecodeError, RecursionError) as e:
+        raise McapFormatError(f"{p}: metadata {record}.{key}: not JSON ({e})") from None
+    if not isinstance(value, kind):
+        raise McapFormatError(
+            f"{p}: metadata {record}.{key}: expected a JSON {kind.__name__}, got "
+            f"{type(value).__name__}"
+        )
+    return value
+
+
+def _names_field(p: Path, meta: dict[str, str], key: str) -> tuple[str, ...]:
+    names = _json_field(p, "motion", meta, key, list)
+    if not all(isinstance(n, str) for n in names):
+        raise McapFormatError(f"{p}: metadata motion.{key}: expected a list of names")
+    return tuple(names)
+
+
+def _float_field(p: Path, record: str, meta: dict[str, str], key: str) -> float:
+    if key not in meta:
+        raise McapFormatError(f"{p}: metadata {record!r}: missing field {key}")
+    try:
+        return float(meta[key])
+    except ValueError:
+        raise McapFormatError(
+            f"{p}: metadata {record}.{key}: expected a number, got {meta[key][:40]!r}"
+        ) from None
+
+
+def _numbers(p: Path, where: str, rows: list[Any], dtype: Any = np.float64) -> np.ndarray:
+    """Rows of (nested lists of) numbers as one array; ragged or non-numeric rows refused."""
+    try:
+        return np.array(rows, dtype=dtype)
+    except (ValueError, TypeError, OverflowError) as e:
+        text = " ".join(str(e).split())[:120]
+        raise McapFormatError(
+            f"{p}: {where}: not an array of numbers of one shape ({text})"
+        ) from None
+
+
 def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
-    """Read a motion reference written by :func:`write_motion_mcap`."""
-    from humimic.motion import SCHEMA_VERSION, Motion
+    """Read a motion reference written by :func:`write_motion_mcap`, checked as the ``.npz``
+    reader checks (:func:`humimic.motion.validate_motion`).
+
+    Raises:
+        InputError: Missing file.
+        McapFormatError: Not MCAP, corrupt, a missing topic or metadata field, or a field
+            of the wrong type or shape (names the topic or record and the field).
+        MotionDataError: The motion fails :func:`humimic.motion.validate_motion`.
+    """
+    from humimic.motion import SCHEMA_VERSION, Motion, validate_motion
 
     topics = ["/reference/qpos", "/reference/joint_states", "/reference/body_states"]
     log = read_mcap(path, topics=[*topics, "/reference/extras", "/dynamics/step"], require=topics)
+    p = log.path
     meta = log.meta("motion")
     try:
         version = int(meta["schema_version"])
-        fps = float(meta["fps"])
-        joint_names = tuple(json.loads(meta["joint_names"]))
-        body_names = tuple(json.loads(meta["body_names"]))
-        extra_types = json.loads(meta.get("extras", "{}"))
-        info = json.loads(meta.get("info", "{}"))
         robot = meta["robot"]
     except (KeyError, ValueError) as e:
-        raise McapFormatError(f"{log.path}: metadata 'motion': missing or bad field {e}") from None
+        raise McapFormatError(f"{p}: metadata 'motion': missing or bad field {e}") from None
     if version != SCHEMA_VERSION:
-        raise McapFormatError(f"{log.path}: schema_version {version}, expected {SCHEMA_VERSION}")
+        raise McapFormatError(f"{p}: schema_version {version}, expected {SCHEMA_VERSION}")
+    fps = _float_field(p, "motion", meta, "fps")
+    joint_names = _names_field(p, meta, "joint_names")
+    body_names = _names_field(p, meta, "body_names")
+    extra_types = _json_field(p, "motion", meta, "extras", dict) if "extras" in meta else {}
+    info = _json_field(p, "motion", meta, "info", dict) if "info" in meta else {}
 
     def stack(topic: str, key: str) -> np.ndarray:
         msgs = log.topic(topic)
         try:
-            return np.array([m[key] for _, m in msgs], dtype=np.float64)
-        except (KeyError, ValueError) as e:
-            raise McapFormatError(f"{log.path}: topic {topic}: field {key}: {e}") from None
+            rows = [m[key] for _, m in msgs]
+        except KeyError:
+            raise McapFormatError(f"{p}: topic {topic}: field {key} missing") from None
+        return _numbers(p, f"topic {topic}: field {key}", rows)
 
     qpos = stack("/reference/qpos", "qpos")
-    n = qpos.shape[0]
     fields = {
         "joint_pos": stack("/reference/joint_states", "position"),
         "joint_vel": stack("/reference/joint_states", "velocity"),
@@ -596,33 +729,52 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
         "body_lin_vel_w": stack("/reference/body_states", "linear_velocity"),
         "body_ang_vel_w": stack("/reference/body_states", "angular_velocity"),
     }
-    for k, v in fields.items():
-        if v.shape[0] != n:
-            raise MotionDataError(f"{log.path}: {k} has {v.shape[0]} frames, qpos has {n}")
     extras = {}
     if extra_types:
         msgs = log.topic("/reference/extras")
-        for k, (dtype, _shape) in extra_types.items():
+        for k, spec in extra_types.items():
+            where = f"topic /reference/extras: field arrays.{k}"
+            ok = isinstance(spec, list) and len(spec) == 2 and isinstance(spec[0], str)
             try:
-                extras[k] = np.array([m["arrays"][k] for _, m in msgs], dtype=dtype)
-            except KeyError:
+                dtype = np.dtype(spec[0]) if ok else None
+            except TypeError:
+                dtype = None
+            if dtype is None or dtype.kind not in _EXTRA_KINDS or dtype.itemsize == 0:
                 raise McapFormatError(
-                    f"{log.path}: topic /reference/extras: field arrays.{k} missing"
-                ) from None
+                    f"{p}: metadata motion.extras.{k}: expected [dtype of numbers or booleans, "
+                    f"shape], got {spec!r}"
+                )
+            try:
+                rows = [m["arrays"][k] for _, m in msgs]
+            except (KeyError, TypeError):
+                raise McapFormatError(f"{p}: {where} missing") from None
+            extras[k] = _numbers(p, where, rows, dtype)
+            if list(extras[k].shape[1:]) != spec[1]:
+                raise McapFormatError(
+                    f"{p}: {where}: shape {list(extras[k].shape[1:])} per frame, the metadata "
+                    f"says {spec[1]!r}"
+                )
     dynamics = None
     if "dynamics" in log.metadata:
-        try:
-            d = log.meta("dynamics")
-            dynamics = {
-                "physics_dt": np.array(float(d["physics_dt"])),
-                "initial_state": np.array(json.loads(d["initial_state"]), dtype=np.float64),
-            }
-            steps = log.topic("/dynamics/step")
-            for key in ("ctrl", "qpos", "qvel"):
-                dynamics[key] = np.array([m["arrays"][key] for _, m in steps], dtype=np.float64)
-        except (KeyError, ValueError) as e:
-            raise McapFormatError(f"{log.path}: dynamic section: missing or bad {e}") from None
-    return Motion(
+        d = log.meta("dynamics")
+        dynamics = {
+            "physics_dt": np.array(_float_field(p, "dynamics", d, "physics_dt")),
+            "initial_state": _numbers(
+                p,
+                "metadata dynamics.initial_state",
+                _json_field(p, "dynamics", d, "initial_state", list),
+            ),
+        }
+        steps = log.topic("/dynamics/step")
+        for key in ("ctrl", "qpos", "qvel"):
+            try:
+                rows = [m["arrays"][key] for _, m in steps]
+            except (KeyError, TypeError):
+                raise McapFormatError(
+                    f"{p}: topic /dynamics/step: field arrays.{key} missing"
+                ) from None
+            dynamics[key] = _numbers(p, f"topic /dynamics/step: field arrays.{key}", rows)
+    motion = Motion(
         robot=robot,
         fps=fps,
         joint_names=joint_names,
@@ -637,7 +789,10 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Any:
         body_ang_vel_w=fields["body_ang_vel_w"],
         extras=extras or None,
         info=info or None,
+        source=str(p),
     )
+    validate_motion(motion, p, labels=_MOTION_LABELS)
+    return motion
 
 
 def qpos_from_log(log: McapLog, joint_names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

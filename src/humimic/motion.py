@@ -5,6 +5,10 @@ body_lin_vel_w, body_ang_vel_w``; plus ``joint_names``, ``body_names``, ``schema
 ``robot``, ``root_pos_w``/``root_quat_w`` (= body 0), and ``qpos`` (MuJoCo generalized
 positions, for exact replay). Quaternions are wxyz. Body kinematics come from MuJoCo forward
 kinematics of ``qpos``; velocities are central finite differences (one-sided at the ends).
+
+Every motion that is read or written passes one check, :func:`validate_motion`; archives are
+read by :func:`humimic.npyio.read_npz_members` (sizes checked before anything is allocated, never
+a pickle).
 """
 
 from __future__ import annotations
@@ -12,7 +16,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,6 +25,7 @@ import numpy as np
 
 from humimic.errors import InputError, MotionDataError
 from humimic.io import atomic_write
+from humimic.npyio import read_npz_members
 from humimic.transforms import quat_conj, quat_mul, quat_to_rotvec
 
 SCHEMA_VERSION = 1
@@ -39,6 +43,17 @@ _REQUIRED = (
     "body_lin_vel_w",
     "body_ang_vel_w",
 )
+_FRAME_ARRAYS = _REQUIRED[5:]
+_DYNAMICS_KEYS = ("initial_state", "ctrl", "qpos", "qvel", "physics_dt")
+
+MAX_MOTION_BYTES = 4 << 30
+"""Most bytes of arrays (uncompressed) a motion file may declare; checked before reading."""
+MAX_ABS_VALUE = 1e6
+"""Largest magnitude of a number in a motion (metres, radians, their rates): larger ones are
+corrupt data, and would overflow the float32 arithmetic of training."""
+FPS_RANGE = (1e-3, 1e5)
+"""Accepted frame rates [1/s]."""
+_QUAT_TOLERANCE = 1e-3  # |norm - 1| accepted for a stored unit quaternion.
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,6 +75,8 @@ class Motion:
             ``initial_state`` (``mjSTATE_FULLPHYSICS`` of the training model at frame 0),
             ``ctrl`` (S, nu) the PD targets of every physics step, the states they produce,
             ``qpos`` (S, nq) and ``qvel`` (S, nv), and ``physics_dt`` (a scalar).
+        source: The file it was read from, for messages (empty for a computed motion; not
+            saved).
     """
 
     robot: str
@@ -76,6 +93,7 @@ class Motion:
     extras: dict[str, np.ndarray] | None = None
     info: dict[str, Any] | None = None
     dynamics: dict[str, np.ndarray] | None = None
+    source: str = ""
 
     @property
     def num_frames(self) -> int:
@@ -158,17 +176,297 @@ def motion_from_qpos(
     )
 
 
+# ------------------------------------------------------------------------------ validation
+
+
+class _Where:
+    """Names the file and a field in messages (the ``.npz`` key, or another format's label)."""
+
+    def __init__(self, where: str, labels: dict[str, str] | None) -> None:
+        self.where = where
+        self.labels = labels or {}
+
+    def name(self, key: str) -> str:
+        if key in self.labels:
+            return self.labels[key]
+        for prefix in ("extra_", "dynamics_"):
+            if key.startswith(prefix) and prefix in self.labels:
+                return self.labels[prefix] + key[len(prefix) :]
+        return key
+
+    def error(self, message: str) -> MotionDataError:
+        return MotionDataError(f"{self.where}: {message}")
+
+
+def _is_real(x: object) -> bool:
+    return isinstance(x, int | float | np.integer | np.floating) and not isinstance(
+        x, bool | np.bool_
+    )
+
+
+def _check_numbers(w: _Where, key: str, v: object, kinds: str = "iuf") -> np.ndarray:
+    """``v`` is an array of real numbers (``kinds``), finite and of sane magnitude."""
+    label = w.name(key)
+    if not isinstance(v, np.ndarray):
+        raise w.error(f"{label}: expected an array, got {type(v).__name__}")
+    if v.dtype.kind not in kinds:
+        what = "Python objects (they would be pickled)" if v.dtype.hasobject else f"{v.dtype}"
+        expected = "numbers or booleans" if "b" in kinds else "real numbers"
+        raise w.error(f"{label}: holds {what}, expected {expected}")
+    if v.dtype.kind == "f" and v.size:
+        bad = ~np.isfinite(v)
+        if bad.any():
+            raise w.error(f"{label} contains NaN or inf ({_first(bad)})")
+    if v.dtype.kind in "iuf" and v.size:
+        big = np.abs(v.astype(np.float64)) > MAX_ABS_VALUE
+        if big.any():
+            raise w.error(
+                f"{label} holds a value beyond {MAX_ABS_VALUE:g} ({_first(big)}): corrupt data"
+            )
+    return v
+
+
+def _first(mask: np.ndarray) -> str:
+    """Where the first true entry of ``mask`` is: its frame (the first axis)."""
+    return f"frame {np.argwhere(mask)[0][0]}" if mask.ndim else "the value"
+
+
+def validate_motion(
+    motion: Motion,
+    where: str | os.PathLike[str] | None = None,
+    labels: dict[str, str] | None = None,
+) -> None:
+    """Check that a motion is whole and consistent: the one check that every reader
+    (:func:`load_motion`, :func:`humimic.mcap_io.read_motion_mcap`) and :func:`save_motion` run.
+
+    Checks: a robot name; a finite frame rate in :data:`FPS_RANGE`; unique joint and body
+    names; every array of frames real-valued, finite, below :data:`MAX_ABS_VALUE`, with
+    ``T >= 1`` frames and the shapes of the class doc (``qpos`` (T, 7 + J), bodies (T, B, 3 or
+    4)); unit quaternions (the base's in ``qpos`` and every body's); extras of numbers or
+    booleans (never objects, which would be pickled) with T frames; ``info`` JSON-able; a
+    dynamic section with all of ``initial_state, ctrl, qpos, qvel, physics_dt``, its steps one
+    length ``S = (T - 1) * physics steps per frame``.
+
+    Args:
+        motion: The motion.
+        where: The file to name in messages (default: ``motion.source``, else "the motion").
+        labels: How the file names a field in messages, e.g. ``{"qpos": "/reference/qpos"}``;
+            keys ``"extra_"`` and ``"dynamics_"`` prefix the extras and the dynamic section.
+            Default: the ``.npz`` keys.
+
+    Raises:
+        MotionDataError: The first problem found, naming the file, the field and the frame.
+    """
+    w = _Where(str(where) if where is not None else (motion.source or "the motion"), labels)
+    if not isinstance(motion.robot, str) or not motion.robot.strip():
+        raise w.error(f"{w.name('robot')}: expected a robot name, got {motion.robot!r}")
+    fps = motion.fps
+    if not _is_real(fps) or not FPS_RANGE[0] <= float(fps) <= FPS_RANGE[1]:
+        raise w.error(
+            f"{w.name('fps')} must be a positive number ({FPS_RANGE[0]:g} to "
+            f"{FPS_RANGE[1]:g}), got {fps!r}"
+        )
+    for key in ("joint_names", "body_names"):
+        names = getattr(motion, key)
+        if not isinstance(names, tuple) or not all(isinstance(n, str) for n in names):
+            raise w.error(f"{w.name(key)}: expected a list of names")
+        if len(set(names)) != len(names):
+            twice = sorted({n for n in names if names.count(n) > 1})
+            raise w.error(f"{w.name(key)}: names repeat: {twice}")
+    if not motion.body_names:
+        raise w.error(f"{w.name('body_names')}: no bodies (body 0 is the floating base)")
+    J, B = len(motion.joint_names), len(motion.body_names)
+    if not isinstance(motion.qpos, np.ndarray) or motion.qpos.ndim < 1:
+        raise w.error(f"{w.name('qpos')} must be an array with a frame axis")
+    T = int(motion.qpos.shape[0])
+    if T < 1:
+        raise w.error(f"{w.name('qpos')}: zero frames")
+    expected = {
+        "qpos": (T, 7 + J),
+        "joint_pos": (T, J),
+        "joint_vel": (T, J),
+        "body_pos_w": (T, B, 3),
+        "body_quat_w": (T, B, 4),
+        "body_lin_vel_w": (T, B, 3),
+        "body_ang_vel_w": (T, B, 3),
+    }
+    for key, shape in expected.items():
+        v = getattr(motion, key)
+        label = w.name(key)
+        if not isinstance(v, np.ndarray) or v.ndim < 2:
+            got = v.shape if isinstance(v, np.ndarray) else type(v).__name__
+            raise w.error(f"{label} must be an array with a frame axis, got shape {got}")
+        if v.shape[0] != T:
+            raise w.error(f"{label} has {v.shape[0]} frames, {w.name('qpos')} has {T}")
+        if v.shape != shape:
+            raise w.error(
+                f"{label} has shape {v.shape}, expected {shape} (frames, then {J} joints / "
+                f"{B} bodies as named)"
+            )
+        _check_numbers(w, key, v)
+    _check_unit(w, "qpos", motion.qpos[:, 3:7], "the base quaternion qpos[3:7]")
+    norms = np.linalg.norm(motion.body_quat_w, axis=-1)
+    bad = np.abs(norms - 1.0) > _QUAT_TOLERANCE
+    if bad.any():
+        t, b = np.argwhere(bad)[0]
+        raise w.error(
+            f"{w.name('body_quat_w')} frame {t}, body {motion.body_names[b]!r}: quaternion norm "
+            f"{norms[t, b]:.3g}, expected a unit quaternion (w, x, y, z)"
+        )
+    _check_extras(w, motion.extras, T)
+    _check_info(w, motion.info)
+    if motion.dynamics:
+        _check_dynamics(w, motion.dynamics, float(fps), T, J)
+
+
+def _check_unit(w: _Where, key: str, quat: np.ndarray, what: str) -> None:
+    norms = np.linalg.norm(quat, axis=-1)
+    bad = np.abs(norms - 1.0) > _QUAT_TOLERANCE
+    if bad.any():
+        t = int(np.argmax(bad))
+        raise w.error(
+            f"{w.name(key)} frame {t}: {what} {np.round(quat[t], 6).tolist()} has norm "
+            f"{norms[t]:.3g}, expected a unit quaternion (w, x, y, z)"
+        )
+
+
+def _check_extras(w: _Where, extras: object, T: int) -> None:
+    if extras is None:
+        return
+    if not isinstance(extras, dict):
+        raise w.error(f"extras: expected named arrays, got {type(extras).__name__}")
+    for k, v in extras.items():
+        if not isinstance(k, str) or not k:
+            raise w.error(f"extras: names must be non-empty strings, got {k!r}")
+        key = f"extra_{k}"
+        _check_numbers(w, key, v, kinds="biuf")
+        if v.ndim < 1 or v.shape[0] != T:
+            raise w.error(
+                f"{w.name(key)} has shape {v.shape}: an extra has one row per frame ({T})"
+            )
+
+
+def _check_info(w: _Where, info: object) -> None:
+    if info is None:
+        return
+    if not isinstance(info, dict):
+        raise w.error(f"{w.name('info_json')}: expected a JSON object, got {type(info).__name__}")
+    try:
+        json.dumps(info)
+    except (TypeError, ValueError, RecursionError) as e:
+        raise w.error(f"{w.name('info_json')}: not JSON-able ({e})") from None
+
+
+def _check_dynamics(w: _Where, dyn: dict[str, np.ndarray], fps: float, T: int, J: int) -> None:
+    """The dynamic section: every key, one step count ``S = (T - 1) * steps per frame``."""
+    missing = [k for k in _DYNAMICS_KEYS if k not in dyn]
+    unknown = sorted(str(k) for k in dyn if k not in _DYNAMICS_KEYS)
+    if missing or unknown:
+        problem = f"lacks {missing}" if missing else f"has unknown keys {unknown}"
+        raise w.error(
+            f"the dynamic section {problem}; expected "
+            f"{', '.join(w.name('dynamics_' + k) for k in _DYNAMICS_KEYS)} (humimic refine)"
+        )
+    for k in _DYNAMICS_KEYS:
+        _check_numbers(w, f"dynamics_{k}", dyn[k])
+    dt_arr, state = dyn["physics_dt"], dyn["initial_state"]
+    ctrl, qpos, qvel = dyn["ctrl"], dyn["qpos"], dyn["qvel"]
+    if dt_arr.ndim != 0 or not 1e-6 <= float(dt_arr) <= 1.0:
+        raise w.error(
+            f"{w.name('dynamics_physics_dt')}: expected one physics step of 1e-6 to 1 s, got "
+            f"{dt_arr.tolist()}"
+        )
+    if state.ndim != 1 or state.size < 1 + (7 + J) + (6 + J):
+        raise w.error(
+            f"{w.name('dynamics_initial_state')} has shape {state.shape}, expected a full "
+            f"physics state of at least {1 + (7 + J) + (6 + J)} numbers"
+        )
+    if ctrl.ndim != 2 or ctrl.shape[0] < 1 or ctrl.shape[1] < 1:
+        raise w.error(
+            f"{w.name('dynamics_ctrl')} has shape {ctrl.shape}, expected (steps, actuators)"
+        )
+    steps = ctrl.shape[0]
+    dt = float(dt_arr)
+    ratio = 1.0 / (fps * dt)
+    per_frame = round(ratio)
+    if per_frame < 1 or abs(ratio - per_frame) > 1e-6:
+        raise w.error(
+            f"{w.name('dynamics_physics_dt')} {dt} s is not a whole fraction of the frame "
+            f"period 1/{fps} s"
+        )
+    if steps != (T - 1) * per_frame:
+        raise w.error(
+            f"{w.name('dynamics_ctrl')} has {steps} steps, expected {(T - 1) * per_frame} "
+            f"({per_frame} physics steps for each of the {T - 1} frame intervals)"
+        )
+    for key, arr, width in (("qpos", qpos, 7 + J), ("qvel", qvel, 6 + J)):
+        if arr.shape != (steps, width):
+            raise w.error(
+                f"{w.name('dynamics_' + key)} has shape {arr.shape}, expected ({steps}, "
+                f"{width}): one row per step of {w.name('dynamics_ctrl')}"
+            )
+
+
+# ------------------------------------------------------------------------------ files
+
+
+def sniff(path: Path) -> str:
+    """What a file holds, from its first bytes: ``"npz"`` (a zip archive), ``"mcap"``,
+    ``"npy"``, ``"empty"``, ``"text"`` or ``"unknown"``."""
+    with path.open("rb") as f:
+        head = f.read(512)
+    if not head:
+        return "empty"
+    if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
+        return "npz"
+    if head.startswith(b"\x89MCAP"):
+        return "mcap"
+    if head.startswith(b"\x93NUMPY"):
+        return "npy"
+    try:
+        text = head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "unknown"
+    return "text" if all(c.isprintable() or c.isspace() for c in text) else "unknown"
+
+
+def _not_a_motion(p: Path, kind: str) -> MotionDataError:
+    """The message for a file that is not an ``.npz`` archive: what it is instead."""
+    if kind == "mcap":
+        if p.suffix.lower() == ".mcap":
+            hint = f"convert it with `humimic convert {p} {p.with_suffix('.npz')}`"
+        else:
+            hint = f"rename it to {p.with_suffix('.mcap').name}, or convert it with humimic convert"
+        return MotionDataError(f"{p}: is an MCAP file, not an .npz motion archive; {hint}")
+    what = {
+        "npy": "a single .npy array",
+        "empty": "an empty file",
+        "text": "a text file",
+        "unknown": "binary data of no known format",
+    }[kind]
+    return MotionDataError(
+        f"{p}: {what}, not an .npz motion archive (a zip of .npy arrays, as humimic "
+        "retarget writes)"
+    )
+
+
 def save_motion(motion: Motion, path: str | os.PathLike[str]) -> Path:
-    """Write a motion atomically as ``.npz`` (compressed, no pickled objects)."""
+    """Write a motion atomically as ``.npz`` (compressed, no pickled objects).
+
+    Raises:
+        InputError: The path does not end in ``.npz``.
+        MotionDataError: The motion fails :func:`validate_motion` (nothing is written).
+    """
     p = Path(path)
     if p.suffix != ".npz":
         raise InputError(f"{p}: motion files must end in .npz")
+    validate_motion(motion, f"{p}: not written: the motion")
     arrays: dict[str, np.ndarray] = {
         "schema_version": np.array(SCHEMA_VERSION),
         "fps": np.array(motion.fps),
         "robot": np.array(motion.robot),
-        "joint_names": np.array(motion.joint_names),
-        "body_names": np.array(motion.body_names),
+        "joint_names": np.array(motion.joint_names, dtype=str),
+        "body_names": np.array(motion.body_names, dtype=str),
         "qpos": motion.qpos,
         "joint_pos": motion.joint_pos,
         "joint_vel": motion.joint_vel,
@@ -193,40 +491,43 @@ def save_motion(motion: Motion, path: str | os.PathLike[str]) -> Path:
 
 
 def load_motion(path: str | os.PathLike[str]) -> Motion:
-    """Read and validate a motion file; errors name the file and the key."""
+    """Read and validate a motion file (:func:`validate_motion`).
+
+    Raises:
+        InputError: No such file.
+        MotionDataError: Not an ``.npz`` archive (says what it is: an MCAP file, an ``.npy``
+            array, ...), a wrong suffix, a corrupt or truncated archive, pickled or oversized
+            arrays, or a motion that fails :func:`validate_motion`; names the file and key.
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: no such file")
     try:
-        with np.load(p, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise MotionDataError(f"{p}: not a readable .npz motion file ({e})") from None
-    missing = [k for k in _REQUIRED if k not in data]
-    if missing:
-        raise MotionDataError(f"{p}: missing key(s) {missing}")
-    version = int(data["schema_version"])
-    if version != SCHEMA_VERSION:
-        raise MotionDataError(f"{p}: schema_version {version}, this humimic reads {SCHEMA_VERSION}")
-    fps = float(data["fps"])
-    if not np.isfinite(fps) or fps <= 0:
-        raise MotionDataError(f"{p}: fps must be a positive number, got {fps}")
-    for k in _REQUIRED[5:]:
-        if data[k].ndim < 2:
-            raise MotionDataError(
-                f"{p}: {k} must be an array with a frame axis, got shape {data[k].shape}"
-            )
-    T = data["qpos"].shape[0]
-    for k in _REQUIRED[5:]:
-        if data[k].shape[0] != T:
-            raise MotionDataError(f"{p}: {k} has {data[k].shape[0]} frames, qpos has {T}")
-        if not np.all(np.isfinite(data[k])):
-            raise MotionDataError(f"{p}: {k} contains NaN or inf")
-    return Motion(
-        robot=str(data["robot"]),
+        kind = sniff(p)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror}") from None
+    if kind != "npz":
+        raise _not_a_motion(p, kind)
+    if p.suffix.lower() != ".npz":
+        raise MotionDataError(
+            f"{p}: motion files end in .npz (this one is a zip archive: rename it if it holds "
+            "a motion)"
+        )
+    data = read_npz_members(
+        p, max_bytes=MAX_MOTION_BYTES, kinds="biufU", error=MotionDataError, required=_REQUIRED
+    )
+    version = _scalar(p, data, "schema_version", "iu", "integer")
+    if int(version) != SCHEMA_VERSION:
+        raise MotionDataError(
+            f"{p}: schema_version {int(version)}, this humimic reads {SCHEMA_VERSION}"
+        )
+    fps = float(_scalar(p, data, "fps", "iuf", "number"))
+    robot = str(_scalar(p, data, "robot", "U", "string"))
+    motion = Motion(
+        robot=robot,
         fps=fps,
-        joint_names=tuple(str(s) for s in data["joint_names"]),
-        body_names=tuple(str(s) for s in data["body_names"]),
+        joint_names=_names(p, data, "joint_names"),
+        body_names=_names(p, data, "body_names"),
         qpos=data["qpos"],
         joint_pos=data["joint_pos"],
         joint_vel=data["joint_vel"],
@@ -238,15 +539,37 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
         info=_info(p, data),
         dynamics={k[len("dynamics_") :]: v for k, v in data.items() if k.startswith("dynamics_")}
         or None,
+        source=str(p),
     )
+    validate_motion(motion, p)
+    return motion
+
+
+def _scalar(p: Path, data: dict[str, np.ndarray], key: str, kinds: str, what: str) -> np.ndarray:
+    v = data[key]
+    if v.ndim != 0 or v.dtype.kind not in kinds:
+        raise MotionDataError(
+            f"{p}: {key}: expected one {what}, got an array of shape {v.shape} and dtype {v.dtype}"
+        )
+    return v
+
+
+def _names(p: Path, data: dict[str, np.ndarray], key: str) -> tuple[str, ...]:
+    v = data[key]
+    if v.ndim != 1 or (v.size and v.dtype.kind != "U"):
+        raise MotionDataError(
+            f"{p}: {key}: expected a list of names, got shape {v.shape} and dtype {v.dtype}"
+        )
+    return tuple(str(s) for s in v)
 
 
 def _info(p: Path, data: dict[str, np.ndarray]) -> dict[str, Any] | None:
     if "info_json" not in data:
         return None
+    text = _scalar(p, data, "info_json", "U", "string")
     try:
-        info = json.loads(str(data["info_json"]))
-    except json.JSONDecodeError as e:
+        info = json.loads(str(text))
+    except (json.JSONDecodeError, RecursionError) as e:
         raise MotionDataError(f"{p}: info_json is not valid JSON ({e})") from None
     if not isinstance(info, dict):
         raise MotionDataError(f"{p}: info_json must hold a JSON object")

@@ -404,7 +404,7 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
             {**result.report, **extra, "start_frame": int(clip.meta["start_frame"])}
         )
         _save_with_report(motion, motion_path, report, report_path)
-        _print_summary(result.report, motion_path)
+        _print_summary(result.report, motion_path, cmd.mesh.scene_spacing)
         if "dynamics" in extra:
             _print_dynamics(report["dynamics"], motion_path)
         reports.append(report)
@@ -460,7 +460,9 @@ def _units(units: str) -> str | float:
         return units
 
 
-def _print_summary(r: dict, path: Path) -> None:
+def _print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
+    """One line of the report; with a scene, a second, and a warning for objects sampled more
+    coarsely than ``spacing`` [m] (``--mesh.scene_spacing``)."""
     print(
         f"{Path(r['input']).name} -> {path}: {r['frames']} frames at {r['fps']:g} fps, "
         f"{r['frames_per_second']:.0f} frames/s | key points {r['keypoint_error_mm_mean']:.1f} mm "
@@ -482,6 +484,14 @@ def _print_summary(r: dict, path: Path) -> None:
             f"{r['scene_foot_skating_mm_per_s']:.0f} mm/s | interaction "
             f"{r['interaction_frames_per_second']:.0f} frames/s"
         )
+        wanted = 1e3 * spacing if spacing is not None else None
+        coarse = {n: s for n, s in r["scene_spacing_mm"].items() if wanted and s > 1.01 * wanted}
+        if coarse:
+            print(
+                f"warning: objects too large to sample every {wanted:.0f} mm were sampled more "
+                "coarsely: " + ", ".join(f"{n} every {s:.0f} mm" for n, s in coarse.items()),
+                file=sys.stderr,
+            )
 
 
 def run_demo(cmd: DemoCommand) -> dict:

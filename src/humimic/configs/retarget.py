@@ -7,6 +7,10 @@ from dataclasses import dataclass
 
 from humimic.errors import InputError
 
+MAX_SCENE_POINTS = 10_000
+"""Most scene points one frame's interaction mesh may take (``--mesh.max_scene_points``); the
+mesh refuses more than 20,000 points in all (``retarget.interaction_mesh.MAX_MESH_POINTS``)."""
+
 
 def _check_numbers(cfg: object, prefix: str, names: tuple[str, ...], *, positive: bool) -> None:
     """Each named field of ``cfg`` must be a finite number > 0 (``positive``) or >= 0;
@@ -212,6 +216,11 @@ class InteractionConfig:
         _check_numbers(self, "mesh", non_negative, positive=False)
         if not 0 < self.still_travel <= 1:
             raise InputError(f"mesh.still_travel: must be in (0, 1], got {self.still_travel}")
+        if self.max_scene_points > MAX_SCENE_POINTS:
+            raise InputError(
+                f"mesh.max_scene_points: at most {MAX_SCENE_POINTS} (a Delaunay mesh of more "
+                f"points per frame is beyond this method), got {self.max_scene_points}"
+            )
         if self.iterations < 1 or self.max_scene_points < 0 or self.reattach_iterations < 0:
             raise InputError(
                 "mesh.iterations must be >= 1, mesh.max_scene_points and "

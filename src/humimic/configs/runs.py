@@ -1,4 +1,5 @@
-"""Settings of tracking runs (``humimic train``, ``humimic eval``): light to import."""
+"""Settings of tracking runs (``humimic train``, ``distill``, ``eval``, ``export``, ``loop``):
+light to import. Each has ``validate()``, which the command calls before any work."""
 
 from __future__ import annotations
 
@@ -8,188 +9,277 @@ from typing import Annotated, Literal
 
 import tyro
 
+from humimic.errors import InputError
+
+MAX_SEED = 2**32 - 1
+"""The largest ``--seed`` (numpy's and torch's generators take any seed up to it)."""
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _at_least(s: object, names: tuple[str, ...], minimum: int = 1) -> None:
+    """Each named integer field of ``s`` that is set must be ``>= minimum`` (names the flag)."""
+    for name in names:
+        v = getattr(s, name)
+        if v is not None and v < minimum:
+            raise InputError(f"{_flag(name)} {v}: must be at least {minimum}")
+
+
+def _check_seed(seed: int) -> None:
+    if not 0 <= seed <= MAX_SEED:
+        raise InputError(f"--seed {seed}: must be in 0 to {MAX_SEED}")
+
+
+def _check_minutes(minutes: float | None) -> None:
+    if minutes is not None and not minutes > 0:  # NaN fails too.
+        raise InputError(f"--max-minutes {minutes}: must be a positive number of minutes")
+
+
+def check_device(device: str, flag: str = "--device") -> None:
+    """Fail before any work when ``device`` is not a torch device this machine has.
+
+    Accepts ``cpu`` and ``cuda`` (``cuda:N``: an existing GPU). Raises :class:`InputError`
+    naming ``flag``.
+    """
+    import torch
+
+    try:
+        d = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise InputError(
+            f"{flag} {device!r}: not a torch device (expected cpu, cuda or cuda:N)"
+        ) from None
+    if d.type == "cpu":
+        return
+    if d.type != "cuda":
+        raise InputError(f"{flag} {device}: humimic runs on cpu or cuda, not {d.type}")
+    if not torch.cuda.is_available():
+        raise InputError(f"{flag} {device}: CUDA is not available on this machine")
+    count = torch.cuda.device_count()
+    if d.index is not None and d.index >= count:
+        raise InputError(f"{flag} {device}: this machine has {count} CUDA device(s)")
+
 
 @dataclass(frozen=True, kw_only=True)
 class TrainSettings:
-    """What ``humimic train`` runs.
-
-    Attributes:
-        motion: Reference motion file (``.npz`` from ``humimic retarget``).
-        out: Run folder.
-        robot: Registry name; must match the motion's.
-        num_envs: Parallel environments.
-        max_iterations: Total PPO iterations of the run (a resumed run continues up to it).
-        device: Torch device of the learner (``cpu`` or ``cuda``). Under torchrun each process
-            takes the GPU of its local rank.
-        backend: The simulator: ``cpu`` (MuJoCo on the CPU) or ``warp`` (MuJoCo Warp on
-            ``--device``: GPU throughput; needs ``humimic[gpu]``).
-        dr: Domain randomization: a profile name (``none``, ``default``) or a YAML file.
-        physics: Train on a fixed model: a physics file (docs/tracking.md, "Physics files"),
-            e.g. the correction ``humimic sysid diagnose`` found; DR acts on top of it.
-        init_from: Start from another run's weights (its newest checkpoint, or a checkpoint
-            file): fine-tuning. Actor and critic must have the same inputs (same variant and
-            task).
-        variant: What actor and critic observe (docs/tracking.md, "Variants"):
-            ``beyondmimic`` (actor: deployable observations; critic: privileged),
-            ``robust`` (both deployable only), ``asymmetric`` (actor: deployable plus the
-            proprioceptive history; critic: privileged), ``teacher`` (actor: deployable plus
-            the physics parameters e; critic: privileged; distill it with ``humimic distill``).
-        resume: Continue the run in ``out`` from its newest checkpoint.
-        seed: Seed of torch and of the environment.
-        checkpoint_every: Iterations between checkpoints (the last one is always written).
-        num_steps_per_env: Rollout length per env and iteration (default: the PPO config's).
-        max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
-        compile: Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++
-            compiler, seconds at the start; cuts the env's own cost per step, BENCHMARKS.md).
-        quiet: No progress bar.
-    """
+    """Train a tracking policy with PPO on a reference motion; the run folder survives crashes
+    (``--resume`` continues it)."""
 
     motion: Path
+    """Reference motion file (``.npz`` from ``humimic retarget``)."""
     out: Path
+    """Run folder (config.yaml, progress.csv, checkpoints/, tensorboard/)."""
     robot: str = "g1"
+    """Registry name; must match the motion's."""
     num_envs: int = 4096
+    """Parallel environments (under torchrun: each process's)."""
     max_iterations: int = 1000
+    """Total PPO iterations of the run (a resumed run continues up to it)."""
     device: str = "cpu"
+    """Torch device of the learner (``cpu``, ``cuda`` or ``cuda:N``). Under torchrun each
+    process takes the GPU of its local rank."""
     backend: Literal["cpu", "warp"] = "cpu"
+    """The simulator: ``cpu`` (MuJoCo on the CPU) or ``warp`` (MuJoCo Warp on ``--device``:
+    GPU throughput; needs ``humimic[gpu]``)."""
     dr: str = "default"
+    """Domain randomization: a profile name (``none``, ``default``) or a YAML file."""
     physics: str | None = None
+    """Train on a fixed model: a physics file (docs/tracking.md, "Physics files"), e.g. the
+    correction ``humimic sysid diagnose`` found; DR acts on top of it."""
     init_from: Path | None = None
+    """Start from another run's weights (its newest checkpoint, or a checkpoint file):
+    fine-tuning. Actor and critic must have the same inputs (same variant and task)."""
     variant: Literal["beyondmimic", "robust", "asymmetric", "teacher"] = "beyondmimic"
+    """What actor and critic observe (docs/tracking.md, "Variants"): ``beyondmimic`` (actor:
+    deployable observations; critic: privileged), ``robust`` (both deployable only),
+    ``asymmetric`` (actor: deployable plus the proprioceptive history; critic: privileged),
+    ``teacher`` (actor: deployable plus the physics parameters e; critic: privileged; distill
+    it with ``humimic distill``)."""
     resume: bool = False
+    """Continue the run in ``--out`` from its newest checkpoint."""
     seed: int = 0
+    """Seed of torch and of the environment."""
     checkpoint_every: int = 50
+    """Iterations between checkpoints (the last one is always written)."""
     num_steps_per_env: int | None = None
+    """Rollout length per env and iteration (default: the PPO config's, 24)."""
     max_minutes: float | None = None
+    """Stop (with a checkpoint) after the iteration that passes this wall time."""
     compile: bool = False
+    """Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++ compiler,
+    seconds at the start; cuts the env's own cost per step, BENCHMARKS.md)."""
     quiet: bool = False
+    """No progress bar."""
+
+    def validate(self) -> None:
+        """Check the numbers and the device; :class:`InputError` names the flag."""
+        _at_least(self, ("num_envs", "max_iterations", "checkpoint_every", "num_steps_per_env"))
+        _check_minutes(self.max_minutes)
+        _check_seed(self.seed)
+        check_device(self.device)
 
 
 @dataclass(frozen=True, kw_only=True)
 class DistillSettings:
-    """What ``humimic distill`` runs: DAgger-style distillation of a teacher run into a
-    proprioceptive student (rsl_rl's Distillation: the student acts, the teacher labels every
-    visited state).
-
-    Attributes:
-        teacher: Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one).
-        out: The student's run folder.
-        student: ``mlp-history`` (an MLP on the policy observations and their history) or
-            ``gru`` (a recurrent network on the policy observations).
-        teacher_checkpoint: The teacher's checkpoint (default: its newest).
-        num_envs: Parallel environments.
-        max_iterations: Total distillation iterations (a resumed run continues up to it).
-        device: Torch device (``cpu`` or ``cuda``).
-        dr: Domain randomization (default: the teacher's).
-        resume: Continue the run in ``out`` from its newest checkpoint.
-        seed: Seed of torch and of the environment.
-        checkpoint_every: Iterations between checkpoints.
-        max_minutes: Stop (with a checkpoint) after the iteration that passes this wall time.
-        compile: Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++
-            compiler, seconds at the start; cuts the env's own cost per step, BENCHMARKS.md).
-        quiet: No progress bar.
-    """
+    """Distill a teacher run into a proprioceptive student, DAgger-style (rsl_rl's
+    Distillation: the student acts, the teacher labels every visited state)."""
 
     teacher: Path
+    """Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one)."""
     out: Path
+    """The student's run folder."""
     student: Literal["mlp-history", "gru"] = "mlp-history"
+    """``mlp-history`` (an MLP on the policy observations and their history) or ``gru`` (a
+    recurrent network on the policy observations)."""
     teacher_checkpoint: Path | None = None
+    """The teacher's checkpoint (default: its newest)."""
     num_envs: int = 4096
+    """Parallel environments."""
     max_iterations: int = 300
+    """Total distillation iterations (a resumed run continues up to it)."""
     device: str = "cpu"
+    """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
     dr: str | None = None
+    """Domain randomization: a profile name or a YAML file (default: the teacher's)."""
     resume: bool = False
+    """Continue the run in ``--out`` from its newest checkpoint."""
     seed: int = 0
+    """Seed of torch and of the environment."""
     checkpoint_every: int = 50
+    """Iterations between checkpoints (the last one is always written)."""
     max_minutes: float | None = None
+    """Stop (with a checkpoint) after the iteration that passes this wall time."""
     compile: bool = False
+    """Compile the env's tensor math with ``torch.compile`` (on the CPU: needs a C++ compiler,
+    seconds at the start; cuts the env's own cost per step, BENCHMARKS.md)."""
     quiet: bool = False
+    """No progress bar."""
+
+    def validate(self) -> None:
+        """Check the numbers and the device; :class:`InputError` names the flag."""
+        _at_least(self, ("num_envs", "max_iterations", "checkpoint_every"))
+        _check_minutes(self.max_minutes)
+        _check_seed(self.seed)
+        check_device(self.device)
 
 
 @dataclass(frozen=True, kw_only=True)
 class EvalSettings:
-    """What ``humimic eval`` runs.
-
-    Attributes:
-        run: Run folder of ``humimic train``.
-        episodes: Episodes to run (each plays the whole clip from its first frame).
-        motion: Evaluate on this clip (a motion file of the run's robot) instead of the run's.
-        dr: Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file.
-        physics: Evaluate on a fixed robot: a physics file or a shipped one (``backpack``,
-            ``worn_knees``; docs/tracking.md, "Physics files"), e.g. a "real" robot training
-            never saw. DR (``--dr``) acts on top of it.
-        out: Write the metrics as JSON here.
-        mcap: Write the first episode (policy and open loop) with the reference as MCAP here,
-            for ``humimic view MCAP`` and Foxglove (default: ``out`` with the suffix ``.mcap``
-            when ``out`` is given, else nothing).
-        checkpoint: A checkpoint file (default: the run's newest).
-        num_envs: Envs run in parallel, at least ``episodes`` (default: ``episodes``).
-        device: Torch device of the policy.
-        seed: Seed of the evaluation's randomness.
-    """
+    """Evaluate a run's policy closed-loop against the open-loop replay of its reference:
+    success rate, MPJPE and joint errors; optionally JSON metrics and an MCAP of the first
+    episode."""
 
     run: Annotated[Path, tyro.conf.Positional]
+    """Run folder of ``humimic train`` or ``humimic distill``."""
     episodes: int = 16
+    """Episodes to run (each plays the whole clip from its first frame)."""
     motion: Path | None = None
+    """Evaluate on this clip (a motion file of the run's robot) instead of the run's."""
     dr: str = "none"
+    """Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file."""
     physics: str | None = None
+    """Evaluate on a fixed robot: a physics file or a shipped one (``backpack``,
+    ``worn_knees``; docs/tracking.md, "Physics files"), e.g. a "real" robot training never saw.
+    DR (``--dr``) acts on top of it."""
     out: Path | None = None
+    """Write the metrics as JSON here."""
     mcap: Path | None = None
+    """Write the first episode (policy and open loop) with the reference as MCAP here, for
+    ``humimic view MCAP`` and Foxglove (default: ``--out`` with the suffix ``.mcap`` when
+    ``--out`` is given, else nothing)."""
     checkpoint: Path | None = None
+    """A checkpoint file (default: the run's newest)."""
     num_envs: int | None = None
+    """Envs run in parallel, at least ``--episodes`` (default: ``--episodes``)."""
     device: str = "cpu"
+    """Torch device of the policy (``cpu``, ``cuda`` or ``cuda:N``)."""
     seed: int = 1
+    """Seed of the evaluation's randomness."""
+
+    def validate(self) -> None:
+        """Check the numbers and the device; :class:`InputError` names the flag."""
+        _at_least(self, ("episodes", "num_envs"))
+        if self.num_envs is not None and self.num_envs < self.episodes:
+            raise InputError(
+                f"--num-envs {self.num_envs}: evaluate at least as many envs as --episodes "
+                f"({self.episodes})"
+            )
+        _check_seed(self.seed)
+        check_device(self.device)
 
 
 @dataclass(frozen=True, kw_only=True)
 class LoopSettings:
-    """What ``humimic loop`` runs: deploy a policy on a "real" robot (a physics file that no
-    training step reads), diagnose the gap with sysid on a gantry log of that robot, fine-tune
-    in the corrected model, redeploy, report before and after (docs/tracking.md, "The loop").
-
-    Attributes:
-        run: The policy's run folder (``humimic train``; not a teacher or a student).
-        real: The "real" robot: a physics file or a shipped one (``backpack``, ``worn_knees``).
-        out: The loop's folder (new or empty).
-        motion: The clip to deploy and fine-tune on (default: the run's).
-        episodes: Episodes per deployment.
-        iterations: Fine-tuning PPO iterations.
-        num_envs: Fine-tuning envs.
-        sysid_duration: Seconds of the gantry log.
-        control: Also fine-tune in the nominal model for the same iterations, and deploy that.
-        device: Torch device.
-        seed: Seed of everything.
-        max_minutes: Time budget of each fine-tuning run.
-        quiet: No progress bars.
-    """
+    """Deploy a policy on a "real" robot (a physics file that no training step reads),
+    diagnose the gap with sysid on a gantry log of that robot, fine-tune in the corrected
+    model, redeploy, report before and after (docs/tracking.md, "The loop")."""
 
     run: Path
+    """The policy's run folder (``humimic train``; not a teacher or a student)."""
     real: str
+    """The "real" robot: a physics file or a shipped one (``backpack``, ``worn_knees``)."""
     out: Path
+    """The loop's folder (new or empty)."""
     motion: Path | None = None
+    """The clip to deploy and fine-tune on (default: the run's)."""
     episodes: int = 16
+    """Episodes per deployment."""
     iterations: int = 100
+    """Fine-tuning PPO iterations."""
     num_envs: int = 256
+    """Fine-tuning envs."""
     sysid_duration: float = 40.0
+    """Seconds of the gantry log (5 to 3600)."""
     control: bool = False
+    """Also fine-tune in the nominal model for the same iterations, and deploy that."""
     device: str = "cpu"
+    """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
     seed: int = 0
+    """Seed of everything."""
     max_minutes: float | None = None
+    """Time budget of each fine-tuning run."""
     quiet: bool = False
+    """No progress bars."""
+
+    def validate(self) -> None:
+        """Check the numbers and the device; :class:`InputError` names the flag."""
+        _at_least(self, ("episodes", "iterations", "num_envs"))
+        if not 5.0 <= self.sysid_duration <= 3600.0:  # NaN fails too.
+            raise InputError(f"--sysid-duration {self.sysid_duration}: choose 5 to 3600 s")
+        _check_minutes(self.max_minutes)
+        _check_seed(self.seed)
+        check_device(self.device)
 
 
 @dataclass(frozen=True, kw_only=True)
 class ExportSettings:
-    """What ``humimic export`` writes.
-
-    Attributes:
-        run: Run folder of ``humimic train``.
-        format: ``onnx``: the deterministic policy (observation normalization included), one
-            input ``obs`` (the ``policy`` observation group), one output ``actions``.
-        out: Output file (default: ``RUN/policy.onnx``).
-        checkpoint: A checkpoint file (default: the run's newest).
-    """
+    """Export a run's deterministic policy as one self-contained ONNX file for deployment."""
 
     run: Annotated[Path, tyro.conf.Positional]
+    """Run folder of ``humimic train`` or ``humimic distill`` (not a teacher)."""
     format: Literal["onnx"] = "onnx"
+    """``onnx``: the deterministic policy (observation normalization included), input ``obs``
+    (the actor's observation groups), output ``actions``."""
     out: Path | None = None
+    """Output file, ending in ``.onnx`` (default: ``RUN/policy.onnx``)."""
     checkpoint: Path | None = None
+    """A checkpoint file (default: the run's newest)."""
+
+    def validate(self) -> None:
+        """Check the output's name; :class:`InputError` names the flag."""
+        out = self.out or self.run / "policy.onnx"
+        if out.suffix != ".onnx":
+            raise InputError(f"--out {out}: an ONNX file must end in .onnx")
+
+
+__all__ = [
+    "MAX_SEED",
+    "DistillSettings",
+    "EvalSettings",
+    "ExportSettings",
+    "LoopSettings",
+    "TrainSettings",
+    "check_device",
+]

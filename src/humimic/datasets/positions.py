@@ -2,29 +2,23 @@
 
 A ``.npy`` file holds one float array of global joint positions, shape (T, J, 3). A ``.npz``
 file holds ``positions`` (T, J, 3), ``joint_names`` (J,) and optionally ``fps`` (a scalar) and
-``parents`` (J,). Arrays are never unpickled, and each header's shape is checked against the
-bytes really there (and :data:`MAX_ARRAY_BYTES`) before anything is allocated.
+``parents`` (J,). Arrays are read by :mod:`humimic.npyio`: never unpickled, each header's shape
+checked against the bytes really there (and :data:`MAX_ARRAY_BYTES`) before anything is allocated.
 """
 
 from __future__ import annotations
 
-import lzma
-import math
 import os
-import zipfile
-import zlib
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
-from tokenize import TokenError
-from typing import IO
 
 import numpy as np
-from numpy.lib import format as npformat
 
 from humimic.datasets.bvh import metres_per_unit
 from humimic.datasets.clip import HumanClip
 from humimic.errors import InputError, MotionDataError
+from humimic.npyio import read_npy_file, read_npz_members
 from humimic.transforms import Y_UP_TO_Z_UP
 
 _FINGERS = ("Thumb", "Index", "Middle", "Ring", "Pinky")
@@ -96,10 +90,9 @@ keeps a constant length over the three shared climbing clips."""
 _SUFFIXES = (".npy", ".npz")
 
 MAX_ARRAY_BYTES = 2 * 2**30
-"""Largest array data read from a file (2 GiB: an hour of 53 joints at 120 fps in float64 is
-0.55 GiB). Bigger headers are refused before anything is allocated."""
-
-_READ_CHUNK = 64 * 2**20
+"""Most bytes of array data read from a file, all its arrays together (2 GiB: an hour of 53
+joints at 120 fps in float64 is 0.55 GiB). Bigger headers are refused before anything is
+allocated."""
 
 
 def load_positions(
@@ -153,9 +146,9 @@ def load_positions(
     file_parents: Sequence[int] | None = None
     file_fps: float | None = None
     if p.suffix.lower() == ".npz":
-        positions, file_names, file_fps, file_parents = _read_npz(p)
+        positions, file_names, file_fps, file_parents = _clip_arrays(p)
     else:
-        positions = _read_npy(p)
+        positions = read_npy_file(p, max_bytes=MAX_ARRAY_BYTES, kinds="iuf", error=MotionDataError)
     positions = _check_array(p, positions)
     num_joints = positions.shape[1]
 
@@ -206,129 +199,19 @@ def load_positions(
     )
 
 
-def _read_array(f: IO[bytes], size: int, where: str) -> np.ndarray:
-    """Read one ``.npy`` array from ``f`` (``size`` bytes in all), checking its header first.
-
-    The header's shape and dtype must account for exactly the bytes that follow it, so a
-    header that claims more data than the file holds (numpy would allocate it all before
-    noticing) or a truncated file is refused without allocating anything.
-
-    Args:
-        f: A binary file positioned at the start of the ``.npy`` data (a file or a zip member).
-        size: Bytes in the file or member.
-        where: What to name in errors: the path, and the member of a ``.npz``.
-
-    Returns:
-        The array (dtype as stored, never Python objects).
-
-    Raises:
-        MotionDataError: Not a ``.npy`` array, an object or zero-size dtype, a size that does
-            not match the header, or data over :data:`MAX_ARRAY_BYTES`.
-    """
-    try:
-        version = npformat.read_magic(f)
-        if version == (1, 0):
-            shape, fortran, dtype = npformat.read_array_header_1_0(f)
-        elif version == (2, 0):
-            shape, fortran, dtype = npformat.read_array_header_2_0(f)
-        else:
-            raise MotionDataError(
-                f"{where}: unsupported .npy format version {version[0]}.{version[1]}"
-            )
-    except (ValueError, TypeError, SyntaxError, RecursionError, EOFError, TokenError) as e:
-        # numpy reads the header's text as a Python literal: these are its parse errors.
-        detail = " ".join(str(e).split())[:200]
-        raise MotionDataError(f"{where}: not a valid .npy array ({detail})") from None
-    if dtype.hasobject:
-        raise MotionDataError(
-            f"{where}: holds Python objects (dtype {dtype}); only numeric arrays are read"
-        )
-    if dtype.itemsize == 0 or dtype.subdtype is not None:
-        raise MotionDataError(f"{where}: unsupported dtype {dtype}")
-    if any(n < 0 for n in shape):
-        raise MotionDataError(f"{where}: negative size in the header's shape {shape}")
-    nbytes = math.prod(shape) * dtype.itemsize
-    if nbytes > MAX_ARRAY_BYTES:
-        raise MotionDataError(
-            f"{where}: header claims shape {shape} of {dtype} ({nbytes / 2**30:.3g} GiB), over "
-            f"the {MAX_ARRAY_BYTES / 2**30:g} GiB limit"
-        )
-    available = size - f.tell()
-    if available != nbytes:
-        how = "truncated" if available < nbytes else "longer than its header says"
-        raise MotionDataError(
-            f"{where}: {how}: header says shape {shape} of {dtype} ({nbytes} bytes), the file "
-            f"has {available} bytes of data"
-        )
-    # Read in chunks, so memory grows with the data actually there: a zip member's size is
-    # only what its directory claims.
-    buf = bytearray()
-    while len(buf) < nbytes:
-        chunk = f.read(min(_READ_CHUNK, nbytes - len(buf)))
-        if not chunk:
-            raise MotionDataError(f"{where}: truncated: {len(buf)} of {nbytes} bytes of data")
-        buf += chunk
-    array = np.frombuffer(buf, dtype=dtype)
-    return array.reshape(shape, order="F" if fortran else "C")
-
-
-def _read_npy(p: Path) -> np.ndarray:
-    try:
-        with open(p, "rb") as f:
-            if f.read(4) == b"PK\x03\x04":
-                raise MotionDataError(f"{p}: expected one array, found a .npz (zip) archive")
-            f.seek(0)
-            return _read_array(f, os.fstat(f.fileno()).st_size, str(p))
-    except OSError as e:
-        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
-
-
-_NPZ_ERRORS = (
-    zipfile.BadZipFile,
-    zlib.error,
-    lzma.LZMAError,
-    EOFError,
-    OSError,
-    NotImplementedError,  # An unsupported compression method.
-    RuntimeError,  # An encrypted member.
-    ValueError,
-)
-"""What :mod:`zipfile` raises for a corrupt or unsupported archive or member."""
-
-
-def _read_npz(
-    p: Path,
-) -> tuple[np.ndarray, list[str] | None, float | None, list[int] | None]:
-    try:
-        archive = zipfile.ZipFile(p)
-    except _NPZ_ERRORS as e:
-        raise MotionDataError(f"{p}: not a readable .npz archive ({e})") from None
-    with archive:
-        # Keys as np.load names them: the member name less ".npy".
-        members = {
-            (i.filename[:-4] if i.filename.endswith(".npy") else i.filename): i
-            for i in archive.infolist()
-        }
-
-        def read(key: str) -> np.ndarray | None:
-            info = members.get(key)
-            if info is None:
-                return None
-            where = f"{p}: array {key!r}"
-            try:
-                with archive.open(info) as f:
-                    return _read_array(f, info.file_size, where)
-            except _NPZ_ERRORS as e:
-                detail = str(e) or "the archive ends early"  # zipfile's EOFError has no text.
-                raise MotionDataError(f"{where}: cannot read ({detail})") from None
-
-        if "positions" not in members:
-            raise MotionDataError(
-                f"{p}: no 'positions' array; found keys: {', '.join(sorted(members)) or 'none'}"
-            )
-        positions = read("positions")
-        raw_names, raw_fps, raw_parents = read("joint_names"), read("fps"), read("parents")
-    assert positions is not None
+def _clip_arrays(p: Path) -> tuple[np.ndarray, list[str] | None, float | None, list[int] | None]:
+    """A ``.npz`` clip's positions, and its joint names, fps and parents where it has them."""
+    arrays = read_npz_members(
+        p,
+        ("positions", "joint_names", "fps", "parents"),
+        max_bytes=MAX_ARRAY_BYTES,
+        kinds="iufU",  # Numbers, and the joint names' strings.
+        error=MotionDataError,
+        required=("positions",),
+    )
+    positions = arrays["positions"]
+    raw_names, raw_fps = arrays.get("joint_names"), arrays.get("fps")
+    raw_parents = arrays.get("parents")
     names = None
     if raw_names is not None:
         names = raw_names.tolist() if raw_names.dtype.kind == "U" and raw_names.ndim == 1 else None

@@ -208,6 +208,10 @@ class Retargeter:
             "interaction_relaxed_qp_iterations": ires.relaxed_iterations,
             "interaction_toe_limit_yielded_qp_iterations": ires.yielded_iterations,
             "mesh_scene_points_mean": float(np.mean(ires.mesh_scene_points)),
+            "scene_spacing_mm": {
+                o.name: 1e3 * s
+                for o, s in zip(ires.scene.objects, ires.scene_spacings, strict=True)
+            },
             "scene": ires.scene.source,
             "scene_objects": [o.name for o in ires.scene.objects],
         }

@@ -910,19 +910,45 @@ def check_replay(motion: Motion) -> dict[str, float]:
     training model it was optimized on, and compare with its stored states.
 
     Raises:
-        InputError: If the motion has no dynamic section, or the model's state size differs.
+        InputError: If the motion has no dynamic section, or one that does not fit the
+            training model (physics step, state size, controls, steps); names the motion's
+            file (``motion.source``).
     """
+    where = motion.source or "the motion"
     dyn = motion.dynamics
     need = ("initial_state", "ctrl", "qpos", "qvel")
     if not dyn or any(k not in dyn for k in need):
-        raise InputError("the motion has no dynamic section: make one with humimic refine")
-    task = tracking_task(motion.robot, dr="none")
+        raise InputError(f"{where}: no dynamic section: make one with humimic refine")
+    try:
+        task = tracking_task(motion.robot, dr="none")
+    except InputError as e:  # An unknown robot name.
+        raise InputError(f"{where}: {e}") from None
     if "physics_dt" in dyn and abs(float(dyn["physics_dt"]) - task.sim_dt) > 1e-12:
         raise InputError(
-            f"stored physics step {float(dyn['physics_dt'])} s, model's {task.sim_dt} s"
+            f"{where}: stored physics step {float(dyn['physics_dt'])} s, the training model's "
+            f"is {task.sim_dt} s"
         )
     model = tracking_model(task)
-    states = replay(model, np.asarray(dyn["initial_state"]), np.asarray(dyn["ctrl"]))
+    state, ctrl = np.asarray(dyn["initial_state"]), np.asarray(dyn["ctrl"])
+    size = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    if state.shape != (size,):
+        raise InputError(
+            f"{where}: dynamics_initial_state has shape {state.shape}, the training model of "
+            f"{motion.robot} needs ({size},): refine the motion again"
+        )
+    if ctrl.ndim != 2 or ctrl.shape[0] < 1 or ctrl.shape[1] != model.nu:
+        raise InputError(
+            f"{where}: dynamics_ctrl has shape {ctrl.shape}, expected (steps, {model.nu}) for "
+            f"the training model of {motion.robot}"
+        )
+    steps = ctrl.shape[0]
+    for key, width in (("qpos", model.nq), ("qvel", model.nv)):
+        if np.shape(dyn[key]) != (steps, width):
+            raise InputError(
+                f"{where}: dynamics_{key} has shape {np.shape(dyn[key])}, expected ({steps}, "
+                f"{width}): one row per step of dynamics_ctrl"
+            )
+    states = replay(model, state, ctrl)
     nq, nv = model.nq, model.nv
     return {
         "steps": float(states.shape[0]),

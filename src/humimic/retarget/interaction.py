@@ -70,6 +70,9 @@ class InteractionResult:
         relaxed_iterations: QPs whose conflicting limits had to be made soft.
         yielded_iterations: QPs in which the toes' travel limit alone was made soft.
         mesh_scene_points: Scene points in each frame's mesh. Shape: (T,).
+        scene_spacings: The spacing each object's surface was sampled with [m]: the
+            requested ``scene_spacing``, or more for an object too large to sample that
+            finely (:meth:`~humimic.retarget.scene.Scene.sampling_spacings`).
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
     """
@@ -83,6 +86,7 @@ class InteractionResult:
     relaxed_iterations: int
     yielded_iterations: int
     mesh_scene_points: np.ndarray
+    scene_spacings: list[float]
     human_contacts: np.ndarray
 
 
@@ -244,6 +248,7 @@ class InteractionMeshRetargeter:
         toe_feet, travel = self._toe_travel(model, kin.foot_points)
         limits = [*kin.limits, scene_limit, travel]
         samples = scene_r.surface_points(icfg.scene_spacing)
+        spacings = scene_r.sampling_spacings(icfg.scene_spacing)
         radius = contact_radii(self.map, kin.geometry)
         contacts, firm = human_contacts(scene_r, tg.scaled, radius, icfg.contact_distance)
         # A foot point is planted on the floor (the kinematic targets' contacts) or on an
@@ -402,6 +407,7 @@ class InteractionMeshRetargeter:
             relaxed_iterations=frame.relaxed,
             yielded_iterations=frame.yielded,
             mesh_scene_points=n_scene,
+            scene_spacings=spacings,
             human_contacts=contacts,
         )
 

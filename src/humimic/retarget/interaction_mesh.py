@@ -35,9 +35,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import Delaunay, QhullError
 
-from humimic.errors import RetargetError
+from humimic.errors import InputError, RetargetError
 
 WEIGHTINGS = ("uniform", "inverse_distance")
+MAX_MESH_POINTS = 20_000
+"""Most vertices of one frame's mesh (key points and scene points): checked before Qhull runs,
+whose memory grows with them."""
 
 
 def tetra_neighbors(points: np.ndarray) -> list[np.ndarray]:
@@ -50,13 +53,21 @@ def tetra_neighbors(points: np.ndarray) -> list[np.ndarray]:
         One sorted index array per point (the points sharing a tetrahedron edge with it).
 
     Raises:
-        RetargetError: Fewer than 5 points, or Qhull fails even with joggling.
+        InputError: More than :data:`MAX_MESH_POINTS` points (``--mesh.max_scene_points``).
+        RetargetError: Fewer than 5 points, NaN or inf, or Qhull fails even with joggling.
     """
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] < 5:
         raise RetargetError(
             f"an interaction mesh needs at least 5 points in 3D, got {points.shape}"
         )
+    if points.shape[0] > MAX_MESH_POINTS:
+        raise InputError(
+            f"--mesh.max_scene_points: an interaction mesh of {points.shape[0]} points, at "
+            f"most {MAX_MESH_POINTS}: lower it"
+        )
+    if not np.isfinite(points).all():
+        raise RetargetError("interaction mesh: the points hold NaN or inf")
     try:
         tri = Delaunay(points, qhull_options="QJ Qbb")
     except QhullError as e:
@@ -159,6 +170,7 @@ def build_mesh(
 
 
 __all__ = [
+    "MAX_MESH_POINTS",
     "WEIGHTINGS",
     "InteractionMesh",
     "build_mesh",

@@ -75,7 +75,9 @@ def ik_model(
     try:
         model = spec.compile()
     except ValueError as e:
-        raise InputError(f"the scene cannot be added to the robot model: {e}") from None
+        where = f"{scene.source}: " if scene is not None and scene.source else ""
+        detail = " ".join(str(e).split())
+        raise InputError(f"{where}the scene cannot be added to the robot model: {detail}") from None
     return model, {j: a.velocity_limit for j, a in acts.items()}
 
 

@@ -25,6 +25,9 @@ Inputs (:func:`load_scene`):
 - a folder in the layout of holosoma's climbing demo (``box_models/*.obj`` at human scale, in
   the world frame): the folder of a clip of ``../shared/data/holosoma_climb`` loads as-is;
 - a single ``.obj`` / ``.stl`` file: one static object, in the world frame.
+
+Scenes are bounded (object sizes and poses, triangles, sampled points: the ``MAX_*``
+constants), checked on loading and, for the sampled points, counted before they are made.
 """
 
 from __future__ import annotations
@@ -43,6 +46,26 @@ from humimic.transforms import axis_angle_matrix, quat_mul, quat_to_matrix
 
 SCENE_SCHEMA_VERSION = 1
 _MESH_SUFFIXES = (".obj", ".stl")
+
+# What a scene may hold. Sampling and the per-frame contact and mesh queries cost memory in
+# proportion to these, so they are checked before anything is allocated.
+MAX_OBJECTS = 64
+MAX_FACES = 20_000
+"""Most triangles of one object (every frame measures every key point against them)."""
+MAX_SCENE_FACES = 100_000
+"""Most triangles of all objects together."""
+MAX_EXTENT = 100.0
+"""Largest size of an object along any axis [m, the clip's scale]."""
+MIN_EXTENT = 1e-3
+"""Smallest largest size of an object [m]: anything flatter in every direction is no surface."""
+MAX_POSITION = 1000.0
+"""Farthest an object's pose may be from the origin [m]."""
+MAX_TRAJECTORY_FRAMES = 1_000_000
+MAX_MESH_FILE_BYTES = 64 << 20
+MAX_POINTS_PER_OBJECT = 20_000
+"""Most surface points sampled on one object (:meth:`Scene.surface_points`)."""
+MAX_SCENE_POINTS = 100_000
+"""Most surface points sampled on the whole scene."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -144,10 +167,73 @@ class Scene:
 
     def surface_points(self, spacing: float) -> list[np.ndarray]:
         """Points on each object's surface in its own frame, about ``spacing`` apart: the
-        vertices plus a regular sampling of every triangle. One array per object, Shape: (N, 3)."""
-        if not spacing > 0:
-            raise InputError(f"surface spacing must be positive, got {spacing}")
-        return [_sample_triangles(o.vertices, o.faces, spacing) for o in self.objects]
+        vertices plus a regular sampling of every triangle. One array per object, Shape: (N, 3).
+
+        The number of points is bounded: an object that would get more than
+        :data:`MAX_POINTS_PER_OBJECT` is sampled more coarsely, and if the scene would get
+        more than :data:`MAX_SCENE_POINTS` every object is (:meth:`sampling_spacings` says how
+        far apart each object's points are). The counts are computed before any point is.
+        """
+        return [
+            _sample_triangles(o.vertices, o.faces, s)
+            for o, s in zip(self.objects, self.sampling_spacings(spacing), strict=True)
+        ]
+
+    def sampling_spacings(self, spacing: float) -> list[float]:
+        """The spacing :meth:`surface_points` samples each object with: ``spacing``, or a
+        larger one for objects too big to sample that finely (see there)."""
+        if not (isinstance(spacing, int | float) and math.isfinite(spacing) and spacing > 0):
+            raise InputError(f"--mesh.scene_spacing: must be a positive number, got {spacing}")
+        out = [_spacing_for(o, spacing, MAX_POINTS_PER_OBJECT) for o in self.objects]
+
+        def total(factor: float) -> float:
+            return sum(
+                _sample_count(o.vertices, o.faces, s * factor)
+                for o, s in zip(self.objects, out, strict=True)
+            )
+
+        if total(1.0) > MAX_SCENE_POINTS:  # Coarser everywhere, by one common factor.
+            # Past every object's longest edge only the vertices remain (bounded by the loader).
+            lo = 1.0
+            hi = max(_max_edge(o) / s for o, s in zip(self.objects, out, strict=True)) * 1.01
+            while hi / lo > 1.01:
+                mid = math.sqrt(lo * hi)
+                lo, hi = (mid, hi) if total(mid) > MAX_SCENE_POINTS else (lo, mid)
+            out = [s * hi for s in out]
+        return out
+
+
+def _edges(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The longer of each triangle's two edges from its first corner (what sets its sampling).
+    Shape: (F,)."""
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    return np.maximum(np.linalg.norm(b - a, axis=1), np.linalg.norm(c - a, axis=1))
+
+
+def _max_edge(o: SceneObject) -> float:
+    return float(_edges(o.vertices, o.faces).max(initial=0.0))
+
+
+def _sample_count(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> float:
+    """How many points :func:`_sample_triangles` makes (before removing duplicates), computed
+    without making them (as a float: a tiny spacing would overflow integers)."""
+    with np.errstate(over="ignore", divide="ignore"):
+        n = np.maximum(np.ceil(_edges(vertices, faces) / spacing), 1.0)
+        per = np.where(n >= 2, (n + 1) * (n + 2) / 2, 0.0)
+    return float(vertices.shape[0] + per.sum())
+
+
+def _spacing_for(o: SceneObject, spacing: float, cap: int) -> float:
+    """``spacing``, or the smallest larger one (within 1%) that samples at most ``cap`` points."""
+    if _sample_count(o.vertices, o.faces, spacing) <= cap:
+        return spacing
+    # Past the longest edge only the vertices remain (no more than ``cap`` for meshes that
+    # pass the loader's checks).
+    lo, hi = spacing, max(_max_edge(o) * 1.01, spacing)
+    while hi / lo > 1.01:
+        mid = math.sqrt(lo * hi)
+        lo, hi = (mid, hi) if _sample_count(o.vertices, o.faces, mid) > cap else (lo, mid)
+    return hi
 
 
 def _sample_triangles(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
@@ -224,33 +310,103 @@ def box_mesh(size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) and triangles (F, 3) of an OBJ or STL file."""
+    """Vertices (V, 3) and triangles (F, 3) of an OBJ or STL file, repeated vertices merged.
+
+    Raises:
+        InputError: Missing, too large or unreadable; fewer than 4 vertices or triangles
+            (empty), more than :data:`MAX_FACES` triangles or :data:`MAX_POINTS_PER_OBJECT`
+            vertices, NaN or inf, or triangles naming missing vertices (names the file).
+    """
     import trimesh
 
     if not path.is_file():
         raise InputError(f"{path}: no such mesh file")
     if path.suffix.lower() not in _MESH_SUFFIXES:
         raise InputError(f"{path}: unknown mesh type; expected one of {_MESH_SUFFIXES}")
+    size = path.stat().st_size
+    if size > MAX_MESH_FILE_BYTES:
+        raise InputError(
+            f"{path}: {size} bytes, more than the {MAX_MESH_FILE_BYTES} a scene mesh may have"
+        )
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        f = np.asarray(mesh.faces, dtype=np.int64)
     except Exception as e:  # trimesh raises many types on bad files.
-        raise InputError(f"{path}: not a readable mesh ({type(e).__name__}: {e})") from None
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    f = np.asarray(mesh.faces, dtype=np.int64)
+        text = " ".join(str(e).split())[:200]
+        raise InputError(f"{path}: not a readable mesh ({type(e).__name__}: {text})") from None
     if v.ndim != 2 or v.shape[0] < 4 or f.ndim != 2 or f.shape[0] < 4:
         raise InputError(f"{path}: a mesh needs at least 4 vertices and 4 triangles")
+    if v.shape[1] != 3 or f.shape[1] != 3:
+        raise InputError(f"{path}: expected triangles in 3D, got {v.shape} {f.shape}")
     if not np.isfinite(v).all():
         raise InputError(f"{path}: vertices hold NaN or inf")
+    if f.min() < 0 or f.max() >= v.shape[0]:
+        raise InputError(f"{path}: a triangle names a vertex the mesh does not have")
+    if f.shape[0] > MAX_FACES:
+        raise InputError(
+            f"{path}: {f.shape[0]} triangles, more than the {MAX_FACES} a scene object may "
+            "have: simplify the mesh"
+        )
+    v, f = _merge_vertices(v, f)
+    if v.shape[0] > MAX_POINTS_PER_OBJECT:
+        raise InputError(
+            f"{path}: {v.shape[0]} distinct vertices, more than the {MAX_POINTS_PER_OBJECT} a "
+            "scene object may have: simplify the mesh"
+        )
     return v, f
+
+
+def _merge_vertices(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Repeated vertices (an STL file repeats each triangle's corners) merged; the first
+    occurrences keep their order, so a mesh without repeats is returned unchanged."""
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    if first.size == v.shape[0]:
+        return v, f
+    order = np.argsort(first)  # Unique rows by first occurrence.
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    return v[first[order]], rank[inverse.reshape(-1)][f]
+
+
+def _check_object(where: str, v: np.ndarray, f: np.ndarray) -> None:
+    """An object's size is one humimic can sample and simulate: at most :data:`MAX_EXTENT`
+    along every axis, at least :data:`MIN_EXTENT` along one, with some surface area."""
+    extent = v.max(axis=0) - v.min(axis=0)
+    if extent.max() > MAX_EXTENT:
+        raise InputError(
+            f"{where}: {extent.max():.4g} m across, more than the {MAX_EXTENT:g} m a scene "
+            "object may measure (are the units metres?)"
+        )
+    if extent.max() < MIN_EXTENT:
+        raise InputError(f"{where}: {extent.max():.3g} m across: too small to be a surface")
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    if not np.linalg.norm(np.cross(b - a, c - a), axis=1).any():
+        raise InputError(f"{where}: every triangle has zero area")
+
+
+def _check_scene(source: Path, objects: list[SceneObject]) -> None:
+    """The whole scene's size: objects, triangles and vertices (bounded per frame's work)."""
+    if len(objects) > MAX_OBJECTS:
+        raise InputError(f"{source}: {len(objects)} objects, at most {MAX_OBJECTS}")
+    faces = sum(o.faces.shape[0] for o in objects)
+    if faces > MAX_SCENE_FACES:
+        raise InputError(f"{source}: {faces} triangles in all, at most {MAX_SCENE_FACES}")
+    verts = sum(o.vertices.shape[0] for o in objects)
+    if verts > MAX_SCENE_POINTS:
+        raise InputError(f"{source}: {verts} vertices in all, at most {MAX_SCENE_POINTS}")
 
 
 def load_scene(path: str | Path) -> Scene:
     """Load a scene file, a holosoma-style folder or one mesh file (see the module doc).
 
     Raises:
-        InputError: Missing or unreadable files, bad fields (named).
+        InputError: Missing or unreadable files, bad fields, or a scene too large or too
+            strange to retarget in (sizes, poses, triangle counts: the limits above); the
+            message names the scene file and the object.
     """
     p = Path(path)
+    identity = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
     if p.is_dir():
         meshes = sorted((p / "box_models").glob("*.obj")) if (p / "box_models").is_dir() else []
         if not meshes:
@@ -258,21 +414,29 @@ def load_scene(path: str | Path) -> Scene:
                 f"{p}: a scene folder needs box_models/*.obj (holosoma's layout); "
                 "or give a scene .yaml file"
             )
-        identity = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
-        objs = [
-            SceneObject(name=m.stem, vertices=v, faces=f, poses=identity)
-            for m in meshes
-            for v, f in [read_mesh(m)]
-        ]
+        if len(meshes) > MAX_OBJECTS:
+            raise InputError(f"{p}: {len(meshes)} meshes in box_models, at most {MAX_OBJECTS}")
+        objs = []
+        for m in meshes:
+            v, f = read_mesh(m)
+            _check_object(str(m), v, f)
+            objs.append(SceneObject(name=m.stem, vertices=v, faces=f, poses=identity))
+        _check_scene(p, objs)
         return Scene(objects=tuple(objs), source=str(p))
     if p.suffix.lower() in _MESH_SUFFIXES:
         v, f = read_mesh(p)
-        pose = np.array([[0.0, 0, 0, 1, 0, 0, 0]])
-        return Scene(objects=(SceneObject(name=p.stem, vertices=v, faces=f, poses=pose),),
+        _check_object(str(p), v, f)
+        return Scene(objects=(SceneObject(name=p.stem, vertices=v, faces=f, poses=identity),),
                      source=str(p))  # fmt: skip
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"{p}: expected a scene .yaml, a mesh (.obj/.stl) or a scene folder")
     return _parse_scene(p, read_yaml(p))
+
+
+def _positive(value: Any, upper: float) -> bool:
+    """A real number (not a bool) in (0, upper]."""
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    return ok and math.isfinite(value) and 0 < value <= upper
 
 
 def _parse_scene(p: Path, raw: Any) -> Scene:
@@ -284,13 +448,15 @@ def _parse_scene(p: Path, raw: Any) -> Scene:
         )
     unknown = set(raw) - {"schema_version", "fps", "objects"}
     if unknown:
-        raise InputError(f"{p}: unknown keys {sorted(unknown)}")
+        raise InputError(f"{p}: unknown keys {sorted(map(str, unknown))}")
     items = raw.get("objects")
     if not isinstance(items, list) or not items:
         raise InputError(f"{p}: objects: expected a non-empty list")
+    if len(items) > MAX_OBJECTS:
+        raise InputError(f"{p}: objects: {len(items)} objects, at most {MAX_OBJECTS}")
     fps = raw.get("fps")
-    if fps is not None and not (isinstance(fps, int | float) and fps > 0):
-        raise InputError(f"{p}: fps: expected a positive number, got {fps!r}")
+    if fps is not None and not _positive(fps, 10_000.0):
+        raise InputError(f"{p}: fps: expected a positive number (at most 10000), got {fps!r}")
     objects: list[SceneObject] = []
     for k, it in enumerate(items):
         where = f"{p}: objects[{k}]"
@@ -298,46 +464,90 @@ def _parse_scene(p: Path, raw: Any) -> Scene:
             raise InputError(f"{where}: expected a mapping")
         unknown = set(it) - {"name", "box", "mesh", "scale", "pos", "quat", "trajectory"}
         if unknown:
-            raise InputError(f"{where}: unknown keys {sorted(unknown)}")
-        name = str(it.get("name", f"object{k}"))
+            raise InputError(f"{where}: unknown keys {sorted(map(str, unknown))}")
+        name = it.get("name", f"object{k}")
+        if not isinstance(name, str) or not name.strip():
+            raise InputError(f"{where}.name: expected a non-empty string, got {name!r}")
+        where = f"{p}: objects[{k}] ({name})"
         if any(o.name == name for o in objects):
             raise InputError(f"{where}.name: {name!r} repeats")
         if ("box" in it) == ("mesh" in it):
             raise InputError(f"{where}: give exactly one of box (extents) or mesh (file)")
         if "box" in it:
             size = _vector(where + ".box", it["box"], 3)
-            if (size <= 0).any():
-                raise InputError(f"{where}.box: extents must be positive, got {size.tolist()}")
+            if (size <= 0).any() or (size > MAX_EXTENT).any():
+                raise InputError(
+                    f"{where}.box: extents must be positive and at most {MAX_EXTENT:g} m, got "
+                    f"{size.tolist()}"
+                )
             v, f = box_mesh(size)
         else:
-            v, f = read_mesh(p.parent / str(it["mesh"]))
+            if not isinstance(it["mesh"], str):
+                raise InputError(f"{where}.mesh: expected a file name, got {it['mesh']!r}")
+            try:
+                v, f = read_mesh(p.parent / it["mesh"])
+            except InputError as e:
+                raise InputError(f"{where}.mesh: {e}") from None
         scale = it.get("scale", 1.0)
-        if not (isinstance(scale, int | float) and scale > 0):
+        if not _positive(scale, 1e6):
             raise InputError(f"{where}.scale: expected a positive number, got {scale!r}")
         v = v * float(scale)
+        _check_object(where, v, f)
         if "trajectory" in it:
             if fps is None:
                 raise InputError(f"{where}.trajectory: the scene needs fps for trajectories")
-            tp = p.parent / str(it["trajectory"])
-            try:
-                poses = np.load(tp, allow_pickle=False)
-            except (OSError, ValueError) as e:
-                raise InputError(f"{tp}: not a readable .npy array ({e})") from None
-            if poses.ndim != 2 or poses.shape[1] != 7 or poses.shape[0] < 1:
-                raise InputError(f"{tp}: expected poses of shape (T, 7), got {poses.shape}")
-            poses = poses.astype(np.float64)
+            if not isinstance(it["trajectory"], str):
+                raise InputError(
+                    f"{where}.trajectory: expected a file name, got {it['trajectory']!r}"
+                )
+            poses = _read_trajectory(where, p.parent / it["trajectory"])
         else:
             pos = _vector(where + ".pos", it.get("pos", [0, 0, 0]), 3)
             quat = _vector(where + ".quat", it.get("quat", [1, 0, 0, 0]), 4)
             poses = np.concatenate([pos, quat])[None]
         if not np.isfinite(poses).all():
             raise InputError(f"{where}: poses hold NaN or inf")
+        far = np.linalg.norm(poses[:, :3], axis=1)
+        if far.max() > MAX_POSITION:
+            raise InputError(
+                f"{where}: a pose is {far.max():.4g} m from the origin, at most "
+                f"{MAX_POSITION:g} m (frame {int(np.argmax(far))})"
+            )
         norms = np.linalg.norm(poses[:, 3:], axis=1)
         if (norms < 1e-9).any():
-            raise InputError(f"{where}: a quaternion is zero")
+            raise InputError(
+                f"{where}: a quaternion is zero (frame {int(np.argmax(norms < 1e-9))})"
+            )
         poses[:, 3:] /= norms[:, None]
         objects.append(SceneObject(name=name, vertices=v, faces=f, poses=poses))
+    _check_scene(p, objects)
     return Scene(objects=tuple(objects), fps=None if fps is None else float(fps), source=str(p))
+
+
+def _read_trajectory(where: str, tp: Path) -> np.ndarray:
+    """An object's poses (T, 7) from an ``.npy`` file, its size checked before reading."""
+    from humimic.npyio import read_npy_file
+
+    if not tp.is_file():
+        raise InputError(f"{where}.trajectory: {tp}: no such file")
+    try:
+        # At most MAX_TRAJECTORY_FRAMES poses of 7 numbers of at most 16 bytes.
+        poses = read_npy_file(
+            tp, max_bytes=MAX_TRAJECTORY_FRAMES * 7 * 16, kinds="iuf", error=InputError
+        )
+    except InputError as e:
+        raise InputError(f"{where}.trajectory: {e}") from None
+    if poses.dtype.kind not in "iuf" or poses.ndim != 2 or poses.shape[1] != 7:
+        raise InputError(
+            f"{where}.trajectory: {tp}: expected poses of shape (T, 7) (position, wxyz "
+            f"quaternion), got shape {poses.shape} and dtype {poses.dtype}"
+        )
+    if not 1 <= poses.shape[0] <= MAX_TRAJECTORY_FRAMES:
+        raise InputError(
+            f"{where}.trajectory: {tp}: {poses.shape[0]} poses, expected 1 to "
+            f"{MAX_TRAJECTORY_FRAMES}"
+        )
+    return poses.astype(np.float64)
 
 
 def _vector(where: str, value: Any, n: int) -> np.ndarray:

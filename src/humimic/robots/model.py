@@ -11,8 +11,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from humimic.errors import InputError, OutputPathError
-from humimic.io import atomic_write_text, check_writable
+from humimic.errors import InputError, OutputPathError, UnknownNameError
+from humimic.io import atomic_write_text, check_not_input, check_writable
 from humimic.robots.actuators import JointActuator
 from humimic.robots.assets import find_robot_file
 from humimic.robots.registry import RobotConfig
@@ -51,12 +51,26 @@ def nominal_spec(
 
     Returns:
         The spec and the resolved actuator of every actuated joint.
+
+    Raises:
+        InputError: The model file (from ``menagerie_root`` or the installed assets) cannot
+            be loaded, or does not fit the robot (its base, feet, joints or actuators); the
+            message names the file.
     """
+    spec, acts, _ = _nominal_spec(cfg, menagerie_root)
+    return spec, acts
+
+
+def _nominal_spec(
+    cfg: RobotConfig, menagerie_root: str | os.PathLike[str] | None
+) -> tuple[mujoco.MjSpec, dict[str, JointActuator], Path]:
+    """:func:`nominal_spec`, with the model file it was read from."""
     path = robot_xml_path(cfg, menagerie_root=menagerie_root)
     try:
         spec = mujoco.MjSpec.from_file(str(path))
     except ValueError as e:
-        raise InputError(f"{path}: MuJoCo cannot load this model: {e}") from None
+        raise InputError(f"{path}: MuJoCo cannot load this model: {_one_line(e)}") from None
+    _check_structure(cfg, spec, path)
     spec.meshdir = str(Path(path).parent / (spec.meshdir or ""))
     # No compile-time magic left in the defaults either (dampratio, inheritrange).
     for default in [spec.default, *(a.classname for a in spec.actuators)]:
@@ -64,7 +78,10 @@ def nominal_spec(
         default.actuator.biasprm = np.zeros(10)
         default.actuator.inheritrange = 0.0
     joints = actuated_joints(spec)
-    acts = cfg.actuators.resolve(joints)
+    try:
+        acts = cfg.actuators.resolve(joints)
+    except UnknownNameError as e:
+        raise InputError(f"{path}: {e} of robot {cfg.name}'s actuator recipe") from None
     for act in spec.actuators:
         a = acts[act.target]
         joint = spec.joint(act.target)
@@ -85,15 +102,58 @@ def nominal_spec(
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.forcerange = np.array([-a.effort_limit, a.effort_limit])
-    return spec, acts
+    return spec, acts, path
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:300]
+
+
+def _check_structure(cfg: RobotConfig, spec: mujoco.MjSpec, path: Path) -> None:
+    """The model is one the robot's configuration fits: a free base joint then hinge or
+    slide joints (motion files store ``qpos`` as 7 + joints), the registry's base and foot
+    bodies, and actuators that each drive a joint of the model."""
+    one_dof = (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE)
+    joints = list(spec.joints)
+    if not joints or joints[0].type != mujoco.mjtJoint.mjJNT_FREE:
+        raise InputError(f"{path}: the model's first joint must be the base's free joint")
+    for j in joints[1:]:
+        if j.type not in one_dof:
+            raise InputError(
+                f"{path}: joint {j.name!r} is a {j.type.name} joint; expected hinge or slide "
+                "joints after the base's free joint"
+            )
+    for what, body in [("base", cfg.root_body), *((f"{s} foot", b) for s, b in cfg.feet.items())]:
+        if spec.body(body) is None:
+            raise InputError(f"{path}: no body {body!r} (robot {cfg.name}'s {what})")
+    if not spec.actuators:
+        raise InputError(f"{path}: the model has no actuators")
+    names = {j.name for j in joints}
+    for act in spec.actuators:
+        if act.target not in names:
+            raise InputError(
+                f"{path}: actuator {act.name!r} drives {act.target!r}, which is not a joint of "
+                "this model"
+            )
 
 
 def nominal_model(
     cfg: RobotConfig, *, menagerie_root: str | os.PathLike[str] | None = None
 ) -> mujoco.MjModel:
-    """Compiled nominal model (robot, floor, explicit actuators)."""
-    spec, _ = nominal_spec(cfg, menagerie_root=menagerie_root)
-    return spec.compile()
+    """Compiled nominal model (robot, floor, explicit actuators).
+
+    Raises:
+        InputError: The model file cannot be loaded or compiled (names the file).
+    """
+    spec, _, path = _nominal_spec(cfg, menagerie_root)
+    return _compile(spec, path)
+
+
+def _compile(spec: mujoco.MjSpec, path: Path) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as e:  # Missing mesh files, bad values...
+        raise InputError(f"{path}: MuJoCo cannot compile this model: {_one_line(e)}") from None
 
 
 def export_nominal(
@@ -111,11 +171,15 @@ def export_nominal(
     """
     if Path(out).suffix.lower() != ".xml":
         raise InputError(f"{out}: the exported model must be an .xml file")
-    out_path = check_writable(out)
-    spec, _ = nominal_spec(cfg, menagerie_root=menagerie_root)
+    spec, _, path = _nominal_spec(cfg, menagerie_root)
+    check_not_input(out, {"the robot model": path}, "--out")
     if edit is not None:
         edit(spec)
     src_meshdir = Path(spec.meshdir)
+    for mesh in spec.meshes:  # Before anything is created beside --out.
+        if not (src_meshdir / mesh.file).is_file():
+            raise InputError(f"{path}: mesh {mesh.name!r}: no file {src_meshdir / mesh.file}")
+    out_path = check_writable(out, create=True)
     asset_dir_name = f"{out_path.stem}_assets"
     asset_dir = out_path.parent / asset_dir_name
     tmp_assets = out_path.parent / f".{asset_dir_name}.tmp"
@@ -128,10 +192,13 @@ def export_nominal(
             mesh.file = Path(mesh.file).name
         abs_dir = str(tmp_assets.resolve())
         spec.meshdir = abs_dir
-        spec.compile()  # Validate before anything is written in place.
+        _compile(spec, path)  # Validate before anything is written in place.
         xml = spec.to_xml().replace(f'meshdir="{abs_dir}', f'meshdir="{asset_dir_name}')
         if asset_dir_name not in xml:
-            raise RuntimeError("could not relocate the mesh folder in the exported XML")
+            raise OutputPathError(
+                f"{out_path}: cannot point the exported XML at {asset_dir_name}/ (a folder "
+                "name with XML special characters?); choose a plainer --out"
+            )
         licence = src_meshdir.parent / "LICENSE"
         if licence.is_file():
             shutil.copy2(licence, tmp_assets / "LICENSE")

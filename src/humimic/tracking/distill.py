@@ -19,6 +19,7 @@ The student's run folder is a run like any other: ``humimic eval`` and ``humimic
 from __future__ import annotations
 
 import copy
+import shutil
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -27,7 +28,7 @@ import yaml
 
 from humimic.configs.runs import DistillSettings
 from humimic.errors import InputError
-from humimic.io import atomic_write_text, check_writable
+from humimic.io import atomic_write_text, check_not_input, check_writable
 
 STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),
@@ -111,33 +112,44 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
 def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     """Distill (or resume distilling) a teacher run into a student. Returns the last progress
     row (``loss_behavior`` is the student's imitation loss)."""
+    from humimic.tracking.config import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
+        _first_line,
         _plain,
         check_run_settings,
         fit,
         load_reference,
         read_run_settings,
         resolve_checkpoint,
+        resolved_source,
         run_env,
+        run_files,
         run_rsl_cfg,
         task_config,
     )
 
     s = settings
     has_run = check_run_settings(s)
+    _check_outputs(s)
     teacher = read_run_settings(s.teacher)
     teacher_cfg = run_rsl_cfg(s.teacher)
     if teacher_cfg["algorithm"]["class_name"] != "PPO":
         raise InputError(f"--teacher {s.teacher}: not a PPO run (a student cannot teach)")
-    _, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint)
+    inputs: dict[str, Any] = {**run_files(s.teacher), "the teacher's motion": teacher.motion}
+    for name in ("config.yaml", "progress.csv"):
+        check_not_input(s.out / name, inputs, "--out")
+    ckpt, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint,
+                                            "--teacher-checkpoint")  # fmt: skip
+    if not teacher.motion.is_file():
+        raise InputError(f"--teacher {s.teacher}: the run's motion {teacher.motion} is missing")
     run = s.out
     dr = s.dr or teacher.dr
     task = replace(task_config(teacher.robot, dr, s.seed, teacher.physics), torch_compile=s.compile)
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     created = not run.exists()
-    check_writable(run / "config.yaml")
+    check_writable(run / "config.yaml", create=True)
 
     torch.manual_seed(s.seed)
     env = run_env(task, motion, s, created)
@@ -145,16 +157,27 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
         try:  # The teacher's actor -> the teacher model, before anything is written.
             runner.alg.load(teacher_blob, None, True)
-        except (KeyError, RuntimeError) as e:
+        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:
+            if created:  # Leave nothing behind for a run that never started.
+                shutil.rmtree(run, ignore_errors=True)
+            flag = "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
             raise InputError(
-                f"--teacher {s.teacher}: the checkpoint does not fit the run's actor ({e})"
+                f"{flag} {ckpt}: does not fit the teacher's actor ({_first_line(e)})"
             ) from None
         (run / "checkpoints").mkdir(parents=True, exist_ok=True)
         if not has_run:
+            # Paths absolute, as a training run's config records them.
+            recorded = replace(
+                s,
+                teacher=s.teacher.resolve(),
+                out=s.out.resolve(),
+                teacher_checkpoint=None if s.teacher_checkpoint is None else ckpt.resolve(),
+                dr=resolved_source(s.dr, DR_PROFILES),
+            )
             blob = {
                 "kind": "student",
                 "settings": _plain(asdict(teacher)),
-                "distill": _plain(asdict(s)),
+                "distill": _plain(asdict(recorded)),
                 "tracking": _plain(task),
                 "rsl": _plain(cfg),
             }
@@ -162,6 +185,18 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
     finally:
         env.close()
+
+
+def _check_outputs(s: DistillSettings) -> None:
+    """The student's run folder must not be the teacher's, nor hold the teacher checkpoint."""
+    out = s.out.resolve()
+    if out == s.teacher.resolve():
+        raise InputError(f"--out {s.out}: is the teacher's run folder (--teacher); choose another")
+    if s.teacher_checkpoint is not None and out in s.teacher_checkpoint.resolve().parents:
+        raise InputError(
+            f"--out {s.out}: holds --teacher-checkpoint {s.teacher_checkpoint}, which the "
+            "student's checkpoints could overwrite; choose another --out"
+        )
 
 
 __all__ = ["STUDENT_OBS", "DistillConfig", "distill", "distill_cfg"]

@@ -150,17 +150,18 @@ class TrackingEnv(VecEnv):
             self.device = torch.device("cuda", torch.cuda.current_device())
         self.step_dt = cfg.step_dt
         self.max_episode_length = math.ceil(cfg.episode_length_s / cfg.step_dt)
+        where = f"{motion.source or 'the motion'}: "
         if motion.robot != cfg.robot:
             raise InputError(
-                f"the motion is for robot {motion.robot!r}, the task for {cfg.robot!r}"
+                f"{where}the motion is for robot {motion.robot!r}, the task for {cfg.robot!r}"
             )
         if abs(motion.fps * cfg.step_dt - 1.0) > 1e-6:
             raise InputError(
-                f"the motion has {motion.fps} frames per second; the policy runs at "
+                f"{where}the motion has {motion.fps} frames per second; the policy runs at "
                 f"{1.0 / cfg.step_dt:g} Hz: resample the motion to that rate"
             )
         if motion.num_frames < 2:
-            raise InputError("the motion needs at least 2 frames")
+            raise InputError(f"{where}the motion needs at least 2 frames")
         self.backend: PhysicsBackend = backend or build_backend(
             cfg, num_envs, model=model, device=self.device
         )

@@ -35,7 +35,7 @@ import torch
 
 from humimic.configs.runs import EvalSettings
 from humimic.errors import InputError
-from humimic.io import atomic_write_text, check_writable, json_ready
+from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
 
 
@@ -119,15 +119,41 @@ class Evaluation:
     step_dt: float
 
 
+def eval_inputs(s: EvalSettings) -> dict[str, Any]:
+    """What an evaluation reads (label -> path): no output of it may overwrite one."""
+    from humimic.tracking.config import DR_PROFILES
+    from humimic.tracking.train import read_run_settings, run_files
+
+    run = read_run_settings(s.run)
+    inputs: dict[str, Any] = {**run_files(s.run), "--checkpoint": s.checkpoint}
+    inputs["the motion"] = s.motion if s.motion is not None else run.motion
+    if s.dr not in DR_PROFILES:
+        inputs["--dr"] = s.dr
+    if s.physics is not None and Path(s.physics).is_file():
+        inputs["--physics"] = s.physics
+    return inputs
+
+
 def evaluate(settings: EvalSettings) -> dict:
-    """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked."""
+    """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked.
+
+    Raises:
+        InputError: Bad settings, or an output that would overwrite an input (the run's
+            files, the motion, a checkpoint) or the other output; nothing is written.
+    """
     s = settings
+    s.validate()
+    mcap = s.mcap if s.mcap is not None else (s.out.with_suffix(".mcap") if s.out else None)
+    if mcap is not None and mcap.suffix != ".mcap":
+        raise InputError(f"--mcap {mcap}: the file must end in .mcap")
+    if s.out is not None or mcap is not None:
+        inputs = eval_inputs(s)
+        check_not_input(s.out, inputs, "--out")
+        flag = "--mcap" if s.mcap is not None else "--mcap (from --out)"
+        check_not_input(mcap, {**inputs, "--out": s.out}, flag)
     if s.out is not None:
         check_writable(s.out)
-    mcap = s.mcap if s.mcap is not None else (s.out.with_suffix(".mcap") if s.out else None)
     if mcap is not None:
-        if mcap.suffix != ".mcap":
-            raise InputError(f"--mcap {mcap}: the file must end in .mcap")
         check_writable(mcap)
     ev = run_evaluation(s)
     results = ev.results
@@ -146,6 +172,7 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
         load_reference,
+        load_weights,
         read_run_settings,
         resolve_checkpoint,
         run_rsl_cfg,
@@ -153,14 +180,17 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     )
 
     s = settings
-    if s.episodes < 1:
-        raise InputError(f"--episodes {s.episodes}: must be at least 1")
+    s.validate()
     run = read_run_settings(s.run)
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed, s.physics)
     motion_path = s.motion if s.motion is not None else run.motion
     if not motion_path.is_file():
-        raise InputError(f"motion {motion_path}: no such file")
+        raise InputError(
+            f"--motion {motion_path}: no such file"
+            if s.motion is not None
+            else f"{s.run}: the run's motion {motion_path} is missing (moved? pass --motion)"
+        )
     motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
     task = replace(
         base,
@@ -171,8 +201,6 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
         episode_length_s=motion.num_frames * base.step_dt + 1.0,
     )  # fmt: skip
     n = s.num_envs or s.episodes
-    if n < s.episodes:
-        raise InputError(f"--num-envs {n}: evaluate at least as many envs as --episodes")
     results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
                                "iterations": int(blob["iter"]), "dr": s.dr,
                                "motion": str(motion_path), "frames": motion.num_frames}  # fmt: skip
@@ -183,7 +211,7 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
         runner = make_runner(env, run_rsl_cfg(s.run), log_dir=None, device=s.device)
-        runner.load_checkpoint(blob)
+        load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
         policy = runner.get_inference_policy(device=s.device)
         policy_trace = _Trace()
         results["policy"] = _episodes(env, policy, s.episodes, policy_trace)

@@ -7,31 +7,39 @@ input ``obs`` (the actor's observation groups concatenated in the order of the r
 (Shape: (batch, num_joints); PD targets are ``default + scale * actions``, see
 docs/tracking.md). A recurrent student (``humimic distill --student gru``) also takes its GRU
 state ``h_in`` (Shape: (layers, batch, hidden); zeros at the start of an episode) and returns
-the next one as ``h_out``: feed it back at every policy step. The file is written atomically.
+the next one as ``h_out``: feed it back at every policy step. The file is self-contained (the
+weights inside it, no external-data side file) and written atomically.
 """
 
 from __future__ import annotations
 
 import contextlib
 import io
-import os
-import tempfile
+import logging
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from humimic.configs.runs import ExportSettings
-from humimic.errors import InputError, OutputPathError
-from humimic.io import check_writable
+from humimic.errors import InputError
+from humimic.io import atomic_write, check_not_input, check_writable
 
 
 def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
-    """The run's runner (with a one-env environment) loaded from a checkpoint."""
+    """The run's runner (with a one-env environment) loaded from a checkpoint.
+
+    Raises:
+        InputError: Not a run folder, its motion is missing, or the checkpoint is damaged or
+            does not fit the run's networks (names the file).
+    """
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
         load_reference,
+        load_weights,
         read_run_settings,
         resolve_checkpoint,
         run_rsl_cfg,
@@ -40,22 +48,71 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
 
     settings = read_run_settings(run)
     path, blob = resolve_checkpoint(run, checkpoint)
+    if not settings.motion.is_file():  # The env needs it for the observation sizes.
+        raise InputError(f"{run}: the run's motion {settings.motion} is missing (moved?)")
     task = task_config(settings.robot, "none", settings.seed)
     motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)
-    runner = make_runner(env, run_rsl_cfg(run), log_dir=None, device=device)
-    runner.load_checkpoint(blob)
+    try:
+        runner = make_runner(env, run_rsl_cfg(run), log_dir=None, device=device)
+        load_weights(runner, blob, path, "--checkpoint" if checkpoint else "checkpoint")
+    except BaseException:
+        env.close()
+        raise
     return runner, env, path
 
 
-def export(settings: ExportSettings) -> Path:
-    """Write the policy; returns the file."""
-    out = settings.out or settings.run / "policy.onnx"
-    if out.suffix != ".onnx":
-        raise InputError(f"--out {out}: an ONNX file must end in .onnx")
-    check_writable(out)
-    from humimic.tracking.train import run_rsl_cfg
+@contextlib.contextmanager
+def _quiet_exporter() -> Iterator[None]:
+    """Silence torch's exporter: its progress lines (stdout), its notes on optional packages
+    (torchvision, logged) and its deprecation warnings, none of which the user can act on."""
+    logger = logging.getLogger("torch.onnx")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            # torch's exporter notes that a GRU's flat weights are plain attributes; the
+            # weights are exported all the same (a test compares the outputs).
+            warnings.filterwarnings("ignore", message=".*rnn._flat_weights")
+            yield
+    finally:
+        logger.setLevel(level)
 
+
+def onnx_bytes(model: Any) -> bytes:
+    """The policy's ONNX model as one self-contained file's bytes: the weights inside it, not
+    in an external-data side file (a policy's MLP is far below protobuf's 2 GB limit)."""
+    batch = torch.export.Dim("batch")
+    recurrent = bool(getattr(model, "is_recurrent", False))
+    # A GRU's state has the batch on its second axis.
+    shapes = ({0: batch}, {1: batch}) if recurrent else ({0: batch},)
+    with _quiet_exporter(), torch.no_grad():
+        program = torch.onnx.export(model, model.get_dummy_inputs(), None, export_params=True,
+                                    opset_version=18, input_names=model.input_names,
+                                    output_names=model.output_names, dynamo=True,
+                                    dynamic_shapes=shapes)  # fmt: skip
+    assert program is not None  # With dynamo=True and no file, export returns the program.
+    return program.model_proto.SerializeToString()
+
+
+def export(settings: ExportSettings) -> Path:
+    """Write the policy; returns the file.
+
+    Raises:
+        InputError: Bad settings, a teacher run, an output that would overwrite one of the
+            run's files, the motion or the checkpoint, or a checkpoint that does not load;
+            nothing is written.
+    """
+    from humimic.tracking.train import read_run_settings, run_files, run_rsl_cfg
+
+    settings.validate()
+    out = settings.out or settings.run / "policy.onnx"
+    run = read_run_settings(settings.run)
+    inputs = {**run_files(settings.run), "the motion": run.motion,
+              "--checkpoint": settings.checkpoint}  # fmt: skip
+    check_not_input(out, inputs, "--out")
+    check_writable(out)
     cfg = run_rsl_cfg(settings.run)
     if "physics" in cfg["obs_groups"].get("actor", ()):
         raise InputError(
@@ -65,35 +122,12 @@ def export(settings: ExportSettings) -> Path:
     runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
     try:
         model = runner.alg.get_policy().as_onnx(verbose=False).to("cpu").eval()
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-        os.close(fd)
-        try:
-            batch = torch.export.Dim("batch")
-            recurrent = bool(getattr(model, "is_recurrent", False))
-            # A GRU's state has the batch on its second axis.
-            shapes = ({0: batch}, {1: batch}) if recurrent else ({0: batch},)
-            with (
-                contextlib.redirect_stdout(io.StringIO()),
-                torch.no_grad(),
-                warnings.catch_warnings(),
-            ):
-                # torch's exporter notes that a GRU's flat weights are plain attributes; the
-                # weights are exported all the same (a test compares the outputs).
-                warnings.filterwarnings("ignore", message=".*rnn._flat_weights")
-                torch.onnx.export(model, model.get_dummy_inputs(), tmp, export_params=True,
-                                  opset_version=18, input_names=model.input_names,
-                                  output_names=model.output_names,
-                                  dynamo=True, dynamic_shapes=shapes)  # fmt: skip
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, out)
-        except OSError as e:
-            raise OutputPathError(f"{out}: cannot write: {e}") from None
-        finally:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
+        data = onnx_bytes(model)
     finally:
         env.close()
+    with atomic_write(out) as f:  # One file, renamed into place whole.
+        f.write(data)
     return out
 
 
-__all__ = ["export", "load_policy_runner"]
+__all__ = ["export", "load_policy_runner", "onnx_bytes"]

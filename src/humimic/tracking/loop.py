@@ -65,7 +65,9 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
     kp = np.array([drives[n].kp for n in names])
     kd = np.array([drives[n].kd for n in names])
     zeros = np.zeros_like(q)
-    log = RobotLog(robot=robot.name, base="floating", base_pose=np.zeros(7), joint_names=names,
+    # A floating base has no fixed pose: the identity (a unit quaternion) stands in for it.
+    identity = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    log = RobotLog(robot=robot.name, base="floating", base_pose=identity, joint_names=names,
                    t=t, q=q, qd=np.stack(tr.qvel)[:, 6:], effort=None, t_cmd=t,
                    cmd_q=np.stack(tr.targets), cmd_qd=zeros, cmd_tau=zeros,
                    kp=np.tile(kp, (len(t), 1)), kd=np.tile(kd, (len(t), 1)))  # fmt: skip
@@ -94,12 +96,8 @@ def _check(s: LoopSettings) -> Any:
     from humimic.tracking.physics import physics_path
     from humimic.tracking.train import _run_config
 
+    s.validate()
     physics_path(s.real)  # It exists (read only when deploying).
-    for name in ("episodes", "iterations", "num_envs"):
-        if getattr(s, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
-    if not s.sysid_duration >= 5.0:
-        raise InputError(f"--sysid-duration {s.sysid_duration}: at least 5 s")
     config, run = _run_config(s.run)
     if config.get("kind") == "student":
         raise InputError(f"{s.run}: a distilled student; the loop fine-tunes PPO runs (fine-tune "

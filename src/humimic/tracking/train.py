@@ -4,15 +4,18 @@ A run folder holds ``config.yaml`` (everything resolved: the settings, the task,
 ``progress.csv`` (one row per iteration), ``checkpoints/model_<iterations done>.pt`` (written
 atomically: a crash, even ``kill -9``, never leaves a half checkpoint that looks whole) and
 ``tensorboard/``. ``--resume`` continues from the newest checkpoint that loads; what was
-learned before it is kept, what came after it is redone. Training that produces NaN stops with
-a clear error and leaves the last good checkpoint.
+learned before it is kept, what came after it is redone (progress.csv drops its rows past the
+checkpoint). Training that produces NaN stops with a clear error and leaves the last good
+checkpoint. The config records file paths absolute, so commands run from any folder find them.
 """
 
 from __future__ import annotations
 
 import copy
 import csv
+import io
 import math
+import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
@@ -25,7 +28,7 @@ import yaml
 
 from humimic.configs.runs import TrainSettings
 from humimic.errors import HumimicError, InputError
-from humimic.io import atomic_write_text, check_writable
+from humimic.io import atomic_write_text, check_not_input, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
 from humimic.tracking import distributed
 from humimic.tracking.config import (
@@ -103,6 +106,10 @@ def load_reference(path: Path, robot: str, fps: float) -> Motion:
     motion = load_motion(path)
     if motion.robot != robot:
         raise InputError(f"{path}: the motion is for robot {motion.robot!r}, not {robot!r}")
+    if motion.num_frames < 2:
+        raise InputError(
+            f"{path}: the motion has {motion.num_frames} frame; tracking needs 2 or more"
+        )
     if abs(motion.fps - fps) < 1e-6:
         return motion
     T = motion.num_frames
@@ -144,26 +151,92 @@ def _checkpoints(run: Path) -> list[Path]:
     return sorted(folder.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1]))
 
 
+def _first_line(e: BaseException, limit: int = 160) -> str:
+    """An exception's message on one short line (torch's can span dozens; of a state dict
+    that does not load, the line after its heading says what differs)."""
+    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+        lines = lines[1:]
+    text = lines[0] if lines else type(e).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:
+    """The contents of a checkpoint file (``torch.load(weights_only=True)``).
+
+    Raises:
+        InputError: The file is missing, damaged (truncated, random bytes, text) or holds
+            something else than a humimic checkpoint; names ``flag`` and the file.
+    """
+    if not path.is_file():
+        raise InputError(f"{flag} {path}: no such file")
+    try:
+        blob = torch.load(path, weights_only=True, map_location="cpu")
+    except OSError as e:
+        raise InputError(f"{flag} {path}: cannot read: {e.strerror or e}") from None
+    except Exception:  # torch raises many kinds for damaged files (pickle, zip, EOF, key).
+        raise InputError(
+            f"{flag} {path}: not a readable checkpoint (truncated, damaged, or not a file "
+            "torch.save wrote)"
+        ) from None
+    it = blob.get("iter") if isinstance(blob, dict) else None
+    if (
+        not isinstance(it, int)
+        or isinstance(it, bool)
+        or not any(str(k).endswith("_state_dict") for k in blob)
+    ):
+        raise InputError(
+            f"{flag} {path}: not a humimic checkpoint (expected 'iter' and the networks' "
+            "state dicts)"
+        )
+    return blob
+
+
+def load_weights(runner: Any, blob: dict, path: Path, flag: str = "--checkpoint") -> None:
+    """Load a checkpoint into a runner; one that does not fit its networks is an input error.
+
+    Raises:
+        InputError: Names ``flag`` and the file, with the first line of torch's reason.
+    """
+    try:
+        runner.load_checkpoint(blob)
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as e:
+        raise InputError(
+            f"{flag} {path}: its networks do not fit this run's ({_first_line(e)})"
+        ) from None
+
+
 def latest_checkpoint(run: Path) -> tuple[Path, dict] | None:
     """The newest checkpoint of a run that loads (a damaged one is skipped, and said so)."""
     for path in reversed(_checkpoints(run)):
         try:
-            return path, torch.load(path, weights_only=True, map_location="cpu")
-        except Exception as e:
-            print(f"humimic: skipping unreadable checkpoint {path}: {e}")
+            return path, read_checkpoint(path, "checkpoint")
+        except InputError as e:
+            print(f"humimic: skipping {e}")
     return None
 
 
-def resolve_checkpoint(run: Path, checkpoint: Path | None) -> tuple[Path, dict]:
-    """The given checkpoint file, or the run's newest that loads."""
+def resolve_checkpoint(
+    run: Path, checkpoint: Path | None, flag: str = "--checkpoint"
+) -> tuple[Path, dict]:
+    """The given checkpoint file (``flag`` names it in errors), or the run's newest that
+    loads."""
     if checkpoint is not None:
-        if not checkpoint.is_file():
-            raise InputError(f"--checkpoint {checkpoint}: no such file")
-        return checkpoint, torch.load(checkpoint, weights_only=True, map_location="cpu")
+        return checkpoint, read_checkpoint(checkpoint, flag)
     found = latest_checkpoint(run)
     if found is None:
-        raise InputError(f"{run}: the run has no checkpoint yet")
+        raise InputError(f"{run}: the run has no readable checkpoint yet")
     return found
+
+
+def run_files(run: Path) -> dict[str, Path]:
+    """The files of a run folder that a command reads: what no output may overwrite (label ->
+    path, for :func:`humimic.io.check_not_input`)."""
+    files = {"the run's config.yaml": run / "config.yaml",
+             "the run's progress.csv": run / "progress.csv"}  # fmt: skip
+    for path in _checkpoints(run):
+        files[f"the run's checkpoint {path.name}"] = path
+    return files
 
 
 @dataclass
@@ -181,16 +254,21 @@ class _Progress:
     max_seconds: float | None = None
     ranks: Ranks = field(default_factory=Ranks)
     last: dict[str, float] | None = None
+    seconds_before: float = 0.0
+    """Training seconds of the run before this process (a resumed run's ``seconds`` go on)."""
+    columns: list[str] | None = None
+    """progress.csv's header (None: the file is new; its header is the first row's keys)."""
 
     def __call__(self, *, it: int, loss_dict: dict, learning_rate: float, action_std: torch.Tensor,
                  collect_time: float, learn_time: float, **_: Any) -> None:  # fmt: skip
         lg, ranks = self.runner.logger, self.ranks
         done = it + 1
         batch = self.num_envs * self.steps_per_env * ranks.world_size  # Over all ranks.
+        elapsed = time.perf_counter() - self.started  # This process's: --max-minutes.
         row: dict[str, float] = {
             "iteration": done,
             "env_steps": done * batch,
-            "seconds": time.perf_counter() - self.started,
+            "seconds": self.seconds_before + elapsed,
             "steps_per_second": batch / max(collect_time + learn_time, 1e-9),
             "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
             "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
@@ -209,7 +287,7 @@ class _Progress:
         params = list(self.runner.alg.get_policy().parameters())
         finite = all(bool(torch.isfinite(p).all()) for p in params)
         diverged = bool(bad) or not finite
-        time_up = self.max_seconds is not None and row["seconds"] > self.max_seconds
+        time_up = self.max_seconds is not None and elapsed > self.max_seconds
         if ranks.distributed:  # Every rank stops, or none: rank 0's clock decides time-ups.
             row["rank_param_spread"] = parameter_spread(params)
             flags = agree([int(diverged), int(time_up and ranks.main)], self.runner.device)
@@ -238,9 +316,13 @@ class _Progress:
                 if k != "iteration":
                     lg.writer.add_scalar(f"humimic/{k}", v, done)
         csv_path = self.run / "progress.csv"
-        new = not csv_path.exists()
-        with open(csv_path, "a", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(row), extrasaction="ignore")
+        columns = self.columns if csv_path.exists() else None
+        new = columns is None
+        if columns is None:
+            columns = self.columns = list(row)
+        with open(csv_path, "w" if new else "a", newline="") as f:
+            # The header's columns, in its order: every row lines up with it.
+            w = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
             if new:
                 w.writeheader()
             w.writerow(row)
@@ -256,25 +338,81 @@ class _Progress:
             raise _TimeUp
 
 
+def _physics_names() -> tuple[str, ...]:
+    from humimic.tracking.physics import SHIPPED
+
+    return tuple(SHIPPED)
+
+
+def resolved_source(value: str | None, names: Any) -> str | None:
+    """A ``--dr`` or ``--physics`` value as a run records it: a name (one of ``names``) as is,
+    a file path absolute."""
+    if value is None or value in names:
+        return value
+    return str(Path(value).resolve())
+
+
+def resolved_settings(s: TrainSettings) -> TrainSettings:
+    """The settings with every file path absolute: what config.yaml records, so that ``eval``,
+    ``export``, ``distill`` and ``--resume`` run from any folder find the files."""
+    return replace(
+        s,
+        motion=s.motion.resolve(),
+        out=s.out.resolve(),
+        init_from=None if s.init_from is None else s.init_from.resolve(),
+        dr=resolved_source(s.dr, DR_PROFILES) or s.dr,
+        physics=resolved_source(s.physics, _physics_names()),
+    )
+
+
 def _write_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
-    blob = {"settings": _plain(asdict(settings)), "tracking": _plain(task), "ppo": _plain(ppo)}
+    s = resolved_settings(settings)
+    blob = {"settings": _plain(asdict(s)), "tracking": _plain(task), "ppo": _plain(ppo)}
     atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
 
 
+def _started_in(run: Path, recorded_out: Path) -> Path | None:
+    """The folder a run was started from, when its config recorded ``--out`` relative (older
+    run folders): the run folder's path less the recorded one's parts, if they end it."""
+    parts = Path(os.path.normpath(recorded_out)).parts
+    if recorded_out.is_absolute() or ".." in parts:
+        return None
+    here = run.resolve().parts
+    if parts and here[-len(parts) :] != parts:
+        return None
+    return Path(*here[: len(here) - len(parts)])
+
+
+def _absolute(path: str, start: Path | None) -> Path:
+    """A recorded path made absolute: as recorded, or (relative, from an older run folder)
+    from the folder the run was started in if the file is there, else from this folder."""
+    p = Path(path)
+    if p.is_absolute():
+        return p
+    candidates = ([start / p] if start is not None else []) + [p.resolve()]
+    return next((c.resolve() for c in candidates if c.exists()), candidates[0].resolve())
+
+
 def _run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
-    """A run's config.yaml and the training settings in it (a student's: its teacher's)."""
+    """A run's config.yaml and the training settings in it (a student's: its teacher's), with
+    the file paths absolute (:func:`resolved_settings`; relative ones of older run folders are
+    found where the run was started, see :func:`_absolute`)."""
     path = run / "config.yaml"
     if not path.is_file():
         raise InputError(f"{run}: not a humimic run folder (no config.yaml)")
     try:
         config = yaml.safe_load(path.read_text())
         data = dict(config["settings"])
-        data["motion"], data["out"] = Path(data["motion"]), Path(data["out"])
+        start = _started_in(run, Path(data["out"]))
+        data["motion"], data["out"] = _absolute(data["motion"], start), Path(data["out"])
         if data.get("init_from") is not None:
-            data["init_from"] = Path(data["init_from"])
+            data["init_from"] = _absolute(data["init_from"], start)
+        for key, names in (("dr", DR_PROFILES), ("physics", _physics_names())):
+            if data.get(key) is not None and data[key] not in names:
+                data[key] = str(_absolute(data[key], start))
         return config, TrainSettings(**data)
-    except (yaml.YAMLError, KeyError, TypeError) as e:
-        raise InputError(f"{path}: not a humimic run configuration ({e})") from None
+    except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not a humimic run configuration ({_first_line(e)})") from None
 
 
 def read_run_settings(run: Path) -> TrainSettings:
@@ -312,26 +450,29 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     ranks = Ranks.from_env()
     has_run = check_run_settings(s)
     if s.resume:
-        old = read_run_settings(run)
-        diff = [n for n in _MUST_MATCH_ON_RESUME if getattr(old, n) != getattr(s, n)]
+        # Compared with the paths resolved: ./walk.npz and /abs/walk.npz are the same motion.
+        old, new = read_run_settings(run), resolved_settings(s)
+        diff = [n for n in _MUST_MATCH_ON_RESUME if getattr(old, n) != getattr(new, n)]
         if diff:
-            raise InputError(
-                f"--resume: {', '.join(diff)} differ from the run's ({', '.join(f'{n}={getattr(old, n)!r}' for n in diff)})"
-            )
+            was = ", ".join(f"{n}={getattr(old, n)!s}" for n in diff)
+            verb = "differs" if len(diff) == 1 else "differ"
+            raise InputError(f"--resume: {', '.join(diff)} {verb} from the run's ({was})")
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
+    cfg = train_cfg(ppo or ppo_for(s))
+    check_batch(cfg, s.num_envs)
+    _check_train_outputs(s, has_run)
     seed = s.seed + ranks.rank  # Each rank collects its own experience.
     task = replace(
         task_config(s.robot, s.dr, seed, s.physics), torch_compile=s.compile, backend=s.backend
     )
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
-    cfg = train_cfg(ppo or ppo_for(s))
     init = None
     if s.init_from is not None and not has_run:
         if not s.init_from.exists():
             raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
         file = s.init_from if s.init_from.is_file() else None
-        init = resolve_checkpoint(s.init_from, file)
+        init = resolve_checkpoint(s.init_from, file, "--init-from")
     device = s.device
     if ranks.distributed:
         device = distributed.start(ranks, s.device)
@@ -339,7 +480,7 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     created = not run.exists() and ranks.main
     try:
         if ranks.main:
-            check_writable(run / "config.yaml")
+            check_writable(run / "config.yaml", create=True)
         torch.manual_seed(seed)
         env = run_env(task, motion, s, created, device=device)
         try:
@@ -348,12 +489,12 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             if init is not None:
                 try:
                     runner.load_checkpoint(init[1])
-                except (RuntimeError, KeyError) as e:
+                except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as e:
                     if created:  # Leave nothing behind for a run that never started.
                         shutil.rmtree(run, ignore_errors=True)
                     raise InputError(
                         f"--init-from {init[0]}: its networks do not fit this run's (variant "
-                        f"{s.variant!r}, task of {s.robot!r}): {str(e).splitlines()[0]}"
+                        f"{s.variant!r}, task of {s.robot!r}): {_first_line(e)}"
                     ) from None
                 runner.current_learning_iteration = 0
             if ranks.main:
@@ -384,22 +525,104 @@ def run_env(
         raise
 
 
+def check_batch(cfg: dict[str, Any], num_envs: int) -> None:
+    """A PPO rollout (``num_envs`` x ``num_steps_per_env`` samples) must fill every
+    mini-batch: a smaller one gives empty mini-batches and NaN losses."""
+    algorithm = cfg["algorithm"]
+    if algorithm.get("class_name") != "PPO":
+        return
+    steps, minis = int(cfg["num_steps_per_env"]), int(algorithm["num_mini_batches"])
+    if num_envs * steps < minis:
+        raise InputError(
+            f"--num-envs {num_envs} x --num-steps-per-env {steps}: a rollout of "
+            f"{num_envs * steps} samples cannot fill PPO's {minis} mini-batches; raise either"
+        )
+
+
+def _check_train_outputs(s: TrainSettings, has_run: bool) -> None:
+    """The files a run writes in ``--out`` must not be one of its inputs."""
+    inputs: dict[str, Any] = {"--motion": s.motion, "--init-from": s.init_from}
+    for flag, value, names in (("--dr", s.dr, DR_PROFILES), ("--physics", s.physics, ())):
+        if value is not None and value not in names and Path(value).is_file():
+            inputs[flag] = value
+    for name in ("config.yaml", "progress.csv"):
+        check_not_input(s.out / name, inputs, "--out")
+    if s.init_from is not None and not has_run:
+        # A new run writes checkpoints/model_<it>.pt: a file there it starts from would go.
+        out, init = s.out.resolve(), s.init_from.resolve()
+        if init == out or out in init.parents:
+            raise InputError(
+                f"--out {s.out}: holds --init-from {s.init_from}, which the new run would "
+                "overwrite; choose another --out"
+            )
+
+
 def check_run_settings(s: Any) -> bool:
-    """Check the settings every run command shares (``TrainSettings``, ``DistillSettings``);
-    returns whether ``s.out`` holds a run already (allowed only with ``s.resume``)."""
-    for name in ("num_envs", "max_iterations", "checkpoint_every"):
-        if getattr(s, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} {getattr(s, name)}: must be at least 1")
-    if s.max_minutes is not None and not s.max_minutes > 0:
-        raise InputError(f"--max-minutes {s.max_minutes}: must be positive")
-    if s.device.startswith("cuda") and not torch.cuda.is_available():
-        raise InputError(f"--device {s.device}: CUDA is not available on this machine")
+    """Check the settings every run command shares (``TrainSettings``, ``DistillSettings``:
+    their ``validate()`` and the run folder); returns whether ``s.out`` holds a run already
+    (allowed only with ``s.resume``)."""
+    s.validate()
     if s.out.exists() and not s.out.is_dir():
         raise InputError(f"--out {s.out}: exists and is not a folder")
     has_run = (s.out / "config.yaml").exists()
     if has_run and not s.resume:
         raise InputError(f"--out {s.out}: holds a run already; pass --resume to continue it")
     return has_run
+
+
+def trim_progress(path: Path, done: int) -> tuple[float, list[str] | None]:
+    """Make a resumed run's progress.csv end at the checkpoint it resumes from.
+
+    Rows past iteration ``done`` (written after the checkpoint, before a crash) are redone, so
+    they are dropped, as is a last row cut short by ``kill -9`` (no line end). The file is
+    rewritten atomically, or removed when no row is left.
+
+    Returns:
+        The kept last row's ``seconds`` (the column goes on from it; 0 without one) and the
+        file's columns (None when there is no file left).
+    """
+    if not path.is_file():
+        return 0.0, None
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read the run's progress ({_first_line(e)})") from None
+    lines = text.splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines.pop()  # A row cut short.
+    rows = list(csv.reader(lines))
+    if not rows:  # Empty, or a header cut short: nothing to keep.
+        path.unlink()
+        return 0.0, None
+    if rows[0][:1] != ["iteration"]:
+        raise InputError(
+            f"{path}: not a progress file (its header does not start with 'iteration'); "
+            "move it away to resume"
+        )
+    header = rows[0]
+
+    def iteration(r: list[str]) -> int | None:
+        try:
+            return int(r[0]) if len(r) == len(header) else None
+        except ValueError:
+            return None
+
+    kept = [r for r in rows[1:] if (i := iteration(r)) is not None and i <= done]
+    if not kept:
+        path.unlink()
+        return 0.0, None
+    if len(kept) != len(rows) - 1 or len(lines) != len(rows):
+        out = io.StringIO()
+        csv.writer(out, lineterminator="\n").writerows([header, *kept])
+        atomic_write_text(path, out.getvalue())
+    seconds = 0.0
+    if "seconds" in header:
+        try:
+            seconds = float(kept[-1][header.index("seconds")])
+        except ValueError:
+            seconds = 0.0
+        seconds = seconds if math.isfinite(seconds) else 0.0
+    return seconds, header
 
 
 def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | None = None) -> dict:
@@ -418,17 +641,20 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
         The last progress row.
     """
     start = 0
+    ranks = ranks or Ranks()
     if s.resume:
         found = latest_checkpoint(run)
         if found is not None:
             path, blob = found
-            runner.load_checkpoint(blob)
+            load_weights(runner, blob, path, "--resume: checkpoint")
             start = int(blob["iter"])
             print(f"resuming {run} from {path.name} ({start} iterations done)")
     if start >= s.max_iterations:
         print(f"{run}: {start} iterations done already (--max-iterations {s.max_iterations})")
         return {"iteration": start}
-    ranks = ranks or Ranks()
+    offset, columns = (0.0, None)
+    if ranks.main:  # Rank 0 alone writes progress.csv.
+        offset, columns = trim_progress(run / "progress.csv", start)
     bar = None
     if not s.quiet and ranks.main:
         from tqdm import tqdm
@@ -438,7 +664,7 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
                          total=s.max_iterations, bar=bar, started=time.perf_counter(),
                          num_envs=s.num_envs, steps_per_env=steps_per_env,
                          max_seconds=None if s.max_minutes is None else 60 * s.max_minutes,
-                         ranks=ranks)  # fmt: skip
+                         ranks=ranks, seconds_before=offset, columns=columns)  # fmt: skip
     runner.logger.log = progress  # Our progress row, bar, checks and checkpoints.
     try:
         runner.learn(s.max_iterations - start, init_at_random_ep_len=start == 0)
@@ -458,13 +684,20 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
 __all__ = [
     "TrainSettings",
     "TrainingDiverged",
+    "check_batch",
     "check_run_settings",
     "fit",
     "latest_checkpoint",
     "load_reference",
+    "load_weights",
+    "read_checkpoint",
     "read_run_settings",
+    "resolve_checkpoint",
     "resolve_dr",
+    "resolved_settings",
+    "run_files",
     "run_rsl_cfg",
     "task_config",
     "train",
+    "trim_progress",
 ]
