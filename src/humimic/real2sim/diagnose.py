@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 import mujoco
 import numpy as np
 
+from humimic.errors import InputError
 from humimic.real2sim.joints import PLAY_SUFFIX, JointMap
 from humimic.real2sim.residual import Correction, Predictor
 from humimic.real2sim.robotlog import RobotLog
@@ -60,6 +61,10 @@ NOT_SEARCHED: tuple[str, ...] = ()
 
 OFFSET_PROBE = 0.05
 """Encoder offset [rad] used to test whether offsets show in a log at all."""
+
+MIN_FIT_SAMPLES = 50
+"""Fewest state samples in the fit part of a log (the residual network and the signature
+plots need some too)."""
 
 _SECANT_STEPS = 6
 
@@ -215,8 +220,9 @@ def _pairs(
             "gain_mismatch": (0.3, 3.0, 1.0, 0.85),
             "delay": (0.0, 0.05, 0.0, 0.01),
             "lag": (0.0, 0.1, 0.0, 0.01),
-            "torque_limit": (0.05 * peak[j], peak[j], peak[j], 0.8 * peak[j]),
         }
+        if peak[j] > 0:  # A drive that never pushes has no torque limit to find.
+            spec["torque_limit"] = (0.05 * peak[j], peak[j], peak[j], 0.8 * peak[j])
         for effect, (lo, hi, none, probe) in spec.items():
             out.append(_Pair(effect=effect, index=j, joints=one, lo=lo, hi=hi, none=none,
                              probe=probe))  # fmt: skip
@@ -486,6 +492,30 @@ def backlash_models(
     return build
 
 
+def fit_predictors(
+    model: mujoco.MjModel, log: RobotLog, horizon: float
+) -> tuple[Predictor, Predictor, Predictor]:
+    """The fit-part predictors of a diagnosis: A for the secant fits (every other window of
+    A), A and B for scoring (A and B interleave: alternate windows of the fit span, so that
+    both see every kind of motion the log has).
+
+    Raises:
+        InputError: The log is too short for the horizon (naming the log file and
+            ``--horizon``), or its fit part has fewer than :data:`MIN_FIT_SAMPLES` states.
+    """
+    fit = (0.0, FIT_END)
+    fit_a = Predictor(model, log, horizon=horizon, span=fit, every=4, phase=0)
+    score_a = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=0)
+    score_b = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=1)
+    n = int(np.searchsorted(log.t, log.t[0] + FIT_END * log.duration))
+    if n < MIN_FIT_SAMPLES:
+        raise InputError(
+            f"{log.where}: {n} state samples in the fit part (first {FIT_END:.0%}) of the log; "
+            f"the diagnosis needs at least {MIN_FIT_SAMPLES}"
+        )
+    return fit_a, score_a, score_b
+
+
 def diagnose_log(
     correction: Correction | mujoco.MjModel,
     log: RobotLog,
@@ -506,20 +536,22 @@ def diagnose_log(
         candidates_per_round: Most joints examined per round.
         backlash_model: The prediction model with play joints on the given joints (see
             :func:`backlash_models`); without it backlash is not searched.
+
+    Raises:
+        InputError: A log the diagnosis cannot use (see :func:`fit_predictors`), or a
+            ``horizon`` that is not a positive number of seconds.
     """
     base = (correction if isinstance(correction, Correction) else Correction.of(correction)).copy()
     model = base.model
     names = log.joint_names
-    # A and B interleave (alternate windows of the fit span), so that both see every kind of
-    # motion the log has; the secant fits use every other window of A.
-    fit = (0.0, FIT_END)
     effort = log.effort is not None
     # Fits use joint positions only: a logged drive torque jumps with every command step, so
     # its error is discontinuous in a delay (a sample falls before or after the delayed step)
     # and would trap the search. Scoring on B uses both.
-    fit_a = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=4, phase=0), False)
-    score_a = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=2, phase=0), effort)
-    score_b = _Scorer(Predictor(model, log, horizon=horizon, span=fit, every=2, phase=1), effort)
+    pred_fit, pred_a, pred_b = fit_predictors(model, log, horizon)
+    fit_a = _Scorer(pred_fit, False)
+    score_a = _Scorer(pred_a, effort)
+    score_b = _Scorer(pred_b, effort)
     floor_q = float(np.median(score_a.calibrate(base)))  # The position noise floor [rad].
     score_b.sigma = score_a.sigma
     fit_a.sigma = score_a.sigma[:1]

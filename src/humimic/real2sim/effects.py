@@ -9,7 +9,8 @@ the same thing.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -28,6 +29,10 @@ class Effect:
         target: What it applies to: ``joint``, or ``body`` (payload).
         expresses: The MuJoCo parameters that express it.
         signature: Its diagnostic signature in the residual.
+        sign: Which values are physical: ``signed`` (any finite value), ``nonnegative``
+            (0 adds nothing) or ``positive``.
+        meaning: What the value is, for messages that refuse one of the wrong sign.
+        maximum: Largest accepted value (``None``: no bound).
     """
 
     name: str
@@ -35,75 +40,129 @@ class Effect:
     target: str
     expresses: str
     signature: str
+    sign: Literal["signed", "nonnegative", "positive"] = "nonnegative"
+    meaning: str = ""
+    maximum: float | None = None
 
 
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in (
         Effect(name="coulomb_friction", unit="N m", target="joint",
-               expresses="joint frictionloss", signature="residual torque ~ sign(qdot)"),
+               expresses="joint frictionloss", signature="residual torque ~ sign(qdot)",
+               meaning="friction added to the joint: it only resists motion"),
         Effect(name="viscous_damping", unit="N m s/rad", target="joint",
-               expresses="joint damping", signature="residual torque ~ qdot"),
+               expresses="joint damping", signature="residual torque ~ qdot",
+               meaning="damping added to the joint: negative damping would feed energy in"),
         Effect(name="armature", unit="kg m^2", target="joint",
-               expresses="joint armature", signature="residual torque ~ qddot"),
+               expresses="joint armature", signature="residual torque ~ qddot",
+               meaning="rotor inertia added to the joint"),
         Effect(name="delay", unit="s", target="joint",
                expresses="actuator delay (history buffer)",
-               signature="cross-correlation peak of command and response at a non-zero lag"),
+               signature="cross-correlation peak of command and response at a non-zero lag",
+               meaning="transport delay of the commands: they cannot act before they are sent",
+               maximum=1.0),
         Effect(name="lag", unit="s", target="joint",
                expresses="actuator dyntype filterexact, dynprm[0] = time constant",
-               signature="first-order low-pass between command and torque"),
+               signature="first-order low-pass between command and torque",
+               meaning="time constant of the drive's filter"),
         Effect(name="torque_limit", unit="N m", target="joint",
-               expresses="actuator forcerange", signature="residual only when |tau| is near a bound"),
+               expresses="actuator forcerange", signature="residual only when |tau| is near a bound",
+               sign="positive", meaning="the bound on |torque|"),
         Effect(name="gain_mismatch", unit="ratio", target="joint",
                expresses="actuator gainprm/biasprm scale",
-               signature="residual torque ~ position error (kp) and velocity (kd)"),
+               signature="residual torque ~ position error (kp) and velocity (kd)",
+               sign="positive",
+               meaning="applied / commanded PD gains: 0 is no drive, below 0 positive feedback"),
         Effect(name="encoder_offset", unit="rad", target="joint",
                expresses="constant offset of the measured joint position",
-               signature="constant residual in position, gravity-dependent torque residual"),
+               signature="constant residual in position, gravity-dependent torque residual",
+               sign="signed", meaning="the encoder reads this much more than the true angle"),
         Effect(name="payload_mass", unit="kg", target="body",
-               expresses="body mass (and inertia)", signature="residual ~ gravity torque of the body"),
+               expresses="body mass (and inertia)", signature="residual ~ gravity torque of the body",
+               meaning="mass added to the body"),
         Effect(name="backlash", unit="rad", target="joint",
                expresses="a second hinge on the joint's axis (the link side), limited to the play",
-               signature="dead zone after velocity reversals"),
+               signature="dead zone after velocity reversals",
+               sign="positive", meaning="the total play of the transmission"),
     )
 }  # fmt: skip
+"""The vocabulary. Encoder offsets are signed (an encoder can read high or low); gain
+mismatches are positive ratios; every other parameter is an amount, a time or a bound that
+cannot be negative (a delay is also at most :attr:`Effect.maximum`)."""
 
 
 @dataclass(frozen=True, kw_only=True)
 class Injection:
-    """An effect with its value on some joints (or one body)."""
+    """An effect with its value on some joints (or one body).
+
+    Attributes:
+        source: Where it was given (``--inject 'TEXT'``, or a file and field), for messages;
+            empty when made in code.
+    """
 
     effect: str
     targets: tuple[str, ...]
     value: float
+    source: str = field(default="", compare=False)
+
+    @property
+    def where(self) -> str:
+        """The injection, as messages name it."""
+        return self.source or f"{self.effect} on {', '.join(self.targets)}"
 
 
-def parse_injection(text: str) -> Injection:
+def value_problem(effect: str, value: float) -> str | None:
+    """Why ``value`` is not a physical value of ``effect`` (``None``: it is).
+
+    Args:
+        effect: A name of :data:`EFFECTS`.
+        value: Its parameter, in the effect's unit.
+    """
+    e = EFFECTS[effect]
+    if not np.isfinite(value):
+        return f"{effect} must be a finite number of {e.unit}, got {value}"
+    if e.sign == "nonnegative" and value < 0:
+        return f"{effect} must be >= 0 {e.unit} ({e.meaning}), got {value:g}"
+    if e.sign == "positive" and value <= 0:
+        return f"{effect} must be > 0 {e.unit} ({e.meaning}), got {value:g}"
+    if e.maximum is not None and value > e.maximum:
+        return f"{effect} must be at most {e.maximum:g} {e.unit} ({e.meaning}), got {value:g}"
+    return None
+
+
+def parse_injection(text: str, where: str = "--inject") -> Injection:
     """Parse ``EFFECT:TARGET[,TARGET...]=VALUE`` (e.g. ``coulomb_friction:left_knee_joint=2``).
 
+    Args:
+        text: The injection.
+        where: What gave it, for messages (the CLI flag, or a file and field).
+
     Raises:
-        InputError: Naming the part that is wrong.
+        InputError: Naming ``where``, the text and the part that is wrong (including a value
+            of the wrong sign for the effect, see :data:`EFFECTS`).
     """
     try:
         head, value_text = text.split("=", 1)
         name, targets_text = head.split(":", 1)
     except ValueError:
         raise InputError(
-            f"--inject {text!r}: expected EFFECT:JOINT[,JOINT...]=VALUE, "
+            f"{where} {text!r}: expected EFFECT:JOINT[,JOINT...]=VALUE, "
             "e.g. coulomb_friction:left_knee_joint=2.0"
         ) from None
     if name not in EFFECTS:
-        raise InputError(f"--inject {text!r}: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        raise InputError(f"{where} {text!r}: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
     try:
         value = float(value_text)
     except ValueError:
-        raise InputError(f"--inject {text!r}: value {value_text!r} is not a number") from None
-    if not np.isfinite(value):
-        raise InputError(f"--inject {text!r}: value must be finite")
+        raise InputError(f"{where} {text!r}: value {value_text!r} is not a number") from None
+    problem = value_problem(name, value)
+    if problem is not None:
+        raise InputError(f"{where} {text!r}: {problem}")
     targets = tuple(t for t in targets_text.split(",") if t)
     if not targets:
-        raise InputError(f"--inject {text!r}: name at least one joint (or a body for payload_mass)")
-    return Injection(effect=name, targets=targets, value=value)
+        raise InputError(f"{where} {text!r}: name at least one joint (or a body for payload_mass)")
+    return Injection(effect=name, targets=targets, value=value, source=f"{where} {text!r}")
 
 
 def _joint(spec: mujoco.MjSpec, name: str) -> mujoco.MjsJoint:
@@ -154,7 +213,7 @@ def _lag(spec: mujoco.MjSpec, joint: str, v: float) -> None:
 def _torque_limit(spec: mujoco.MjSpec, joint: str, v: float) -> None:
     a = _actuator(spec, joint)
     a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
-    a.forcerange = np.array([-abs(v), abs(v)])
+    a.forcerange = np.array([-v, v])
 
 
 def _gain(spec: mujoco.MjSpec, joint: str, v: float) -> None:
@@ -175,8 +234,6 @@ def _backlash(spec: mujoco.MjSpec, joint: str, v: float) -> None:
     """Play of ``v`` rad in the transmission: a second hinge on the same axis (the link side),
     free within +-v/2 and stopped stiffly at the ends; the drive turns the first (the motor
     side, with the rotor's armature) and the log reports the link, the sum of both."""
-    if v <= 0:
-        raise InputError(f"backlash on {joint!r} must be positive (total play in rad)")
     j = _joint(spec, joint)
     play = j.parent.add_joint(name=joint + PLAY_SUFFIX, type=mujoco.mjtJoint.mjJNT_HINGE)
     play.axis, play.pos = j.axis, j.pos
@@ -209,10 +266,21 @@ APPLY: dict[str, Callable[[mujoco.MjSpec, str, float], None]] = {
 
 
 def apply_to_spec(spec: mujoco.MjSpec, injections: list[Injection]) -> None:
-    """Add effects to a model spec (in place)."""
+    """Add effects to a model spec (in place).
+
+    Raises:
+        InputError: An unknown effect, a value of the wrong sign, a joint or body that is not
+            in the model.
+    """
     for inj in injections:
         fn = APPLY.get(inj.effect)
         if fn is None:
             raise InputError(f"effect {inj.effect!r} cannot be injected yet")
+        problem = value_problem(inj.effect, float(inj.value))
+        if problem is not None:
+            raise InputError(f"{inj.where}: {problem}")
         for target in inj.targets:
-            fn(spec, target, inj.value)
+            try:
+                fn(spec, target, inj.value)
+            except InputError as e:
+                raise InputError(f"{inj.where}: {e}") from None

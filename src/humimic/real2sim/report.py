@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.io import atomic_write, atomic_write_text, check_writable, json_ready
+from humimic.io import atomic_write, atomic_write_text, check_not_input, check_writable, json_ready
 from humimic.real2sim.diagnose import (
     CLAIM,
     FIT_END,
@@ -27,10 +27,11 @@ from humimic.real2sim.diagnose import (
     Finding,
     backlash_models,
     diagnose_log,
+    fit_predictors,
 )
 from humimic.real2sim.effects import EFFECTS, Injection, apply_to_spec
 from humimic.real2sim.residual import Correction, KStepError, Predictor, prediction_spec
-from humimic.real2sim.robotlog import RobotLog, read_robot_log
+from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
 
 UNEXPLAINED = 0.5
@@ -38,23 +39,27 @@ UNEXPLAINED = 0.5
 
 
 def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotLog]:
-    """Robot, compiled fixed-base prediction model and log of a robot log file."""
+    """Robot, compiled fixed-base prediction model and log of a robot log file.
+
+    Raises:
+        InputError: The file is not a fixed-base robot log of a registered robot (see
+            :func:`~humimic.real2sim.robotlog.read_robot_log` for what a log must hold),
+            naming the file.
+    """
     from humimic.mcap_io import read_mcap
     from humimic.robots import get_robot
 
     meta = read_mcap(path, topics=[]).meta("robot")
-    robot = get_robot(meta.get("name", ""))
+    try:
+        robot = get_robot(meta.get("name", ""))
+    except InputError as e:
+        raise InputError(f"{path}: metadata robot.name: {e}") from None
     if meta.get("base") != "fixed":
         raise InputError(
             f"{path}: only fixed-base logs (a robot hanging in a gantry) can be diagnosed so "
             f"far (base={meta.get('base')!r}); floating-base logs are on the plan"
         )
-    try:
-        base_pose = np.array([float(x) for x in meta.get("base_pose", "").split()])
-    except ValueError:
-        base_pose = np.zeros(0)
-    if base_pose.shape != (7,):
-        raise InputError(f"{path}: metadata robot.base_pose must hold 7 numbers")
+    base_pose = parse_base_pose(meta, Path(path))
     model = prediction_spec(robot, base_pose).compile()
     names = tuple(model.joint(j).name for j in range(model.njnt))
     return robot, model, read_robot_log(path, names)
@@ -92,15 +97,26 @@ def run_diagnosis(
     horizon: float = 0.5,
     residual_net: Literal["auto", "always", "never"] = "auto",
 ) -> dict:
-    """Diagnose ``log_path``; write model, report and plots into ``out_dir``."""
+    """Diagnose ``log_path``; write model, report and plots into ``out_dir``.
+
+    Raises:
+        InputError: A log the diagnosis cannot use, a bad ``horizon`` or an output that
+            cannot be written, before anything is written (``out_dir`` is not even created).
+    """
     from humimic.robots import export_nominal
 
     t0 = time.perf_counter()
+    if residual_net not in ("auto", "always", "never"):
+        raise InputError(f"--residual-net {residual_net!r}: choose auto, always or never")
     robot, model, log = load_fixed_base_log(log_path)
+    # Every check on the log and the horizon comes before the output folder is made.
+    held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
+    fit_predictors(model, log, horizon)
     out = out_dir
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+        check_not_input(out / name, {"the log": log_path}, "--out-dir")
+    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
         check_writable(out / name)
-    held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
     nominal = Correction.of(model)
     before = held.error(nominal)
     diagnosis = diagnose_log(nominal, log, horizon=horizon,
@@ -274,8 +290,9 @@ def _signature(
 
 
 def _fit_samples(log: RobotLog) -> np.ndarray:
-    """Every other state sample of the fit part, after the first second (filters settle)."""
-    lo = int(np.searchsorted(log.t, log.t[0] + 1.0))
+    """Every other state sample of the fit part, after the first second (filters settle; in
+    a short log, after the first half of the fit part)."""
+    lo = int(np.searchsorted(log.t, log.t[0] + min(1.0, 0.5 * FIT_END * log.duration)))
     hi = int(np.searchsorted(log.t, log.t[0] + FIT_END * log.duration))
     return np.arange(lo, hi, 2)
 

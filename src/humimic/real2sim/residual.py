@@ -146,8 +146,15 @@ class Predictor:
         phase: int = 0,
         nthread: int | None = None,
     ) -> None:
+        where = log.where
+        if not (np.isfinite(horizon) and horizon > 0):
+            raise InputError(f"--horizon {horizon}: expected a positive number of seconds")
+        if stride is not None and not (np.isfinite(stride) and stride > 0):
+            raise InputError(f"stride {stride}: expected a positive number of seconds")
         if JointMap.of(model).names != log.joint_names:
-            raise InputError("the model's joints are not the log's joints (order matters)")
+            raise InputError(
+                f"{where}: the model's joints are not the log's joints (order matters)"
+            )
         if model.nv != model.njnt or model.nq != model.njnt:
             raise InputError("predictions need a fixed-base model of hinge and slide joints")
         if abs(model.opt.timestep - PHYSICS_DT) > 1e-12:
@@ -158,18 +165,28 @@ class Predictor:
             changed = np.flatnonzero(np.ptp(gains, axis=0) > 1e-9 * (1 + np.abs(gains).max()))
             if changed.size:
                 raise InputError(
-                    f"the log changes {what} of {log.joint_names[changed[0]]!r} while it runs; "
-                    "the diagnosis needs constant gains per joint"
+                    f"{where}: the log changes {what} of {log.joint_names[changed[0]]!r} while "
+                    "it runs; the diagnosis needs constant gains per joint"
                 )
+        if log.t.size < 2:
+            raise InputError(
+                f"{where}: {log.t.size} message on /joint_states; predictions need at least 2"
+            )
         self.log = log
         self.horizon = horizon
         stride = horizon if stride is None else stride
         dt_state = float(np.median(np.diff(log.t)))
-        self.samples = round(horizon / dt_state)
         self.sub = round(dt_state / PHYSICS_DT)
-        if self.samples < 1 or abs(self.sub * PHYSICS_DT - dt_state) > 0.05 * dt_state:
+        if self.sub < 1 or abs(self.sub * PHYSICS_DT - dt_state) > 0.05 * dt_state:
             raise InputError(
-                f"states every {dt_state * 1e3:.3g} ms: need a multiple of {PHYSICS_DT * 1e3} ms"
+                f"{where}: states every {dt_state * 1e3:.3g} ms: need a multiple of "
+                f"{PHYSICS_DT * 1e3} ms"
+            )
+        self.samples = round(horizon / dt_state)
+        if self.samples < 1:
+            raise InputError(
+                f"--horizon {horizon}: shorter than the state interval of {where} "
+                f"({dt_state * 1e3:.3g} ms)"
             )
         first = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
         last = (
@@ -180,7 +197,16 @@ class Predictor:
         starts = np.arange(first, max(last, first), max(1, round(stride / dt_state)))
         self.starts = starts[phase::every]
         if self.starts.size == 0:
-            raise InputError(f"the log is shorter than one {horizon} s window in the span {span}")
+            length = (span[1] - span[0]) * log.duration
+            part = (
+                f"the log ({log.duration:.3g} s)"
+                if tuple(span) == (0.0, 1.0)
+                else f"its {span[0]:.0%}-{span[1]:.0%} span ({length:.3g} s)"
+            )
+            raise InputError(
+                f"{where}: too short for --horizon {horizon:g} s windows: {part} holds "
+                f"{starts.size} window{'' if starts.size == 1 else 's'}, {phase + 1} needed"
+            )
         steps = self.samples * self.sub
         # Time at the start of every physics step of every window, and of the step after the
         # window (its command is the one in force at the last sample).
@@ -285,7 +311,9 @@ class Predictor:
         """
         W, S = self.num_windows, self.samples
         if effort and self.log.effort is None:
-            raise InputError("the log has no effort (drive torque) to compare with")
+            raise InputError(
+                f"{self.log.where}: the log has no effort (drive torque) to compare with"
+            )
         J = self.log.q.shape[1]
         out = np.empty((len(corrections), W, S, J, 2) if effort else (len(corrections), W, S, J))
         # Models of one structure run together: a backlash joint adds a degree of freedom,

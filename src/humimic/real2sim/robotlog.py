@@ -4,7 +4,8 @@ The schema is fixed by issue 4 (see docs/viewer.md for the topics): a metadata r
 ``robot`` (``name``, ``base`` = ``fixed`` or ``floating``, ``base_pose`` for a fixed base),
 ``/joint_states`` (position, velocity, optional effort) and ``/joint_commands`` (position,
 velocity, effort, kp, kd), each stamped; MCAP log time is the time base. Joints are matched to
-the model by name.
+the model by name. Reading refuses what would mislead the numbers downstream: non-finite
+values, negative gains, and log times or header stamps that do not increase.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ class RobotLog:
         joint_names: Shape: (J,).
         t: State times. Shape: (N,). q, qd: Shape: (N, J). effort: Shape: (N, J) or None.
         t_cmd: Command times. Shape: (M,). Commands (M, J): cmd_q, cmd_qd, cmd_tau, kp, kd.
+        source: The file it was read from (empty when made in code), for messages.
     """
 
     robot: str
@@ -44,6 +46,12 @@ class RobotLog:
     cmd_tau: np.ndarray
     kp: np.ndarray
     kd: np.ndarray
+    source: str = ""
+
+    @property
+    def where(self) -> str:
+        """The log, as messages name it (its file, when it has one)."""
+        return self.source or "the log"
 
     @property
     def duration(self) -> float:
@@ -89,11 +97,21 @@ def write_robot_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
 def _matrix(
     log_path: Path, topic: str, msgs: list, field: str, names: tuple[str, ...]
 ) -> np.ndarray:
+    """One field of a topic's messages for the model's joints. Shape: (len(msgs), J).
+
+    Raises:
+        McapFormatError: Joints missing, a field missing or not matching ``name``, or a
+            non-finite value (naming the topic, the message index, the field and the joint).
+    """
     out = np.zeros((len(msgs), len(names)))
     first = msgs[0][1]["name"]
     missing = [n for n in names if n not in first]
     if missing:
-        raise McapFormatError(f"{log_path}: topic {topic}: field name lacks the joints {missing}")
+        raise McapFormatError(
+            f"{log_path}: topic {topic}: field name lacks {len(missing)} of the robot's joints "
+            f"({', '.join(missing[:4])}{', ...' if len(missing) > 4 else ''}): a log of "
+            "another robot, or of part of it?"
+        )
     for i, (_, m) in enumerate(msgs):
         if field not in m:
             raise McapFormatError(f"{log_path}: topic {topic}, message {i}: field {field} missing")
@@ -104,14 +122,83 @@ def _matrix(
             raise McapFormatError(
                 f"{log_path}: topic {topic}, message {i}: field {field} does not match name"
             ) from None
+    bad = np.argwhere(~np.isfinite(out))
+    if bad.size:
+        i, j = (int(x) for x in bad[0])
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: field {field} of {names[j]!r} is "
+            f"{out[i, j]}, expected a finite number"
+        )
     return out
+
+
+def _times(log_path: Path, topic: str, msgs: list) -> np.ndarray:
+    """Log times [ns] of a topic's messages, checked: log times and header stamps strictly
+    increase (a robot samples forwards in time; equal or reversed stamps are a broken log).
+
+    Raises:
+        McapFormatError: Naming the topic and the first message out of order.
+    """
+    times = np.array([ts for ts, _ in msgs], dtype=np.int64)
+    back = np.flatnonzero(np.diff(times) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: log time {times[i]} ns is not after "
+            f"message {i - 1}'s ({times[i - 1]} ns); expected strictly increasing times"
+        )
+    stamps = np.empty(len(msgs), dtype=np.int64)
+    for i, (_, m) in enumerate(msgs):
+        st = m["header"]["stamp"]
+        if not (st["sec"] >= 0 and 0 <= st["nanosec"] < 1_000_000_000):
+            raise McapFormatError(
+                f"{log_path}: topic {topic}, message {i}: field header.stamp is {st}, expected "
+                "sec >= 0 and 0 <= nanosec < 1e9"
+            )
+        stamps[i] = st["sec"] * 1_000_000_000 + st["nanosec"]
+    back = np.flatnonzero(np.diff(stamps) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: field header.stamp ({stamps[i]} ns) is "
+            f"not after message {i - 1}'s ({stamps[i - 1]} ns); expected strictly increasing "
+            "stamps"
+        )
+    return times
+
+
+def parse_base_pose(meta: dict[str, str], log_path: Path) -> np.ndarray:
+    """The fixed base's pose from the ``robot`` metadata (x y z qw qx qy qz). A floating-base
+    log's is a placeholder (its base moves), held to 7 finite numbers only.
+
+    Raises:
+        McapFormatError: Not 7 finite numbers, or a zero quaternion for a fixed base.
+    """
+    text = meta.get("base_pose", "0 0 0 1 0 0 0")
+    try:
+        pose = np.array([float(x) for x in text.split()])
+    except ValueError:
+        pose = np.zeros(0)
+    if pose.shape != (7,) or not np.isfinite(pose).all():
+        raise McapFormatError(
+            f"{log_path}: metadata robot.base_pose is {text!r}, expected 7 finite numbers "
+            "(x y z qw qx qy qz)"
+        )
+    if meta.get("base") == "fixed" and np.linalg.norm(pose[3:]) < 1e-9:
+        raise McapFormatError(
+            f"{log_path}: metadata robot.base_pose has a zero quaternion, expected qw qx qy qz "
+            "of unit length"
+        )
+    return pose
 
 
 def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -> RobotLog:
     """Read a robot log, in the order of ``joint_names`` (the model's).
 
     Raises:
-        InputError / McapFormatError: Missing file, topics, metadata or joints, naming them.
+        InputError / McapFormatError: Missing file, topics, metadata or joints, a non-finite
+            value, a negative gain, log times or stamps that do not increase, naming the file,
+            the topic, the message and the field.
     """
     log = read_mcap(path, topics=["/joint_states", "/joint_commands"],
                     require=["/joint_states", "/joint_commands"])  # fmt: skip
@@ -121,17 +208,14 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
         raise McapFormatError(
             f"{log.path}: metadata robot.base is {base!r}, expected fixed or floating"
         )
-    try:
-        base_pose = np.array([float(x) for x in meta.get("base_pose", "0 0 0 1 0 0 0").split()])
-    except ValueError:
-        raise McapFormatError(f"{log.path}: metadata robot.base_pose is not 7 numbers") from None
-    if base_pose.shape != (7,):
-        raise McapFormatError(f"{log.path}: metadata robot.base_pose must hold 7 numbers")
+    base_pose = parse_base_pose(meta, log.path)
     states = log.topic("/joint_states")
     cmds = log.topic("/joint_commands")
-    t_all0 = min(states[0][0], cmds[0][0])
-    t = (np.array([ts for ts, _ in states], dtype=np.float64) - t_all0) * 1e-9
-    t_cmd = (np.array([ts for ts, _ in cmds], dtype=np.float64) - t_all0) * 1e-9
+    ts_states = _times(log.path, "/joint_states", states)
+    ts_cmds = _times(log.path, "/joint_commands", cmds)
+    t_all0 = min(ts_states[0], ts_cmds[0])
+    t = (ts_states - t_all0).astype(np.float64) * 1e-9
+    t_cmd = (ts_cmds - t_all0).astype(np.float64) * 1e-9
     has_effort = all("effort" in m for _, m in states)
     zero = np.zeros((len(cmds), len(joint_names)))
 
@@ -142,6 +226,17 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
             else zero.copy()
         )
 
+    gains = {}
+    for field in ("kp", "kd"):
+        g = _matrix(log.path, "/joint_commands", cmds, field, joint_names)
+        neg = np.argwhere(g < 0)
+        if neg.size:
+            i, j = (int(x) for x in neg[0])
+            raise McapFormatError(
+                f"{log.path}: topic /joint_commands, message {i}: field {field} of "
+                f"{joint_names[j]!r} is {g[i, j]:g}, expected a gain >= 0"
+            )
+        gains[field] = g
     return RobotLog(
         robot=meta.get("name", ""),
         base=base,
@@ -157,6 +252,7 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
         cmd_q=_matrix(log.path, "/joint_commands", cmds, "position", joint_names),
         cmd_qd=cmd("velocity"),
         cmd_tau=cmd("effort"),
-        kp=_matrix(log.path, "/joint_commands", cmds, "kp", joint_names),
-        kd=_matrix(log.path, "/joint_commands", cmds, "kd", joint_names),
+        kp=gains["kp"],
+        kd=gains["kd"],
+        source=str(log.path),
     )

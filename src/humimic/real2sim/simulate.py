@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.effects import Injection, apply_to_spec
+from humimic.real2sim.effects import Injection, apply_to_spec, value_problem
 from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.model import nominal_spec
@@ -197,9 +197,12 @@ def simulate_log(
     offset = np.zeros(len(names))
     for inj in injections:
         if inj.effect == "encoder_offset":
+            problem = value_problem(inj.effect, inj.value)
+            if problem is not None:
+                raise InputError(f"{inj.where}: {problem}")
             for j in inj.targets:
                 if j not in names:
-                    raise InputError(f"no joint {j!r} in the robot")
+                    raise InputError(f"{inj.where}: no joint {j!r} in the robot")
                 offset[names.index(j)] += inj.value
     if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")

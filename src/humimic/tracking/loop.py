@@ -93,11 +93,11 @@ def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
 
 
 def _check(s: LoopSettings) -> Any:
-    from humimic.tracking.physics import physics_path
+    from humimic.tracking.physics import load_physics
     from humimic.tracking.train import _run_config
 
     s.validate()
-    physics_path(s.real)  # It exists (read only when deploying).
+    load_physics(s.real)  # Read and checked now: a bad value fails before the first deploy.
     config, run = _run_config(s.run)
     if config.get("kind") == "student":
         raise InputError(f"{s.run}: a distilled student; the loop fine-tunes PPO runs (fine-tune "

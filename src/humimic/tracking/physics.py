@@ -74,6 +74,7 @@ class Physics:
         kd_scale: Joint -> PD damping multiplier.
         armature_scale: Joint -> armature multiplier.
         effects: Effects of the real2sim vocabulary.
+        source: The file it was read from (empty when built in code), for messages.
     """
 
     name: str
@@ -86,18 +87,35 @@ class Physics:
     kd_scale: dict[str, float] = field(default_factory=dict)
     armature_scale: dict[str, float] = field(default_factory=dict)
     effects: tuple[Injection, ...] = ()
+    source: str = ""
+
+    @property
+    def where(self) -> str:
+        """The physics, as messages name it (its file, when it has one)."""
+        return self.source or f"physics {self.name!r}"
 
     def edit(self, spec: mujoco.MjSpec) -> None:
         """Apply every change to a model spec of the robot (in place).
 
         Raises:
-            InputError: If a body or joint is not in the model.
+            InputError: If a body or joint is not in the model (naming the file and field:
+                an effect read from a file names its file).
         """
         self.edit_parameters(spec)
         apply_to_spec(spec, list(self.effects))
 
     def edit_parameters(self, spec: mujoco.MjSpec) -> None:
-        """Apply the parameter changes (everything but :attr:`effects`) to a spec."""
+        """Apply the parameter changes (everything but :attr:`effects`) to a spec.
+
+        Raises:
+            InputError: If a body or joint is not in the model (naming the file and field).
+        """
+        try:
+            self._edit_parameters(spec)
+        except InputError as e:
+            raise InputError(f"{self.where}: {e}") from None
+
+    def _edit_parameters(self, spec: mujoco.MjSpec) -> None:
         if self.floor_friction is not None:
             for g in spec.geoms:
                 if g.contype or g.conaffinity:
@@ -115,7 +133,7 @@ class Physics:
         for name, off in self.com_offset.items():
             b = spec.body(name)
             if b is None:
-                raise InputError(f"physics {self.name!r}: com_offset: no body {name!r}")
+                raise InputError(f"com_offset: no body {name!r} in the robot")
             b.ipos = np.asarray(b.ipos) + np.asarray(off, dtype=np.float64)
         acts = {a.target: a for a in spec.actuators}
         for a in _targets(self.kp_scale, acts, "kp_scale", "actuated joint"):
@@ -165,11 +183,16 @@ def _targets(m: Mapping[str, Any], known: Mapping[str, Any], key: str, what: str
     return [v for k, v in known.items() if k in m or _ALL in m]
 
 
-def _number(v: Any, where: str, positive: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+def _number(v: Any, where: str, positive: bool = False, nonnegative: bool = False) -> float:
+    """A finite number from a file, refused (naming ``where``) if it has the wrong sign."""
+    if isinstance(v, bool) or not isinstance(v, int | float):
         raise InputError(f"{where}: expected a number, got {v!r}")
+    if not math.isfinite(v):
+        raise InputError(f"{where}: expected a finite number, got {v!r}")
     if positive and v <= 0:
         raise InputError(f"{where}: must be positive, got {v!r}")
+    if nonnegative and v < 0:
+        raise InputError(f"{where}: must be >= 0, got {v!r}")
     return float(v)
 
 
@@ -200,15 +223,21 @@ def parse_physics(data: Any, name: str, where: str) -> Physics:
         raise InputError(f"{where}: effects must be a list of EFFECT:TARGET[,TARGET]=VALUE")
     friction = data.get("floor_friction")
     robot = data.get("robot")
-    try:
-        parsed = tuple(parse_injection(e) for e in effects)
-    except InputError as e:
-        raise InputError(f"{where}: effects: {e}") from None
+    if robot is not None and not isinstance(robot, str):
+        raise InputError(f"{where}: robot: expected a robot name, got {robot!r}")
+    # Each effect's value is checked for its physical sign (see real2sim.effects.EFFECTS).
+    parsed = tuple(
+        parse_injection(e, where=f"{where}: effects[{i}]") for i, e in enumerate(effects)
+    )
     return Physics(
         name=name,
+        source=where,
         description=str(data.get("description") or ""),
-        robot=None if robot is None else str(robot),
-        floor_friction=None if friction is None else _number(friction, f"{where}: floor_friction"),
+        robot=robot,
+        # A friction coefficient is >= 0 (0: a frictionless floor).
+        floor_friction=None
+        if friction is None
+        else _number(friction, f"{where}: floor_friction", nonnegative=True),
         mass_scale=_scale_map(data["mass_scale"], f"{where}: mass_scale")
         if "mass_scale" in data
         else {},
