@@ -7,7 +7,7 @@ import contextlib
 import math
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -48,7 +48,7 @@ def check_writable(path: str | os.PathLike[str], *, create: bool = False) -> Pat
 
 def check_not_input(
     output: str | os.PathLike[str] | None,
-    inputs: dict[str, str | os.PathLike[str] | None],
+    inputs: Mapping[str, str | os.PathLike[str] | None],
     flag: str,
 ) -> None:
     """Refuse an output path that names one of the command's inputs (or another output).

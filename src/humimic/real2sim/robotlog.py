@@ -132,6 +132,21 @@ def _matrix(
     return out
 
 
+def _check_increasing(log_path: object, topic: str, ns: np.ndarray, what: str, plural: str) -> None:
+    """Refuse the first of ``ns`` (nanoseconds, one per message) not after the one before.
+
+    Raises:
+        McapFormatError: Naming the file, topic, message and ``what``.
+    """
+    back = np.flatnonzero(np.diff(ns) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: {what} ({ns[i]} ns) is not after "
+            f"message {i - 1}'s ({ns[i - 1]} ns); expected strictly increasing {plural}"
+        )
+
+
 def _times(log_path: Path, topic: str, msgs: list) -> np.ndarray:
     """Log times [ns] of a topic's messages, checked: log times and header stamps strictly
     increase (a robot samples forwards in time; equal or reversed stamps are a broken log).
@@ -140,13 +155,7 @@ def _times(log_path: Path, topic: str, msgs: list) -> np.ndarray:
         McapFormatError: Naming the topic and the first message out of order.
     """
     times = np.array([ts for ts, _ in msgs], dtype=np.int64)
-    back = np.flatnonzero(np.diff(times) <= 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise McapFormatError(
-            f"{log_path}: topic {topic}, message {i}: log time {times[i]} ns is not after "
-            f"message {i - 1}'s ({times[i - 1]} ns); expected strictly increasing times"
-        )
+    _check_increasing(log_path, topic, times, "log time", "times")
     stamps = np.empty(len(msgs), dtype=np.int64)
     for i, (_, m) in enumerate(msgs):
         st = m["header"]["stamp"]
@@ -156,14 +165,7 @@ def _times(log_path: Path, topic: str, msgs: list) -> np.ndarray:
                 "sec >= 0 and 0 <= nanosec < 1e9"
             )
         stamps[i] = st["sec"] * 1_000_000_000 + st["nanosec"]
-    back = np.flatnonzero(np.diff(stamps) <= 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise McapFormatError(
-            f"{log_path}: topic {topic}, message {i}: field header.stamp ({stamps[i]} ns) is "
-            f"not after message {i - 1}'s ({stamps[i - 1]} ns); expected strictly increasing "
-            "stamps"
-        )
+    _check_increasing(log_path, topic, stamps, "field header.stamp", "stamps")
     return times
 
 

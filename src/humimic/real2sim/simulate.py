@@ -18,6 +18,7 @@ from humimic.errors import InputError
 from humimic.real2sim.effects import Injection, apply_to_spec, value_problem
 from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
+from humimic.robots.collision import tree_path
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
 
@@ -87,17 +88,7 @@ def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
 
 def _tree_distance(model: mujoco.MjModel, a: int, b: int) -> int:
     """Edges between two bodies in the kinematic tree."""
-
-    def chain(x: int) -> list[int]:
-        out = [x]
-        while x != 0:
-            x = int(model.body_parentid[x])
-            out.append(x)
-        return out
-
-    ca, cb = chain(a), chain(b)
-    common = next(x for x in ca if x in cb)
-    return ca.index(common) + cb.index(common)
+    return len(tree_path(model, a, b))
 
 
 def excitation(

@@ -31,9 +31,9 @@ def robot_geoms(model: mujoco.MjModel, root_body: str) -> list[int]:
     ]
 
 
-def joints_between(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]:
-    """The hinge and slide joints on the kinematic path between two bodies: those that move
-    one relative to the other (the floating base's free joint moves both alike)."""
+def tree_path(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]:
+    """The bodies on the kinematic tree's path between two bodies, their common ancestor left
+    out: as many as there are edges between them."""
 
     def chain(b: int) -> list[int]:
         out = [b]
@@ -44,7 +44,13 @@ def joints_between(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]
 
     ca, cb = chain(body_a), chain(body_b)
     common = next(b for b in ca if b in cb)
-    bodies = ca[: ca.index(common)] + cb[: cb.index(common)]
+    return ca[: ca.index(common)] + cb[: cb.index(common)]
+
+
+def joints_between(model: mujoco.MjModel, body_a: int, body_b: int) -> list[int]:
+    """The hinge and slide joints on the kinematic path between two bodies: those that move
+    one relative to the other (the floating base's free joint moves both alike)."""
+    bodies = tree_path(model, body_a, body_b)
     free = mujoco.mjtJoint.mjJNT_FREE
     return [
         j
