@@ -25,12 +25,17 @@ def check_writable(path: str | os.PathLike[str], *, create: bool = False) -> Pat
             command that fails later leaves no empty folder behind.
 
     Raises:
-        OutputPathError: ``path`` is a folder, a file stands where a folder must be, or the
-            folder is not writable (names the path).
+        OutputPathError: ``path`` is a folder or not a regular file (a device such as
+            /dev/null, which the rename would replace), a file stands where a folder must
+            be, or the folder is not writable (names the path).
     """
     p = Path(path)
     if p.is_dir():
         raise OutputPathError(f"{p}: is a folder, expected a file path")
+    if p.exists() and not p.is_file():
+        # The write renames a new file over the path: that would replace a device such as
+        # /dev/null, a pipe or a socket with a regular file.
+        raise OutputPathError(f"{p}: not a regular file (a device, pipe or socket); choose a file")
     if create:
         try:
             p.parent.mkdir(parents=True, exist_ok=True)
@@ -75,10 +80,11 @@ def check_not_input(
             )
 
 
-def _umask() -> int:
+def file_mode() -> int:
+    """The permissions of a new file: 0666 less the umask (what ``open`` would give)."""
     mask = os.umask(0)
     os.umask(mask)
-    return mask
+    return 0o666 & ~mask
 
 
 @contextlib.contextmanager
@@ -96,7 +102,7 @@ def atomic_write(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO]
     try:
         with os.fdopen(fd, mode) as f:
             yield f
-        os.chmod(tmp, 0o666 & ~_umask())
+        os.chmod(tmp, file_mode())
         os.replace(tmp, p)
     except OSError as e:
         with contextlib.suppress(OSError):

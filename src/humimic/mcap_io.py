@@ -26,8 +26,8 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from humimic.errors import HumimicError, InputError
-from humimic.io import check_writable
+from humimic.errors import HumimicError, InputError, OutputPathError
+from humimic.io import check_writable, file_mode
 
 _NUM = {"type": "number"}
 _NUMS = {"type": "array", "items": _NUM}
@@ -262,12 +262,15 @@ class McapWriter:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, profile: str = "humimic") -> None:
+        if Path(path).suffix != ".mcap":  # Before any folder is made for it.
+            raise InputError(f"{path}: MCAP files must end in .mcap")
         self.path = check_writable(path, create=True)
-        if self.path.suffix != ".mcap":
-            raise InputError(f"{self.path}: MCAP files must end in .mcap")
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
-        )
+        try:
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+            )
+        except OSError as e:
+            raise OutputPathError(f"{self.path}: cannot write here: {e.strerror or e}") from None
         self._tmp = Path(tmp)
         self._file = os.fdopen(fd, "wb")
         self._writer = Writer(self._file)
@@ -325,10 +328,19 @@ class McapWriter:
         )  # fmt: skip
 
     def close(self) -> Path:
-        """Finish the file and move it into place."""
-        self._writer.finish()
-        self._file.close()
-        os.replace(self._tmp, self.path)
+        """Finish the file and move it into place (with the usual permissions, 0666 less the
+        umask, as :func:`humimic.io.atomic_write` gives)."""
+        try:
+            self._writer.finish()
+            self._file.close()
+            os.chmod(self._tmp, file_mode())
+            os.replace(self._tmp, self.path)
+        except OSError as e:
+            self.abort()
+            raise OutputPathError(f"{self.path}: cannot write: {e.strerror or e}") from None
+        except BaseException:
+            self.abort()
+            raise
         return self.path
 
     def abort(self) -> None:

@@ -24,6 +24,7 @@ from humimic.configs.runs import (
     ExportSettings,
     LoopSettings,
     TrainSettings,
+    check_device,
 )
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
@@ -33,6 +34,9 @@ if TYPE_CHECKING:
 
 RETARGET_CONFIGS = {"default": retarget_default, "fast": retarget_fast}
 """Named retargeting configurations (factories); see :mod:`humimic.configs`."""
+
+MAX_ROBUSTNESS = 1000
+"""The most perturbed replays ``humimic refine --robustness`` makes for its report."""
 
 _PRESET = ["default"]
 """The --preset found on the command line before parsing: the base the --ik.* flags change."""
@@ -532,10 +536,12 @@ def run_refine(cmd: RefineCommand) -> dict:
     from humimic.retarget.dynamics import refine
 
     cmd.dyn.validate()
+    if cmd.backend == "warp":
+        check_device(cmd.device)
     if cmd.out.suffix != ".npz":
         raise InputError(f"{cmd.out}: the refined motion must end in .npz")
-    if cmd.robustness < 0:
-        raise InputError(f"--robustness: must be >= 0, got {cmd.robustness}")
+    if not 0 <= cmd.robustness <= MAX_ROBUSTNESS:
+        raise InputError(f"--robustness: must be in 0 to {MAX_ROBUSTNESS}, got {cmd.robustness}")
     check_not_input(cmd.out, {"the motion": cmd.motion}, "--out")
     check_not_input(cmd.report, {"the motion": cmd.motion, "--out": cmd.out}, "--report")
     check_writable(cmd.out)
@@ -556,6 +562,8 @@ def run_replay(cmd: ReplayCommand) -> int:
     """Run ``humimic replay``; returns the exit code."""
     from humimic.retarget.dynamics import check_replay
 
+    if not cmd.tol >= 0:  # NaN fails too: it would call every replay different.
+        raise InputError(f"--tol {cmd.tol}: must be a number >= 0")
     r = check_replay(read_any_motion(cmd.motion))
     ok = max(r["max_qpos_error"], r["max_qvel_error"]) <= cmd.tol
     print(f"{int(r['steps'])} physics steps replayed: max |qpos| error {r['max_qpos_error']:.2e}, "
@@ -609,6 +617,8 @@ def run_view(cmd: ViewCommand) -> None:
     t0 = time.perf_counter()
     check_port(cmd.port)  # Bad addresses fail at once, before the motion loads.
     check_host(cmd.host)
+    if cmd.duration is not None and not cmd.duration >= 0:  # NaN fails too; 0: start, stop.
+        raise InputError(f"--duration {cmd.duration}: must be a number of seconds >= 0")
     if cmd.screenshot is not None:
         inputs = {"the motion": cmd.motion, "--human": cmd.human, "--rollout": cmd.rollout}
         check_not_input(cmd.screenshot, inputs, "--screenshot")

@@ -11,16 +11,35 @@ MAX_SCENE_POINTS = 10_000
 """Most scene points one frame's interaction mesh may take (``--mesh.max_scene_points``); the
 mesh refuses more than 20,000 points in all (``retarget.interaction_mesh.MAX_MESH_POINTS``)."""
 
+MAX_SETTING = 1e6
+"""The largest value of any real-valued setting (a weight, a scale, a length): larger ones
+overflow the solvers' arithmetic (as the maps' weights, bounded the same)."""
+
+MAX_HORIZON_S = 10.0
+"""The longest ``--dyn.horizon_s``: each sample is a rollout of the whole window."""
+
+MAX_SAMPLES = 65_536
+"""The most ``--dyn.samples`` (each is a rollout per iteration, held in memory at once)."""
+
+MAX_ENSEMBLE = 256
+"""The most ``--dyn.ensemble`` models (every sample is rolled out on each)."""
+
+MAX_SEED = 2**32 - 1
+"""The largest ``--dyn.seed`` (numpy's generators take seeds from 0 to it)."""
+
 
 def _check_numbers(cfg: object, prefix: str, names: tuple[str, ...], *, positive: bool) -> None:
-    """Each named field of ``cfg`` must be a finite number > 0 (``positive``) or >= 0;
-    :class:`InputError` names the field as ``<prefix>.<field>`` (the CLI flag)."""
+    """Each named field of ``cfg`` must be a finite number > 0 (``positive``) or >= 0, at
+    most :data:`MAX_SETTING`; :class:`InputError` names the field as ``<prefix>.<field>``
+    (the CLI flag)."""
     for name in names:
         v = getattr(cfg, name)
         if positive and not (math.isfinite(v) and v > 0):
             raise InputError(f"{prefix}.{name}: must be a positive number, got {v}")
         if not positive and not (math.isfinite(v) and v >= 0):
             raise InputError(f"{prefix}.{name}: must be a number >= 0, got {v}")
+        if v > MAX_SETTING:
+            raise InputError(f"{prefix}.{name}: must be at most {MAX_SETTING:g}, got {v:g}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -99,15 +118,20 @@ class RetargetConfig:
             "velocity_limit_scale", "collision_margin", "collision_detection", "smooth_weight",
         )  # fmt: skip
         _check_numbers(self, "ik", non_negative, positive=False)
-        for name in ("stage1_iters", "stage2_iters", "first_frame_iters", "repair_iters"):
+        for name in ("stage1_iters", "stage2_iters", "first_frame_iters", "repair_iters",
+                     "contact_min_frames"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise InputError(f"ik.{name}: must be >= 0")
         if self.stage1_iters + self.stage2_iters < 1:
             raise InputError("ik.stage1_iters + ik.stage2_iters: at least one QP per frame")
         if not 0 < self.collision_gain <= 1:
             raise InputError(f"ik.collision_gain: must be in (0, 1], got {self.collision_gain}")
-        if self.scale is not None and not (math.isfinite(self.scale) and self.scale > 0):
-            raise InputError(f"ik.scale: must be a positive number, got {self.scale}")
+        if self.scale is not None and not (
+            math.isfinite(self.scale) and 0 < self.scale <= MAX_SETTING
+        ):
+            raise InputError(
+                f"ik.scale: must be a positive number up to {MAX_SETTING:g}, got {self.scale}"
+            )
 
 
 def retarget_default() -> RetargetConfig:
@@ -337,3 +361,11 @@ class DynamicsConfig:
             raise InputError("dyn.commit_s and dyn.knot_dt must not exceed dyn.horizon_s")
         if self.robust not in ("mean", "worst"):
             raise InputError(f"dyn.robust: mean or worst, got {self.robust!r}")
+        if self.horizon_s > MAX_HORIZON_S:
+            raise InputError(f"dyn.horizon_s: at most {MAX_HORIZON_S:g} s, got {self.horizon_s:g}")
+        most = {"samples": MAX_SAMPLES, "ensemble": MAX_ENSEMBLE, "seed": MAX_SEED}
+        for name, high in most.items():
+            if getattr(self, name) > high:
+                raise InputError(f"dyn.{name}: must be at most {high}, got {getattr(self, name)}")
+        if self.seed < 0:
+            raise InputError(f"dyn.seed: must be in 0 to {MAX_SEED}, got {self.seed}")

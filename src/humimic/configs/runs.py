@@ -15,6 +15,14 @@ MAX_SEED = 2**32 - 1
 """The largest ``--seed`` (numpy's and torch's generators take any seed up to it)."""
 
 
+MAX_NUM_ENVS = 65_536
+"""The most parallel environments (``--num-envs``, ``--episodes``) one process simulates:
+their states are allocated at once, and more than this exhausts a machine's memory."""
+
+MAX_STEPS_PER_ENV = 1000
+"""The longest ``--num-steps-per-env`` (the PPO rollout buffer holds every env's steps)."""
+
+
 def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -25,6 +33,14 @@ def _at_least(s: object, names: tuple[str, ...], minimum: int = 1) -> None:
         v = getattr(s, name)
         if v is not None and v < minimum:
             raise InputError(f"{_flag(name)} {v}: must be at least {minimum}")
+
+
+def _at_most(s: object, limits: dict[str, int]) -> None:
+    """Each named integer field of ``s`` that is set must be ``<=`` its limit (names the flag)."""
+    for name, limit in limits.items():
+        v = getattr(s, name)
+        if v is not None and v > limit:
+            raise InputError(f"{_flag(name)} {v}: must be at most {limit}")
 
 
 def _check_seed(seed: int) -> None:
@@ -116,6 +132,7 @@ class TrainSettings:
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
         _at_least(self, ("num_envs", "max_iterations", "checkpoint_every", "num_steps_per_env"))
+        _at_most(self, {"num_envs": MAX_NUM_ENVS, "num_steps_per_env": MAX_STEPS_PER_ENV})
         _check_minutes(self.max_minutes)
         _check_seed(self.seed)
         check_device(self.device)
@@ -160,6 +177,7 @@ class DistillSettings:
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
         _at_least(self, ("num_envs", "max_iterations", "checkpoint_every"))
+        _at_most(self, {"num_envs": MAX_NUM_ENVS})
         _check_minutes(self.max_minutes)
         _check_seed(self.seed)
         check_device(self.device)
@@ -201,6 +219,7 @@ class EvalSettings:
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
         _at_least(self, ("episodes", "num_envs"))
+        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
         if self.num_envs is not None and self.num_envs < self.episodes:
             raise InputError(
                 f"--num-envs {self.num_envs}: evaluate at least as many envs as --episodes "
@@ -246,6 +265,7 @@ class LoopSettings:
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
         _at_least(self, ("episodes", "iterations", "num_envs"))
+        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
         if not 5.0 <= self.sysid_duration <= 3600.0:  # NaN fails too.
             raise InputError(f"--sysid-duration {self.sysid_duration}: choose 5 to 3600 s")
         _check_minutes(self.max_minutes)
@@ -275,7 +295,9 @@ class ExportSettings:
 
 
 __all__ = [
+    "MAX_NUM_ENVS",
     "MAX_SEED",
+    "MAX_STEPS_PER_ENV",
     "DistillSettings",
     "EvalSettings",
     "ExportSettings",

@@ -223,6 +223,8 @@ def _read_lines(path: Path) -> list[str]:
         raise InputError(f"{path}: no such file")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a .bvh file")
+    if not path.is_file():  # A pipe would block forever, a device such as /dev/zero never end.
+        raise InputError(f"{path}: not a regular file, expected a .bvh file")
     try:
         raw = path.read_bytes()
     except OSError as e:

@@ -55,7 +55,7 @@ import mujoco
 import numpy as np
 
 from humimic.configs.retarget import DynamicsConfig
-from humimic.errors import InputError
+from humimic.errors import InputError, RetargetError
 from humimic.motion import Motion
 from humimic.retarget.contacts import runs, step_speed
 from humimic.retarget.ilqr import ilqr
@@ -433,7 +433,11 @@ class DynamicsRetargeter:
                         break
                 else:
                     stall = 0
-            assert best is not None
+            if best is None:  # Every cost was NaN: the simulation diverged in every rollout.
+                raise RetargetError(
+                    f"dynamics: every sampled rollout of the window at frame {f0} diverged "
+                    "(NaN cost); lower --dyn.noise or --dyn.feedforward"
+                )
             offs_b, u_b = best
             committed = best_c
             if cfg.polish_iterations:

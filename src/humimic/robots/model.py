@@ -173,6 +173,16 @@ def export_nominal(
         raise InputError(f"{out}: the exported model must be an .xml file")
     spec, _, path = _nominal_spec(cfg, menagerie_root)
     check_not_input(out, {"the robot model": path}, "--out")
+    # The model's folder holds the files it includes (a Menagerie scene.xml includes g1.xml)
+    # and its meshes: the export must neither replace one nor remove it with an old
+    # <out>_assets folder.
+    model_dir, out_abs = path.parent.resolve(), Path(out).resolve()
+    assets_abs = out_abs.parent / f"{out_abs.stem}_assets"
+    if model_dir in out_abs.parents or assets_abs == model_dir or assets_abs in model_dir.parents:
+        raise OutputPathError(
+            f"--out {out}: inside or around the robot model's folder {path.parent}, whose "
+            "files the export reads; choose another folder"
+        )
     if edit is not None:
         edit(spec)
     src_meshdir = Path(spec.meshdir)

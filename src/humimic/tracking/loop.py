@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from humimic.configs.runs import EvalSettings, LoopSettings, TrainSettings
-from humimic.errors import InputError
+from humimic.errors import InputError, OutputPathError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
 _METRICS = ("success_rate", "mean_steps", "mpjpe_global_mm", "mpjpe_root_mm", "joint_error_rad")
@@ -107,6 +107,8 @@ def _check(s: LoopSettings) -> Any:
                          "deployed; run the loop on a deployable variant")  # fmt: skip
     if s.motion is not None and not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
+    if s.out.exists() and not s.out.is_dir():
+        raise InputError(f"--out {s.out}: exists and is not a folder")
     if s.out.exists() and any(s.out.iterdir()):
         raise InputError(f"--out {s.out}: exists and is not empty")
     check_writable(s.out / "loop.json")
@@ -141,7 +143,10 @@ def loop(settings: LoopSettings) -> dict:
     out = s.out
     created = not out.exists()
     run = _check(s)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputPathError(f"--out {out}: cannot create the folder: {e.strerror or e}") from None
     t0 = time.perf_counter()
     report: dict[str, Any] = {"run": str(s.run), "motion": str(s.motion or run.motion),
                               "real": s.real, "iterations": s.iterations}  # fmt: skip

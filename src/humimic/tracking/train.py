@@ -567,6 +567,16 @@ def check_run_settings(s: Any) -> bool:
     has_run = (s.out / "config.yaml").exists()
     if has_run and not s.resume:
         raise InputError(f"--out {s.out}: holds a run already; pass --resume to continue it")
+    init = getattr(s, "init_from", None)  # One inside --out: _check_train_outputs says so.
+    inside = init is not None and s.out.resolve() in (init.resolve(), *init.resolve().parents)
+    if not has_run and not s.resume and not inside and s.out.is_dir():
+        # A new run writes these: files of the same names there would be overwritten.
+        clash = [n for n in ("progress.csv", "checkpoints") if (s.out / n).exists()]
+        if clash:
+            raise InputError(
+                f"--out {s.out}: holds {' and '.join(clash)} but no run (no config.yaml), "
+                "which a new run would overwrite; choose a new or empty folder"
+            )
     return has_run
 
 

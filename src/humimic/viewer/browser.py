@@ -21,6 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from humimic.errors import MissingDependencyError
+from humimic.io import atomic_write
 
 CHROMIUM_FLAGS = (
     "--headless",
@@ -112,7 +113,8 @@ def screenshot(
                 os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     path = Path(out)
-    path.write_bytes(base64.b64decode(data))
+    with atomic_write(path) as f:  # Never a half-written PNG.
+        f.write(base64.b64decode(data))
     return path
 
 
