@@ -18,5 +18,7 @@ echo "== pyright"
 echo "== pytest"
 # Two workers (pytest-xdist): 12% faster on the 2-core machine (7:57 -> 6:58), where MuJoCo
 # and torch already use both cores part of the time.
-if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2; fi
+# One OpenMP thread per worker: two workers of two spinning torch threads each on two cores
+# slowed the residual-network test from 43 s to 156 s.
+if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2; export OMP_NUM_THREADS=1; fi
 .venv/bin/python -m pytest -q "$@"
