@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from numpy.lib import format as npformat
 
+from archives import zip_bytes
 from humimic.datasets import load_bvh, load_clip, load_positions
 from humimic.errors import HumimicError
 from humimic.io import read_yaml
@@ -222,7 +223,7 @@ def _odd_array(rng: random.Random, log: list[str]) -> bytes:
         ("records", lambda: _npy(np.zeros((3, 4, 3), [("x", "<f8")]))),
         ("53 joints", lambda: _npy(np.zeros((2, 53, 3)))),
         ("many joints", lambda: _npy(np.zeros((1, 20000, 3), np.float32))),
-        ("zip", lambda: _zip({"positions.npy": _npy(POSITIONS)})),
+        ("zip", lambda: zip_bytes({"positions.npy": _npy(POSITIONS)})),
         ("random", lambda: rng.randbytes(rng.randrange(200))),
         ("empty", lambda: b""),
         ("version 3.0", lambda: b"\x93NUMPY\x03\x00" + _header(_valid_header())[8:]),
@@ -289,14 +290,6 @@ def mutate_npy(seed: int) -> tuple[bytes, list[str]]:
     rng = random.Random(f"npy-{seed}")
     log: list[str] = []
     return _npy_mutant(rng, log, _npy(POSITIONS)), log
-
-
-def _zip(members: dict[str, bytes], compression: int = zipfile.ZIP_STORED) -> bytes:
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression) as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    return buf.getvalue()
 
 
 def mutate_npz(seed: int) -> tuple[bytes, list[str]]:
@@ -374,7 +367,7 @@ def mutate_npz(seed: int) -> tuple[bytes, list[str]]:
     compression = zipfile.ZIP_DEFLATED if rng.random() < 0.3 else zipfile.ZIP_STORED
     if compression == zipfile.ZIP_DEFLATED:
         log.append("deflated")
-    data = _bytes_mutations(rng, _zip(members, compression), log)
+    data = _bytes_mutations(rng, zip_bytes(members, compression), log)
     return data, log
 
 
@@ -500,7 +493,7 @@ def test_unmutated_inputs_load(tmp_path: Path) -> None:
         "fps.npy": _npy(np.float64(30.0)),
         "parents.npy": _npy(np.array([-1, 0, 1, 1])),
     }
-    (tmp_path / "c.npz").write_bytes(_zip(members))
+    (tmp_path / "c.npz").write_bytes(zip_bytes(members))
     clip = load_clip(tmp_path / "c.npz")
     assert clip.names == tuple(NAMES) and clip.fps == 30.0 and clip.parents == (-1, 0, 1, 1)
     for kind, text in _YAML_BASES.items():

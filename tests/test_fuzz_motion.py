@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
+from archives import flip_bytes, truncate_bytes
 from humimic.cli.main import main
 from humimic.errors import HumimicError
 from humimic.mcap_io import SCHEMAS, TOPICS, read_mcap, read_motion_mcap, write_motion_mcap
@@ -108,16 +109,11 @@ def _pick(rng: np.random.Generator, keys: list[str]) -> str:
 
 
 def npz_flip(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:
-    raw = bytearray(b.npz)
-    n = int(rng.integers(1, 17))
-    for i in rng.integers(0, len(raw), n):
-        raw[i] ^= int(rng.integers(1, 256))
-    return bytes(raw), f"{n} bytes flipped"
+    return flip_bytes(rng, b.npz)
 
 
 def npz_truncate(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:
-    n = int(rng.integers(0, len(b.npz)))
-    return b.npz[:n], f"cut at {n} of {len(b.npz)} bytes"
+    return truncate_bytes(rng, b.npz)
 
 
 def npz_delete(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:
@@ -346,16 +342,11 @@ _BAD_VALUES: list[Any] = [math.nan, math.inf, -math.inf, 1e308, -1e300, "x", Non
 
 
 def mcap_flip(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:
-    raw = bytearray(b.mcap)
-    n = int(rng.integers(1, 17))
-    for i in rng.integers(0, len(raw), n):
-        raw[i] ^= int(rng.integers(1, 256))
-    return bytes(raw), f"{n} bytes flipped"
+    return flip_bytes(rng, b.mcap)
 
 
 def mcap_truncate(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:
-    n = int(rng.integers(0, len(b.mcap)))
-    return b.mcap[:n], f"cut at {n} of {len(b.mcap)} bytes"
+    return truncate_bytes(rng, b.mcap)
 
 
 def mcap_lengths(rng: np.random.Generator, b: Base) -> tuple[bytes, str]:

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from numpy.lib import format as npformat
 
+from archives import zip_bytes
 from humimic.cli.main import main
 from humimic.datasets import HumanClip, load_bvh, load_clip, load_positions
 from humimic.datasets.positions import MAX_ARRAY_BYTES
@@ -201,14 +202,6 @@ def test_npy_shorter_or_longer_than_its_header(tmp_path: Path) -> None:
         load_positions(long, joint_names="abcd")
 
 
-def _npz(members: dict[str, bytes], compression: int = zipfile.ZIP_STORED) -> bytes:
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression) as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    return buf.getvalue()
-
-
 def _npy(array: np.ndarray) -> bytes:
     buf = io.BytesIO()
     np.save(buf, array)
@@ -226,7 +219,7 @@ def test_npz_member_header_claiming_huge_data_is_refused(tmp_path: Path, member:
     descr = arrays[member].dtype.str
     members[f"{member}.npy"] = _npy_header((10**11, 53, 3), descr) + b"\0" * 64
     path = tmp_path / "huge.npz"
-    path.write_bytes(_npz(members, zipfile.ZIP_DEFLATED))
+    path.write_bytes(zip_bytes(members, zipfile.ZIP_DEFLATED))
     with pytest.raises(MotionDataError, match=rf"huge\.npz: array '{member}': header claims"):
         load_clip(path)
 
@@ -237,7 +230,7 @@ def test_npz_member_shorter_than_its_header(tmp_path: Path) -> None:
         "joint_names.npy": _npy(np.array(["a", "b", "c"])),
     }
     path = tmp_path / "short.npz"
-    path.write_bytes(_npz(members))
+    path.write_bytes(zip_bytes(members))
     with pytest.raises(MotionDataError, match=r"short\.npz: array 'positions': truncated"):
         load_clip(path)
 
@@ -245,7 +238,7 @@ def test_npz_member_shorter_than_its_header(tmp_path: Path) -> None:
 def test_npz_member_whose_zip_directory_lies_about_its_size(tmp_path: Path) -> None:
     frames = 10**6  # 1.2 GiB claimed, under the limit; the archive holds a few bytes.
     header = _npy_header((frames, 53, 3))
-    archive = bytearray(_npz({"positions.npy": header + b"\0" * 8}))
+    archive = bytearray(zip_bytes({"positions.npy": header + b"\0" * 8}))
     claimed = len(header) + frames * 53 * 3 * 8
     central = archive.index(b"PK\x01\x02")
     for offset in (18, 22):  # Local header: compressed, uncompressed size.
@@ -328,7 +321,7 @@ def test_npz_members_of_the_wrong_kind(
         np.save(buf, value, allow_pickle=True)
         members[f"{key}.npy"] = buf.getvalue()
     path = tmp_path / "odd.npz"
-    path.write_bytes(_npz(members))
+    path.write_bytes(zip_bytes(members))
     with pytest.raises(MotionDataError) as e:
         load_clip(path)
     assert str(e.value).startswith(f"{path}: ") and expected in str(e.value)
@@ -416,7 +409,7 @@ def test_clip_value_errors_name_the_source(tmp_path: Path) -> None:
     ("name", "data"),
     [
         ("folder.npy", None),
-        ("zip.npy", _npz({"positions.npy": b"x"})),
+        ("zip.npy", zip_bytes({"positions.npy": b"x"})),
         ("notzip.npz", b"not a zip"),
         ("pickle.npy", b"\x80\x04K\x01."),
         ("empty.bvh", b""),

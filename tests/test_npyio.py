@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from numpy.lib import format as npformat
 
+from archives import zip_bytes
 from humimic.errors import InputError, MotionDataError
 from humimic.npyio import (
     MAX_HEADER_BYTES,
@@ -50,14 +51,6 @@ def _raw(text: bytes, version: int = 1) -> bytes:
 def _npy(array: np.ndarray, version: tuple[int, int] | None = None) -> bytes:
     buf = io.BytesIO()
     npformat.write_array(buf, array, version=version, allow_pickle=False)
-    return buf.getvalue()
-
-
-def _zip(members: dict[str, bytes], compression: int = zipfile.ZIP_STORED) -> bytes:
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", compression) as z:
-        for name, data in members.items():
-            z.writestr(name, data)
     return buf.getvalue()
 
 
@@ -157,7 +150,7 @@ def test_object_arrays_are_refused_and_never_unpickled(tmp_path: Path) -> None:
     message = _refused(buf.getvalue(), "holds Python objects (a pickle)", "expected numbers")
     assert not marker.exists(), message
     npz = tmp_path / "o.npz"
-    npz.write_bytes(_zip({"a.npy": buf.getvalue()}))
+    npz.write_bytes(zip_bytes({"a.npy": buf.getvalue()}))
     with pytest.raises(CallerError, match=r"o\.npz: array 'a': holds Python objects"):
         read_npz_members(npz, max_bytes=GIB, kinds="f", error=CallerError)
     assert not marker.exists()
@@ -272,7 +265,7 @@ def test_a_zip_member_whose_directory_lies_about_its_size(tmp_path: Path) -> Non
     header = _header((frames, 53, 3))
     claimed = len(header) + frames * 53 * 3 * 8
     path = tmp_path / "liar.npz"
-    path.write_bytes(_patch_sizes(_zip({"positions.npy": header + b"\0" * 8}), claimed))
+    path.write_bytes(_patch_sizes(zip_bytes({"positions.npy": header + b"\0" * 8}), claimed))
     read = lambda: read_npz_members(path, max_bytes=2 * GIB, kinds="f", error=CallerError)  # noqa: E731
     # Memory follows the bytes really there (one chunk at most), not the claim.
     assert _peak(read) < READ_CHUNK + 16 * 2**20
@@ -286,10 +279,10 @@ def test_a_zip_member_whose_directory_lies_about_its_size(tmp_path: Path) -> Non
 def test_members_must_match_their_declared_size(tmp_path: Path) -> None:
     data = _npy(np.arange(4.0))
     path = tmp_path / "long.npz"
-    path.write_bytes(_zip({"a.npy": data + b"\0" * 8}))
+    path.write_bytes(zip_bytes({"a.npy": data + b"\0" * 8}))
     with pytest.raises(CallerError, match=r"long\.npz: array 'a': longer than its header says"):
         read_npz_members(path, max_bytes=GIB, kinds="f", error=CallerError)
-    path.write_bytes(_zip({"a.npy": data[:-8]}))
+    path.write_bytes(zip_bytes({"a.npy": data[:-8]}))
     with pytest.raises(CallerError, match=r"long\.npz: array 'a': truncated: header says"):
         read_npz_members(path, max_bytes=GIB, kinds="f", error=CallerError)
 
@@ -297,7 +290,7 @@ def test_members_must_match_their_declared_size(tmp_path: Path) -> None:
 def test_keys_duplicates_and_stray_members(tmp_path: Path) -> None:
     good, bad = _npy(np.arange(3.0)), b"\x93NUMPY garbage"
     path = tmp_path / "a.npz"
-    path.write_bytes(_zip({"a.npy": good, "junk.npy": bad, "notes.txt": b"hi"}))
+    path.write_bytes(zip_bytes({"a.npy": good, "junk.npy": bad, "notes.txt": b"hi"}))
     # Only the wanted keys are read: the broken and stray members are never touched.
     out = read_npz_members(path, ["a", "absent"], max_bytes=GIB, kinds="f")
     assert list(out) == ["a"] and out["a"].tolist() == [0.0, 1.0, 2.0]
@@ -319,7 +312,7 @@ def test_keys_duplicates_and_stray_members(tmp_path: Path) -> None:
     with pytest.raises(CallerError, match=r"twice\.npz: key 'a' appears twice"):
         read_npz_members(twice, ["a"], max_bytes=GIB, kinds="f", error=CallerError)
     both = tmp_path / "both.npz"
-    both.write_bytes(_zip({"a.npy": good, "a": good}))
+    both.write_bytes(zip_bytes({"a.npy": good, "a": good}))
     with pytest.raises(CallerError, match=r"both\.npz: key 'a' appears twice"):
         read_npz_members(both, ["a"], max_bytes=GIB, kinds="f", error=CallerError)
 
@@ -328,7 +321,7 @@ def _corrupt(path: Path, kind: str) -> None:
     """An archive of one member ``a.npy`` broken the way ``kind`` says."""
     data = _npy(np.arange(64.0))
     method = {"lzma": zipfile.ZIP_LZMA, "bz2": zipfile.ZIP_BZIP2, "deflate": zipfile.ZIP_DEFLATED}
-    raw = bytearray(_zip({"a.npy": data}, method.get(kind, zipfile.ZIP_STORED)))
+    raw = bytearray(zip_bytes({"a.npy": data}, method.get(kind, zipfile.ZIP_STORED)))
     central = raw.index(b"PK\x01\x02")
     if kind == "encrypted":
         raw[central + 8] |= 1  # General purpose flag bit 0.
@@ -429,7 +422,7 @@ def test_every_exception_kind_becomes_the_callers_error(
         assert message.startswith(f"f.npz: array 'q': cannot read ({type(exc).__name__}")
         assert "\n" not in message
     path = tmp_path / "m.npz"
-    path.write_bytes(_zip({"q.npy": data}))
+    path.write_bytes(zip_bytes({"q.npy": data}))
 
     def fail(*args: object, **kwargs: object) -> None:
         raise exc
@@ -457,7 +450,7 @@ def test_files_that_are_not_what_they_should_be(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="is a folder"):
         read_npy_file(tmp_path, max_bytes=GIB, kinds="f")
     zipped = tmp_path / "z.npy"
-    zipped.write_bytes(_zip({"a.npy": _npy(np.zeros(2))}))
+    zipped.write_bytes(zip_bytes({"a.npy": _npy(np.zeros(2))}))
     with pytest.raises(CallerError, match=r"z\.npy: expected one \.npy array, found a \.npz"):
         read_npy_file(zipped, max_bytes=GIB, kinds="f", error=CallerError)
     text = tmp_path / "t.npz"
