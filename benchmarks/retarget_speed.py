@@ -49,7 +49,7 @@ def mink_baseline(rt: Retargeter, clip, iters_per_frame: int) -> float:
         FloorLimit(model, [f.body for f in rt.map.feet.values()]),
         mink.CollisionAvoidanceLimit(
             model,
-            self_collision_geoms(model, rt.robot),  # type: ignore[arg-type]
+            self_collision_geoms(ik.self_collision_pairs),  # type: ignore[arg-type]
             minimum_distance_from_collisions=rt.cfg.collision_margin,
             collision_detection_distance=rt.cfg.collision_detection,
         ),

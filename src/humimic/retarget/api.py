@@ -24,7 +24,6 @@ from humimic.retarget.interaction import (
 from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX, KinematicRetargeter
 from humimic.retarget.metrics import evaluate, evaluate_scene
 from humimic.retarget.scene import Scene, scene_arrays
-from humimic.robots.collision import self_collision_pairs
 from humimic.robots.maps import RetargetMap, get_map, load_map_file
 from humimic.robots.registry import get_robot
 
@@ -149,7 +148,7 @@ class Retargeter:
             keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
             keypoint_targets=tg.scaled,
             foot_bodies=[f.body for f in self.map.feet.values()],
-            self_collision=self_collision_pairs(self.ik.model, self.robot.root_body),
+            self_collision=self.ik.self_collision_pairs,
             floor_geom=self.robot.floor_geom,
             human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
         )

@@ -101,12 +101,10 @@ def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
     ]
 
 
-def self_collision_geoms(
-    model: mujoco.MjModel, robot: RobotConfig
-) -> list[tuple[list[int], list[int]]]:
-    """The robot's self-collision pairs (:func:`~humimic.robots.collision.self_collision_pairs`,
-    from the model's own geometry) as mink's geom-pair groups, one group per pair."""
-    return [([int(a)], [int(b)]) for a, b in self_collision_pairs(model, robot.root_body)]
+def self_collision_geoms(pairs: np.ndarray) -> list[tuple[list[int], list[int]]]:
+    """Geom pairs (:func:`~humimic.robots.collision.self_collision_pairs`) as mink's geom-pair
+    groups, one group per pair. Shape of ``pairs``: (P, 2)."""
+    return [([int(a)], [int(b)]) for a, b in pairs]
 
 
 DAQP_SOFT = 8
@@ -241,11 +239,13 @@ class KinematicRetargeter:
         self.limits: list[mink.Limit] = []
         if cfg.floor_limit:
             self.limits.append(FloorLimit(model, foot_bodies))
+        # One set of pairs: what the IK keeps apart is what the report measures.
+        self.self_collision_pairs = self_collision_pairs(model, robot.root_body)
         self.self_collision: SelfCollisionLimit | None = None
         if cfg.self_collision:
             self.self_collision = SelfCollisionLimit(
                 model,
-                self_collision_geoms(model, robot),  # type: ignore[arg-type]
+                self_collision_geoms(self.self_collision_pairs),  # type: ignore[arg-type]
                 gain=cfg.collision_gain,
                 minimum_distance_from_collisions=cfg.collision_margin,
                 collision_detection_distance=cfg.collision_detection,
