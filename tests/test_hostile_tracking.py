@@ -350,6 +350,11 @@ def test_trim_progress_drops_rows_past_the_checkpoint(tmp_path: Path) -> None:
     assert not path.exists()
     path.write_text("iteration,sec")  # A header cut short.
     assert trim_progress(path, 3) == (0.0, None) and not path.exists()
+    # A last row cut short is removed from the file even when every full row is kept:
+    # otherwise the resumed run's next row would be glued onto it.
+    path.write_text("iteration,seconds\n1,0.5\n2,1.0\n3,1.")
+    assert trim_progress(path, 5) == (1.0, ["iteration", "seconds"])
+    assert path.read_text() == "iteration,seconds\n1,0.5\n2,1.0\n"
 
 
 # --- 6. outputs that would overwrite an input ------------------------------------------------

@@ -598,7 +598,8 @@ def trim_progress(path: Path, done: int) -> tuple[float, list[str] | None]:
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read the run's progress ({_first_line(e)})") from None
     lines = text.splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
+    cut = bool(lines) and not lines[-1].endswith("\n")
+    if cut:
         lines.pop()  # A row cut short.
     rows = list(csv.reader(lines))
     if not rows:  # Empty, or a header cut short: nothing to keep.
@@ -621,7 +622,7 @@ def trim_progress(path: Path, done: int) -> tuple[float, list[str] | None]:
     if not kept:
         path.unlink()
         return 0.0, None
-    if len(kept) != len(rows) - 1 or len(lines) != len(rows):
+    if cut or len(kept) != len(rows) - 1 or len(lines) != len(rows):
         out = io.StringIO()
         csv.writer(out, lineterminator="\n").writerows([header, *kept])
         atomic_write_text(path, out.getvalue())
