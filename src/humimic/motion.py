@@ -43,7 +43,6 @@ _REQUIRED = (
     "body_lin_vel_w",
     "body_ang_vel_w",
 )
-_FRAME_ARRAYS = _REQUIRED[5:]
 _DYNAMICS_KEYS = ("initial_state", "ctrl", "qpos", "qvel", "physics_dt")
 
 MAX_MOTION_BYTES = 4 << 30
@@ -218,7 +217,7 @@ def _check_numbers(w: _Where, key: str, v: object, kinds: str = "iuf") -> np.nda
         if bad.any():
             raise w.error(f"{label} contains NaN or inf ({_first(bad)})")
     if v.dtype.kind in "iuf" and v.size:
-        big = np.abs(v.astype(np.float64)) > MAX_ABS_VALUE
+        big = np.abs(v.astype(np.float64, copy=False)) > MAX_ABS_VALUE
         if big.any():
             raise w.error(
                 f"{label} holds a value beyond {MAX_ABS_VALUE:g} ({_first(big)}): corrupt data"

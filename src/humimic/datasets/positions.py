@@ -214,9 +214,9 @@ def _clip_arrays(p: Path) -> tuple[np.ndarray, list[str] | None, float | None, l
     raw_parents = arrays.get("parents")
     names = None
     if raw_names is not None:
-        names = raw_names.tolist() if raw_names.dtype.kind == "U" and raw_names.ndim == 1 else None
-        if names is None:
+        if raw_names.dtype.kind != "U" or raw_names.ndim != 1:
             raise MotionDataError(f"{p}: 'joint_names' must be a 1-D array of strings")
+        names = raw_names.tolist()
     fps = None
     if raw_fps is not None:
         if raw_fps.size != 1 or raw_fps.dtype.kind not in "iuf":

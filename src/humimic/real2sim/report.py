@@ -50,10 +50,7 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
     from humimic.robots import get_robot
 
     meta = read_mcap(path, topics=[]).meta("robot")
-    try:
-        robot = get_robot(meta.get("name", ""))
-    except InputError as e:
-        raise InputError(f"{path}: metadata robot.name: {e}") from None
+    robot = get_robot(meta.get("name", ""), f"{path}: metadata robot.name")
     if meta.get("base") != "fixed":
         raise InputError(
             f"{path}: only fixed-base logs (a robot hanging in a gantry) can be diagnosed so "

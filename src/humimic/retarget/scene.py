@@ -537,7 +537,7 @@ def _read_trajectory(where: str, tp: Path) -> np.ndarray:
         )
     except InputError as e:
         raise InputError(f"{where}.trajectory: {e}") from None
-    if poses.dtype.kind not in "iuf" or poses.ndim != 2 or poses.shape[1] != 7:
+    if poses.ndim != 2 or poses.shape[1] != 7:  # read_npy_file checked the dtype.
         raise InputError(
             f"{where}.trajectory: {tp}: expected poses of shape (T, 7) (position, wxyz "
             f"quaternion), got shape {poses.shape} and dtype {poses.dtype}"
