@@ -43,7 +43,7 @@ import torch
 from mujoco import rollout as mj_rollout
 
 from humimic.motion import motion_from_qpos
-from humimic.tracking.backend import MujocoCpuBackend
+from humimic.sim.backend import MujocoCpuBackend
 from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import TrackingEnv, tracking_model
 from humimic.tracking.rsl import torch_threads

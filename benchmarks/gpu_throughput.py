@@ -29,10 +29,10 @@ from pathlib import Path
 import torch
 
 from env_throughput import arm_swing  # The CPU benchmark's reference (no data files needed).
+from humimic.sim.warp_backend import MujocoWarpBackend
 from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
 from humimic.tracking.train import load_reference, resolve_dr
-from humimic.tracking.warp_backend import MujocoWarpBackend
 
 
 def _sync() -> None:

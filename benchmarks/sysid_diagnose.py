@@ -16,9 +16,10 @@ from pathlib import Path
 
 import mujoco
 
-from humimic.real2sim import LogSettings, parse_injection, simulate_log, write_robot_log
+from humimic.real2sim import LogSettings, simulate_log, write_robot_log
 from humimic.real2sim.report import run_diagnosis
 from humimic.robots import get_robot
+from humimic.sim.effects import parse_injection
 
 
 def _cable(spec: mujoco.MjSpec) -> None:

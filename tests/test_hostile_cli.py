@@ -221,7 +221,7 @@ def test_loop_out_that_is_a_file_or_cannot_be_made_exits_2(
     class _Run:
         variant = "beyondmimic"
 
-    monkeypatch.setattr(train_module, "_run_config", lambda run: ({}, _Run()))
+    monkeypatch.setattr(train_module, "run_config", lambda run: ({}, _Run()))
     afile = tmp_path / "afile"
     afile.write_text("x\n")
     base = ["loop", "--run", str(tmp_path / "run"), "--real", "backpack"]

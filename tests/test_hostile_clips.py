@@ -26,7 +26,7 @@ from humimic.errors import BvhParseError, InputError, MapError, MotionDataError
 from humimic.io import read_yaml
 from humimic.retarget.scene import load_scene
 from humimic.robots.maps import load_map_file
-from humimic.tracking.physics import load_physics
+from humimic.sim.physics import load_physics
 
 
 def _files(root: Path) -> set[str]:

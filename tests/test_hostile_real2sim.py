@@ -20,8 +20,8 @@ from mcap.writer import Writer
 
 from humimic.cli.main import main
 from humimic.errors import InputError
-from humimic.real2sim.effects import Injection, apply_to_spec, parse_injection
-from humimic.tracking.physics import load_physics
+from humimic.sim.effects import Injection, apply_to_spec, parse_injection
+from humimic.sim.physics import load_physics
 
 # An edit gets (topic, index on the topic, log time [ns], message) and returns the new
 # (log time, message), or None to drop the message.

@@ -20,15 +20,14 @@ from humimic.errors import InputError
 from humimic.real2sim import (
     LogSettings,
     RobotLog,
-    fixed_base_spec,
     kstep_error,
-    parse_injection,
     read_robot_log,
     simulate_log,
     write_robot_log,
 )
-from humimic.real2sim.residual import prediction_spec
 from humimic.robots import get_robot
+from humimic.sim.effects import parse_injection
+from humimic.sim.models import fixed_base_spec, prediction_spec
 
 SETTINGS = LogSettings(duration=8.0)
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from humimic.cli.main import main
-from humimic.real2sim import LogSettings, RobotLog, parse_injection, simulate_log
+from humimic.real2sim import LogSettings, RobotLog, simulate_log
 from humimic.real2sim.diagnose import (
     FIT_END,
     Diagnosis,
@@ -25,9 +25,10 @@ from humimic.real2sim.diagnose import (
     backlash_models,
     diagnose_log,
 )
-from humimic.real2sim.effects import apply_to_spec
-from humimic.real2sim.residual import Correction, Predictor, kstep_error, prediction_spec
+from humimic.real2sim.residual import Correction, Predictor, kstep_error
 from humimic.robots import get_robot
+from humimic.sim.effects import apply_to_spec, parse_injection
+from humimic.sim.models import prediction_spec
 
 DURATION = 12.0
 

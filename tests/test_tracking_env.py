@@ -16,17 +16,16 @@ from rsl_rl.runners import OnPolicyRunner
 from humimic import transforms as tf
 from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion, motion_from_qpos
-from humimic.tracking import dr as dr_mod
+from humimic.sim import randomization as dr_mod
+from humimic.sim.backend import MujocoCpuBackend
+from humimic.sim.randomization import dr_default, load_dr_profile
 from humimic.tracking import rewards as rew
 from humimic.tracking import terminations as term
-from humimic.tracking.backend import MujocoCpuBackend
 from humimic.tracking.config import (
     TRACKING_TASKS,
     AdaptiveSampling,
     default_rewards,
-    dr_default,
     g1_tracking,
-    load_dr_profile,
     tracking_task,
 )
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
@@ -447,8 +446,8 @@ def test_batched_set_const_equals_mujocos(model: mujoco.MjModel) -> None:
     tensor math) against ``mj_setConst`` on each model, with wide DR ranges."""
     import copy
 
-    from humimic.tracking.backend import ModelLayout
-    from humimic.tracking.setconst import InertiaConstants
+    from humimic.sim.params import ModelLayout
+    from humimic.sim.setconst import InertiaConstants
 
     cfg = g1_tracking("default")
     wide = replace(cfg.dr, mass_scale=(0.5, 2.0), armature_scale=(0.3, 3.0),

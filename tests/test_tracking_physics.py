@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from humimic.errors import InputError
-from humimic.tracking.backend import MujocoCpuBackend
+from humimic.sim.backend import MujocoCpuBackend
+from humimic.sim.physics import SHIPPED, load_physics, parse_physics, write_physics
 from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import build_backend, tracking_model
-from humimic.tracking.physics import SHIPPED, load_physics, parse_physics, write_physics
 
 
 @pytest.fixture(scope="module")

@@ -16,11 +16,12 @@ import torch
 
 from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion, motion_from_qpos
-from humimic.tracking import dr as dr_mod
-from humimic.tracking.backend import MujocoCpuBackend
-from humimic.tracking.config import WarpOptions, g1_tracking
+from humimic.sim import randomization as dr_mod
+from humimic.sim.backend import MujocoCpuBackend
+from humimic.sim.setup import WarpOptions
+from humimic.sim.warp_backend import MujocoWarpBackend, capacity, warp_available
+from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
-from humimic.tracking.warp_backend import MujocoWarpBackend, capacity, warp_available
 
 pytestmark = [
     pytest.mark.slow,

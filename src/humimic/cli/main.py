@@ -687,14 +687,9 @@ def run_diagnose(cmd: SysidDiagnose) -> dict:
 
 def run_sysid(cmd: SysidSimulate | SysidResidual | SysidDiagnose) -> None:
     """Run ``humimic sysid simulate|residual|diagnose``."""
-    from humimic.real2sim import (
-        LogSettings,
-        kstep_error,
-        parse_injection,
-        simulate_log,
-        write_robot_log,
-    )
+    from humimic.real2sim import LogSettings, kstep_error, simulate_log, write_robot_log
     from humimic.robots import get_robot
+    from humimic.sim.effects import parse_injection
 
     if isinstance(cmd, SysidSimulate):
         robot = get_robot(cmd.robot, "--robot")
@@ -792,7 +787,7 @@ def run_eval(cmd: EvalSettings) -> None:
 
 def run_loop(cmd: LoopSettings) -> None:
     """Run ``humimic loop``."""
-    from humimic.tracking.loop import loop
+    from humimic.pipeline.loop import loop
 
     r = loop(cmd)
     for name in ("before", "after", "after_nominal"):

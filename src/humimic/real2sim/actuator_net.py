@@ -24,10 +24,10 @@ from scipy.signal import savgol_filter
 
 from humimic.errors import InputError
 from humimic.io import atomic_write
-from humimic.real2sim.joints import JointMap
 from humimic.real2sim.residual import Correction, set_gains
 from humimic.real2sim.robotlog import RobotLog
-from humimic.real2sim.simulate import PHYSICS_DT
+from humimic.sim.joints import JointMap
+from humimic.sim.models import PHYSICS_DT
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -41,10 +41,11 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.joints import PLAY_SUFFIX, JointMap
-from humimic.real2sim.residual import Correction, Predictor
+from humimic.real2sim.residual import Predictor
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.registry import RobotConfig
+from humimic.sim.effects import Correction, apply_effect
+from humimic.sim.joints import JointMap
 
 FIT_END = 0.7
 """The first 70% of a log is used to fit; the rest is held out."""
@@ -136,43 +137,6 @@ class _Pair:
     hi: float
     none: float  # The value that adds nothing.
     probe: float  # A first, typical value.
-
-
-def apply_effect(c: Correction, effect: str, index: int, value: float) -> None:
-    """Add one effect to a correction in place (``index``: a joint of the log, or a body for a
-    payload). Backlash needs a model with the joint's play joint (:func:`backlash_models`)."""
-    m = c.model
-    if effect == "payload_mass":
-        m.body_mass[index] += value
-        mujoco.mj_setConst(m, mujoco.MjData(m))  # Constraint scaling depends on the inertia.
-        return
-    jm = JointMap.of(m)
-    jid = int(jm.jid[index])
-    dof = int(m.jnt_dofadr[jid])
-    act = int(np.flatnonzero(jm.act_log == index)[0])
-    if effect == "coulomb_friction":
-        m.dof_frictionloss[dof] += value
-    elif effect == "viscous_damping":
-        m.dof_damping[dof] += value
-    elif effect == "armature":
-        m.dof_armature[dof] += value
-        mujoco.mj_setConst(m, mujoco.MjData(m))
-    elif effect == "gain_mismatch":
-        c.gain_scale[act] *= value
-    elif effect == "delay":
-        c.delay[act] = value
-    elif effect == "lag":
-        m.actuator_dynprm[act, 0] = value
-    elif effect == "torque_limit":
-        m.actuator_forcelimited[act] = 1
-        m.actuator_forcerange[act] = (-value, value)
-    elif effect == "encoder_offset":
-        c.offset[index] = value
-    elif effect == "backlash":
-        play = m.joint(jm.names[index] + PLAY_SUFFIX).id
-        m.jnt_range[play] = (-value / 2, value / 2)
-    else:
-        raise ValueError(f"effect {effect!r} is not searched")
 
 
 def _chain(model: mujoco.MjModel, body: int) -> np.ndarray:
@@ -474,8 +438,8 @@ def backlash_models(
     robot: RobotConfig, base_pose: np.ndarray
 ) -> Callable[[tuple[str, ...]], mujoco.MjModel]:
     """Builds the prediction model with a play joint on each given joint."""
-    from humimic.real2sim.effects import Injection, apply_to_spec
-    from humimic.real2sim.residual import prediction_spec
+    from humimic.sim.effects import Injection, apply_to_spec
+    from humimic.sim.models import prediction_spec
 
     built: dict[tuple[str, ...], mujoco.MjModel] = {}
     nominal: list[mujoco.MjSpec] = []

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import mujoco
 import numpy as np
@@ -29,10 +30,12 @@ from humimic.real2sim.diagnose import (
     diagnose_log,
     fit_predictors,
 )
-from humimic.real2sim.effects import EFFECTS, Injection, apply_to_spec
-from humimic.real2sim.residual import Correction, KStepError, Predictor, prediction_spec
+from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
+from humimic.sim.effects import EFFECTS, Correction, Injection, apply_to_spec
+from humimic.sim.models import prediction_spec
+from humimic.sim.physics import Physics
 
 UNEXPLAINED = 0.5
 """Share of the held-out error above the noise floor that, when left, makes a log unexplained."""
@@ -375,3 +378,23 @@ def _plots(
         ax.set_title(f"{f.effect} on {f.target}: {f.value:.3g} {EFFECTS[f.effect].unit}")
         save(fig, f"signature_{f.effect}_{f.target}.png")
     return paths
+
+
+def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | None) -> Physics:
+    """The correction ``humimic sysid diagnose`` claimed (its ``report.json``) as physics.
+
+    Only claimed effects (confidence >= 0.5) are kept; a residual network, if the report has
+    one, is not part of a model and is left out.
+    """
+    effects = []
+    for e in report.get("effects", []):
+        if e["confidence"] < CLAIM:
+            continue
+        targets = (e["body"],) if "body" in e else tuple(e["joints"])
+        effects.append(Injection(effect=e["effect"], targets=targets, value=e["params"]["value"]))
+    return Physics(
+        name=name,
+        description=f"effects claimed by sysid diagnose on {report.get('log', 'a log')}",
+        robot=robot,
+        effects=tuple(effects),
+    )

@@ -14,7 +14,6 @@ offset (the drive and the log see ``q + offset``) and a gain scale (applied / co
 
 from __future__ import annotations
 
-import copy
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,10 +23,10 @@ import numpy as np
 from mujoco import rollout
 
 from humimic.errors import InputError
-from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
-from humimic.real2sim.simulate import PHYSICS_DT, fixed_base_spec
-from humimic.robots.registry import RobotConfig
+from humimic.sim.effects import Correction
+from humimic.sim.joints import JointMap
+from humimic.sim.models import PHYSICS_DT
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
@@ -35,61 +34,6 @@ _MAX_BATCH_BYTES = 96 * 2**20
 """Rollout outputs are produced in chunks of at most this size."""
 _EPS = 1e-7
 """Clock tolerance [s] when finding the command in force (step times are sums of floats)."""
-
-
-def prediction_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
-    """The fixed-base robot as the predictions simulate it.
-
-    Geometry is removed (masses and inertias are explicit in the robot files; a hanging robot's
-    excitation is free of contact by design), so a copy of the compiled model costs under a
-    millisecond and a step a third less. Every actuator gets a first-order filter
-    (``filterexact``, applied in the same step) with time constant 0, which behaves exactly as
-    no filter: the diagnosis sets a time constant (``lag``) on the compiled model.
-    """
-    spec = fixed_base_spec(robot, base_pose)
-    for m in list(spec.meshes):  # Meshes first: deleting a geom is slow while meshes exist.
-        spec.delete(m)
-    for g in list(spec.geoms):
-        spec.delete(g)
-    for a in spec.actuators:
-        a.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-        a.dynprm = np.zeros(10)
-        a.actearly = True
-        a.actdim = 1
-    return spec
-
-
-@dataclass(kw_only=True)
-class Correction:
-    """A model and the effects that act around it (see the module docstring).
-
-    Attributes:
-        model: Compiled fixed-base model; its joints are the log's joints, in order.
-        delay: Transport delay of the commands per actuator [s]. Shape: (nu,).
-        offset: Encoder offset per joint [rad]. Shape: (J,).
-        gain_scale: Applied / commanded gains per actuator. Shape: (nu,).
-    """
-
-    model: mujoco.MjModel
-    delay: np.ndarray
-    offset: np.ndarray
-    gain_scale: np.ndarray
-
-    @classmethod
-    def of(cls, model: mujoco.MjModel) -> Correction:
-        """The model as it is. Transport delays the model carries natively (actuator
-        ``delay``, as in a written model.xml) move to the correction, on a copy of the model:
-        predictions start from logged states, which hold no control history."""
-        delay = np.asarray(model.actuator_delay, dtype=np.float64).copy()
-        if delay.any():
-            model = copy.copy(model)
-            model.actuator_delay[:] = 0.0
-        return cls(model=model, delay=delay, offset=np.zeros(len(JointMap.of(model).names)),
-                   gain_scale=np.ones(model.nu))  # fmt: skip
-
-    def copy(self) -> Correction:
-        return Correction(model=copy.copy(self.model), delay=self.delay.copy(),
-                          offset=self.offset.copy(), gain_scale=self.gain_scale.copy())  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)

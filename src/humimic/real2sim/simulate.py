@@ -15,15 +15,13 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.effects import Injection, apply_to_spec, value_problem
-from humimic.real2sim.joints import JointMap
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.collision import tree_path
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
-
-PHYSICS_DT = 0.001
-"""Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
+from humimic.sim.effects import Injection, apply_to_spec, value_problem
+from humimic.sim.joints import JointMap
+from humimic.sim.models import PHYSICS_DT, fixed_base_spec
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -48,42 +46,6 @@ class LogSettings:
     effort_noise: float = 0.05
     base_height: float = 1.0
     seed: int = 0
-
-
-def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
-    """The nominal spec with the floating base welded at ``base_pose`` (x y z qw qx qy qz)."""
-    spec, _ = nominal_spec(robot)
-    root = spec.body(robot.root_body)
-    for j in list(root.joints):
-        if j.type == mujoco.mjtJoint.mjJNT_FREE:
-            spec.delete(j)
-    root.pos = base_pose[:3]
-    root.quat = base_pose[3:]
-    for key in list(spec.keys):  # Keyframes hold the floating base's coordinates.
-        spec.delete(key)
-    # Body pairs whose collision hulls already touch in the zero pose (neighbours' convex hulls
-    # overlap) are excluded: they are artefacts, not contacts a hanging robot makes.
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
-    mujoco.mj_collision(model, data)
-    pairs = {
-        tuple(sorted((model.body(model.geom_bodyid[c.geom1]).name,
-                      model.body(model.geom_bodyid[c.geom2]).name)))
-        for c in data.contact[: data.ncon]
-    }  # fmt: skip
-    for a, b in sorted(pairs):
-        spec.add_exclude(bodyname1=a, bodyname2=b)
-    spec.option.timestep = PHYSICS_DT
-    # A hanging robot's excitation is chosen free of self-contact (see :func:`excitation`);
-    # what remains are neighbouring links' convex hulls grazing each other, an artefact of the
-    # collision geometry. The fixed-base robot ignores contact, so logs and predictions agree on
-    # that (the excitation check switches it back on).
-    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
-    # Semi-implicit Euler at 1 kHz is stable with these servos (kd / armature ~ 250 1/s) and
-    # keeps inverse dynamics (mj_inverse) exactly consistent with the forward simulation.
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
-    return spec
 
 
 def _tree_distance(model: mujoco.MjModel, a: int, b: int) -> int:

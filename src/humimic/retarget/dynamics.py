@@ -20,7 +20,7 @@ optimal control solved by sampling in the simulator:
 * each iteration draws ``samples`` plans around the current mean (the mean itself is one of
   them) with noise that grows along the window and shrinks across iterations, rolls every one
   out in MuJoCo from the window's start state (``mujoco.rollout`` threads, through the
-  tracking backend's :meth:`~humimic.tracking.backend.MujocoCpuBackend.rollout`), scores it,
+  tracking backend's :meth:`~humimic.sim.backend.MujocoCpuBackend.rollout`), scores it,
   and moves the mean to the MPPI average of the elites;
 * ``polish_iterations`` of iLQR (:mod:`humimic.retarget.ilqr`) then refine the best sample,
   one control per control step, on the cost's Gauss-Newton model (:meth:`_stage`), each step
@@ -37,8 +37,8 @@ optimal control solved by sampling in the simulator:
 * robust option: every sample is also scored on ``ensemble`` perturbed models, and the
   mean or the worst cost counts.
 
-The physics is the tracking env's training model (:func:`humimic.tracking.env.tracking_model`):
-the same actuators, contacts and time step as the tracking policy will see.
+The physics is the training model (:func:`humimic.sim.setup.build_model`) the tracking policy
+will see: the same actuators, contacts and time step.
 """
 
 from __future__ import annotations
@@ -60,11 +60,11 @@ from humimic.motion import Motion
 from humimic.retarget.contacts import runs, step_speed
 from humimic.retarget.ilqr import ilqr
 from humimic.robots.registry import get_robot
-from humimic.tracking import dr as dr_mod
-from humimic.tracking.backend import MujocoCpuBackend, PhysicsParams
-from humimic.tracking.config import DomainRandomization, TrackingConfig, dr_default, tracking_task
-from humimic.tracking.env import build_backend, tracking_model
-from humimic.tracking.warp_backend import MujocoWarpBackend
+from humimic.sim import randomization as dr_mod
+from humimic.sim.backend import PhysicsBackend
+from humimic.sim.params import physics_copies
+from humimic.sim.randomization import DomainRandomization, dr_default, dr_none
+from humimic.sim.setup import SimSetup, build_backend, build_model, key_body_setup
 from humimic.transforms import quat_to_matrix
 
 _UPPER = ("waist", "shoulder", "elbow", "wrist")
@@ -134,10 +134,10 @@ class DynamicsRetargeter:
         motion: The kinematic reference (its frame rate is the control rate; the physics
             step must divide the frame period).
         cfg: The sampler's settings.
-        task: The tracking task whose training model and tracked bodies are used (default:
-            the robot's registered task, without domain randomization). Its ``backend``
-            simulates the rollouts: ``cpu`` (``mujoco.rollout``) or ``warp`` (MuJoCo Warp on
-            ``device``).
+        setup: What is simulated: the training model, the bodies scored (the root first) and
+            the backend of the rollouts, ``cpu`` (``mujoco.rollout``) or ``warp`` (MuJoCo
+            Warp on ``device``). Default: the robot's key bodies on the CPU
+            (:func:`~humimic.sim.setup.key_body_setup`).
         nthread: Rollout threads of the CPU backend (default: all cores).
         device: Where the ``warp`` backend simulates (``cuda``; ``cpu`` for tests).
 
@@ -150,15 +150,15 @@ class DynamicsRetargeter:
         motion: Motion,
         cfg: DynamicsConfig | None = None,
         *,
-        task: TrackingConfig | None = None,
+        setup: SimSetup | None = None,
         nthread: int | None = None,
         device: str = "cpu",
     ) -> None:
         cfg = cfg or DynamicsConfig()
         cfg.validate()
-        task = task or tracking_task(motion.robot, dr="none")
+        task = setup or key_body_setup(motion.robot)
         if task.robot != motion.robot:
-            raise InputError(f"the motion is for {motion.robot!r}, the task for {task.robot!r}")
+            raise InputError(f"the motion is for {motion.robot!r}, the setup for {task.robot!r}")
         if motion.num_frames < 3:
             raise InputError(f"the motion has {motion.num_frames} frames; at least 3 needed")
         decimation = physics_steps_per_frame(motion.fps, task.sim_dt)
@@ -168,17 +168,18 @@ class DynamicsRetargeter:
                 "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
             )
         if task.body_names[0] != motion.body_names[0]:
-            raise InputError(f"the task's first body must be the base {motion.body_names[0]!r}")
+            raise InputError(f"the setup's first body must be the base {motion.body_names[0]!r}")
         self.motion, self.cfg, self.decimation = motion, cfg, decimation
         self.step_dt = 1.0 / motion.fps
         self.physics_dt = task.sim_dt
-        model = tracking_model(task)
+        model = build_model(task)
         members = cfg.ensemble + 1
         n = cfg.samples * members
-        dr = _ensemble_ranges(dr_default()) if cfg.ensemble else task.dr
-        bcfg = replace(task, dr=dr, num_threads=nthread)
-        self.backend: MujocoCpuBackend | MujocoWarpBackend = build_backend(  # type: ignore[assignment]
-            bcfg, n, model=model, device=device
+        dr = _ensemble_ranges(dr_default()) if cfg.ensemble else dr_none()
+        if nthread is not None:
+            task = replace(task, num_threads=nthread)
+        self.backend: PhysicsBackend = build_backend(
+            task, n, model=model, per_env_models=dr.randomizes_model, device=device
         )
         self.model = model
         # The models a plan's exact cost is simulated on in the iLQR polish: the nominal, then
@@ -186,12 +187,12 @@ class DynamicsRetargeter:
         self.members = [model]
         if cfg.ensemble:
             rng = np.random.default_rng(cfg.seed + 1)
-            smp = dr_mod.sample(bcfg.dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
+            smp = dr_mod.sample(dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
                                 num_joints=self.backend.nu, rng=rng)  # fmt: skip
             for e in range(cfg.ensemble):
                 ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
                 self.backend.set_params(ids, smp.physics.select(np.full(len(ids), e)))
-            self.members += _physics_copies(model, self.backend, smp.physics, cfg.ensemble)
+            self.members += physics_copies(model, self.backend.layout, smp.physics)
 
         be = self.backend
         missing = [n for n in be.joint_names if n not in motion.joint_names] + [
@@ -644,36 +645,14 @@ def evaluate_replay(
 
 
 def perturbed_models(
-    model: mujoco.MjModel, backend: MujocoCpuBackend | MujocoWarpBackend, count: int, seed: int
+    model: mujoco.MjModel, backend: PhysicsBackend, count: int, seed: int
 ) -> list[mujoco.MjModel]:
     """``count`` copies of ``model`` with friction, masses, CoM, PD gains and armature drawn
     from the ``default`` domain-randomization ranges (robustness of a replay)."""
     rng = np.random.default_rng(seed)
     smp = dr_mod.sample(dr_default(), count, num_bodies=backend.num_bodies_total,
                         num_joints=backend.nu, rng=rng)  # fmt: skip
-    return _physics_copies(model, backend, smp.physics, count)
-
-
-def _physics_copies(
-    model: mujoco.MjModel,
-    backend: MujocoCpuBackend | MujocoWarpBackend,
-    physics: PhysicsParams,
-    count: int,
-) -> list[mujoco.MjModel]:
-    """``count`` copies of ``model`` with the first ``count`` draws of ``physics`` (the
-    randomized fields as ``backend`` sets them, its CoM offsets on its ``com_body``)."""
-    cb = backend.layout.com_body
-    probe = MujocoCpuBackend(model, 1, body_names=backend.body_names,
-                             contact_body_names=backend.contact_body_names,
-                             foot_body_names=backend.foot_body_names, per_env_models=True,
-                             com_body=model.body(cb).name if cb >= 0 else None,
-                             nthread=1)  # fmt: skip
-    out = []
-    for i in range(count):
-        probe.set_params(np.array([0]), physics.select(np.array([i])))
-        out.append(copy.copy(probe.model_of(0)))
-    probe.close()
-    return out
+    return physics_copies(model, backend.layout, smp.physics)
 
 
 def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
@@ -850,8 +829,8 @@ def refine(
     """
     from humimic.motion import motion_from_qpos
 
-    task = replace(tracking_task(motion.robot, dr="none"), backend=backend)
-    dyn = DynamicsRetargeter(motion, cfg, task=task, nthread=nthread, device=device)
+    setup = replace(key_body_setup(motion.robot), backend=backend)
+    dyn = DynamicsRetargeter(motion, cfg, setup=setup, nthread=nthread, device=device)
     res = dyn.run(progress=progress)
     kin = evaluate_replay(dyn, dyn.reference_controls(), res.initial_state)
     mine = evaluate_replay(dyn, res.ctrl, res.initial_state)
@@ -889,7 +868,7 @@ def refine(
         },
         "backend": backend,
         "device": device if backend == "warp" else "cpu",
-        "threads": dyn.backend.nthread if isinstance(dyn.backend, MujocoCpuBackend) else None,
+        "threads": dyn.backend.nthread,
     }
     frames = res.frame_qpos()
     out = motion_from_qpos(
@@ -924,7 +903,7 @@ def check_replay(motion: Motion) -> dict[str, float]:
     if not dyn or any(k not in dyn for k in need):
         raise InputError(f"{where}: no dynamic section: make one with humimic refine")
     try:
-        task = tracking_task(motion.robot, dr="none")
+        task = key_body_setup(motion.robot)
     except InputError as e:  # An unknown robot name.
         raise InputError(f"{where}: {e}") from None
     if "physics_dt" in dyn and abs(float(dyn["physics_dt"]) - task.sim_dt) > 1e-12:
@@ -932,7 +911,7 @@ def check_replay(motion: Motion) -> dict[str, float]:
             f"{where}: stored physics step {float(dyn['physics_dt'])} s, the training model's "
             f"is {task.sim_dt} s"
         )
-    model = tracking_model(task)
+    model = build_model(task)
     state, ctrl = np.asarray(dyn["initial_state"]), np.asarray(dyn["ctrl"])
     size = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
     if state.shape != (size,):

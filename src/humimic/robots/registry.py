@@ -24,6 +24,11 @@ class RobotConfig:
         feet: Side (``left``/``right``) -> foot body. Maps must put their feet on these bodies;
             the bodies' collision geoms are the feet's contact geometry.
         actuators: Gain recipe for the PD servos.
+        key_bodies: The bodies whose poses stand for a motion of the robot, the root first:
+            what whole-body tracking follows and dynamics retargeting scores (mjlab's tracked
+            bodies on the G1).
+        torso_body: The upper-body link that anchors a tracked reference (BeyondMimic's anchor)
+            and whose CoM domain randomization moves.
         floor_geom: Name of the floor geom in the scene.
     """
 
@@ -36,6 +41,8 @@ class RobotConfig:
     root_body: str
     feet: dict[str, str]
     actuators: ActuatorRecipe
+    key_bodies: tuple[str, ...]
+    torso_body: str
     floor_geom: str = "floor"
 
 
@@ -50,6 +57,15 @@ def g1() -> RobotConfig:
         root_body="pelvis",
         feet={"left": "left_ankle_roll_link", "right": "right_ankle_roll_link"},
         actuators=g1_actuators(),
+        key_bodies=(
+            "pelvis",
+            *(f"left_{b}_link" for b in ("hip_roll", "knee", "ankle_roll")),
+            *(f"right_{b}_link" for b in ("hip_roll", "knee", "ankle_roll")),
+            "torso_link",
+            *(f"left_{b}_link" for b in ("shoulder_roll", "elbow", "wrist_yaw")),
+            *(f"right_{b}_link" for b in ("shoulder_roll", "elbow", "wrist_yaw")),
+        ),
+        torso_body="torso_link",
     )
 
 
@@ -64,6 +80,14 @@ def t1() -> RobotConfig:
         root_body="Trunk",
         feet={"left": "left_foot_link", "right": "right_foot_link"},
         actuators=t1_actuators(),
+        key_bodies=(
+            *("Trunk", "Waist"),
+            *("Hip_Roll_Left", "Shank_Left", "left_foot_link"),
+            *("Hip_Roll_Right", "Shank_Right", "right_foot_link"),
+            *("AL1", "AL3", "left_hand_link"),
+            *("AR1", "AR3", "right_hand_link"),
+        ),
+        torso_body="Trunk",
     )
 
 

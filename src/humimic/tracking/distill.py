@@ -112,7 +112,7 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
 def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     """Distill (or resume distilling) a teacher run into a student. Returns the last progress
     row (``loss_behavior`` is the student's imitation loss)."""
-    from humimic.tracking.config import DR_PROFILES
+    from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.train import (
         _first_line,

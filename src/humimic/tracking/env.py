@@ -23,7 +23,7 @@ Observation groups (all float32, Shape: (num_envs, D)):
 
 All reward, termination and observation math is torch on batched tensors (the state lives in
 :class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
-:class:`~humimic.tracking.backend.PhysicsBackend`.
+:class:`~humimic.sim.backend.PhysicsBackend`.
 """
 
 from __future__ import annotations
@@ -41,13 +41,10 @@ from humimic import transforms as tf
 from humimic.errors import HumimicError, InputError
 from humimic.motion import Motion
 from humimic.robots.registry import get_robot
-from humimic.tracking import dr as dr_mod
-from humimic.tracking.backend import (
-    MujocoCpuBackend,
-    PhysicsBackend,
-    TensorBackend,
-    training_model,
-)
+from humimic.sim import randomization as dr_mod
+from humimic.sim.backend import PhysicsBackend, TensorBackend
+from humimic.sim.setup import build_backend as sim_build_backend
+from humimic.sim.setup import build_model
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.math import (
     quat_apply_inverse,
@@ -65,7 +62,8 @@ def build_backend(
     menagerie_root: str | os.PathLike[str] | None = None,
     device: str | torch.device = "cpu",
 ) -> PhysicsBackend:
-    """The backend a :class:`TrackingEnv` of ``cfg`` needs: ``cfg.backend`` on ``device``.
+    """The backend a :class:`TrackingEnv` of ``cfg`` needs: ``cfg.backend`` on ``device``, with
+    per-env models where domain randomization changes the model.
 
     Args:
         cfg: The task.
@@ -74,27 +72,10 @@ def build_backend(
         menagerie_root: Where the robot files are.
         device: The env's torch device; the ``warp`` backend simulates on it.
     """
-    robot = get_robot(cfg.robot)
-    if model is None:
-        model = tracking_model(cfg, menagerie_root=menagerie_root)
-    names = {
-        "body_names": cfg.body_names,
-        "contact_body_names": cfg.undesired_contact_bodies,
-        "foot_body_names": tuple(robot.feet.values()),
-        "com_body": cfg.anchor_body,
-        "per_env_models": cfg.dr.randomizes_model,
-    }
-    if cfg.backend == "warp":
-        from humimic.tracking.warp_backend import MujocoWarpBackend
-
-        w = cfg.warp
-        return MujocoWarpBackend(
-            model, num_envs, device=device, nconmax=w.nconmax, njmax=w.njmax,
-            cuda_graph=w.cuda_graph, **names,
-        )  # fmt: skip
-    return MujocoCpuBackend(
-        model, num_envs, method=cfg.step_method, nthread=cfg.num_threads, **names
-    )
+    return sim_build_backend(
+        cfg.sim_setup(), num_envs, model=model, per_env_models=cfg.dr.randomizes_model,
+        menagerie_root=menagerie_root, device=device,
+    )  # fmt: skip
 
 
 def tracking_model(
@@ -102,19 +83,7 @@ def tracking_model(
 ) -> mujoco.MjModel:
     """The training model of ``cfg`` (mesh-free, with the read-out sensors), with the changes
     of ``cfg.physics`` when it has a physics file."""
-    robot = get_robot(cfg.robot)
-    ph = cfg.physics
-    if ph is not None and ph.robot is not None and ph.robot != cfg.robot:
-        raise InputError(f"physics {ph.name!r} is written for {ph.robot!r}, not {cfg.robot!r}")
-    return training_model(
-        robot,
-        body_names=cfg.body_names,
-        contact_body_names=cfg.undesired_contact_bodies,
-        foot_body_names=tuple(robot.feet.values()),
-        timestep=cfg.sim_dt,
-        menagerie_root=menagerie_root,
-        edit=None if ph is None else ph.edit,
-    )
+    return build_model(cfg.sim_setup(), menagerie_root=menagerie_root)
 
 
 class TrackingEnv(VecEnv):

@@ -10,7 +10,7 @@ the steps each episode lived:
 * joint error: mean absolute joint position error [rad];
 * per-body global errors [mm].
 
-``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.tracking.physics`):
+``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.sim.physics`):
 a "real" robot that training never saw.
 
 The open-loop baseline replays the reference's joint positions as PD targets (no policy): how
@@ -121,7 +121,7 @@ class Evaluation:
 
 def eval_inputs(s: EvalSettings) -> dict[str, Any]:
     """What an evaluation reads (label -> path): no output of it may overwrite one."""
-    from humimic.tracking.config import DR_PROFILES
+    from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.train import read_run_settings, run_files
 
     run = read_run_settings(s.run)

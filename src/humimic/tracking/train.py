@@ -30,14 +30,9 @@ from humimic.configs.runs import TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
+from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_profile
 from humimic.tracking import distributed
-from humimic.tracking.config import (
-    DR_PROFILES,
-    DomainRandomization,
-    TrackingConfig,
-    load_dr_profile,
-    tracking_task,
-)
+from humimic.tracking.config import TrackingConfig, tracking_task
 from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
 
@@ -80,7 +75,7 @@ def resolve_dr(dr: str) -> DomainRandomization:
 def task_config(robot: str, dr: str, seed: int, physics: str | None = None) -> TrackingConfig:
     """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile and,
     if given, a physics file (or a shipped one's name)."""
-    from humimic.tracking.physics import load_physics
+    from humimic.sim.physics import load_physics
 
     task = replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
     return task if physics is None else replace(task, physics=load_physics(physics))
@@ -339,7 +334,7 @@ class _Progress:
 
 
 def _physics_names() -> tuple[str, ...]:
-    from humimic.tracking.physics import SHIPPED
+    from humimic.sim.physics import SHIPPED
 
     return tuple(SHIPPED)
 
@@ -393,7 +388,7 @@ def _absolute(path: str, start: Path | None) -> Path:
     return next((c.resolve() for c in candidates if c.exists()), candidates[0].resolve())
 
 
-def _run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
+def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
     """A run's config.yaml and the training settings in it (a student's: its teacher's), with
     the file paths absolute (:func:`resolved_settings`; relative ones of older run folders are
     found where the run was started, see :func:`_absolute`)."""
@@ -417,13 +412,13 @@ def _run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
 
 def read_run_settings(run: Path) -> TrainSettings:
     """The settings a run was started with."""
-    return _run_config(run)[1]
+    return run_config(run)[1]
 
 
 def run_rsl_cfg(run: Path) -> dict[str, Any]:
     """The rsl_rl ``train_cfg`` of a run: a PPO run's from its settings, a student's
     (``humimic distill``) as stored in its config.yaml."""
-    config, settings = _run_config(run)
+    config, settings = run_config(run)
     if config.get("kind") != "student":
         return train_cfg(ppo_for(settings))
     if "rsl" not in config:

@@ -71,7 +71,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     assert "humimic loop" in (out / "loop.md").read_text()
 
     from humimic.real2sim.robotlog import read_robot_log
-    from humimic.tracking.physics import load_physics
+    from humimic.sim.physics import load_physics
     from humimic.tracking.train import read_run_settings
 
     corrected = load_physics(out / "corrected.yaml")  # Sysid found the weak knee drive.

@@ -1,11 +1,11 @@
 """The MuJoCo Warp backend: ``num_envs`` worlds of one training model stepped by MJWarp on a
-GPU (or, slowly, on the CPU), behind the same :class:`~humimic.tracking.backend.PhysicsBackend`
-interface as :class:`~humimic.tracking.backend.MujocoCpuBackend`.
+GPU (or, slowly, on the CPU), behind the same :class:`~humimic.sim.backend.PhysicsBackend`
+interface as :class:`~humimic.sim.backend.MujocoCpuBackend`.
 
 It needs the optional extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``warp-lang``).
 
 * **Same model, same read-out.** It simulates the model of
-  :func:`~humimic.tracking.backend.training_model` and reads the same sensors, so the env's
+  :func:`~humimic.sim.models.training_model` and reads the same sensors, so the env's
   rewards, observations, terminations and domain randomization are the CPU backend's (the parity
   test, ``tests/test_warp_backend.py``, steps both from the same states).
 * **Zero copies.** Every array the env touches (``qpos``, ``qvel``, ``ctrl``, ``sensordata`` and
@@ -15,11 +15,11 @@ It needs the optional extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``wa
 * **CUDA graphs.** On a GPU the physics steps of one env step are captured once as a CUDA graph
   and replayed (one launch instead of hundreds of kernel launches per physics step); likewise
   the forward pass after resets.
-* **Domain randomization.** The randomized fields (:data:`~humimic.tracking.backend.DR_FIELDS`)
+* **Domain randomization.** The randomized fields (:data:`~humimic.sim.params.DR_FIELDS`)
   and the constants derived from them (subtree masses, inverse weights, actuator
   accelerations) are batched per world (``put_model``'s ``batch_sizes``). The constants of the
   envs being reset are computed in a few batched tensor operations on the device
-  (:class:`~humimic.tracking.setconst.InertiaConstants`, equal to ``mj_setConst``'s to
+  (:class:`~humimic.sim.setconst.InertiaConstants`, equal to ``mj_setConst``'s to
   float64 round-off): ``mj_setConst`` per env on the host (its cost grows with the resets
   per step) and ``mujoco_warp.set_const`` (a kernel launch per dof and per body row) were
   both slower (BENCHMARKS.md).
@@ -52,14 +52,9 @@ import numpy as np
 import torch
 
 from humimic.errors import HumimicError, InputError, MissingDependencyError
-from humimic.tracking.backend import (
-    DR_FIELDS,
-    LayoutBackend,
-    ModelLayout,
-    PhysicsParams,
-    PhysicsReadout,
-)
-from humimic.tracking.setconst import InertiaConstants
+from humimic.sim.backend import LayoutBackend, PhysicsReadout
+from humimic.sim.params import DR_FIELDS, ModelLayout, PhysicsParams
+from humimic.sim.setconst import InertiaConstants
 
 # Derived constants that mujoco_warp.set_const writes per world when DR fields are batched.
 _DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "actuator_acc0")
@@ -107,7 +102,7 @@ class MujocoWarpBackend(LayoutBackend):
     """``num_envs`` MJWarp worlds of one training model (see the module docstring).
 
     Args:
-        model: A model from :func:`~humimic.tracking.backend.training_model`.
+        model: A model from :func:`~humimic.sim.models.training_model`.
         num_envs: Number of envs (worlds).
         body_names: The ``body_names`` the model was built with (same order).
         contact_body_names: The ``contact_body_names`` the model was built with.
@@ -161,6 +156,7 @@ class MujocoWarpBackend(LayoutBackend):
         self.device = dev
         self._wp_device = wp.get_device(str(dev))
         self.num_envs = num_envs
+        self.nthread: int | None = None
         lay = ModelLayout.of(model, body_names, contact_body_names, foot_body_names, com_body)
         self._take_layout(model, lay)
         self._per_env = per_env_models
@@ -347,7 +343,7 @@ class MujocoWarpBackend(LayoutBackend):
     ) -> tuple[np.ndarray, np.ndarray]:
         """Open-loop rollouts of every env from given full physics states under a control per
         physics step, as :meth:`MujocoCpuBackend.rollout
-        <humimic.tracking.backend.MujocoCpuBackend.rollout>` (the same arguments and results);
+        <humimic.sim.backend.MujocoCpuBackend.rollout>` (the same arguments and results);
         the envs' own states stay as they were.
 
         Raises:

@@ -38,8 +38,8 @@ import numpy as np
 import yaml
 
 from humimic.errors import InputError
-from humimic.io import read_yaml
-from humimic.real2sim.effects import Injection, apply_to_spec, parse_injection
+from humimic.io import atomic_write_text, read_yaml
+from humimic.sim.effects import Injection, apply_to_spec, parse_injection
 
 _KEYS = (
     "description",
@@ -225,7 +225,7 @@ def parse_physics(data: Any, name: str, where: str) -> Physics:
     robot = data.get("robot")
     if robot is not None and not isinstance(robot, str):
         raise InputError(f"{where}: robot: expected a robot name, got {robot!r}")
-    # Each effect's value is checked for its physical sign (see real2sim.effects.EFFECTS).
+    # Each effect's value is checked for its physical sign (see humimic.sim.effects.EFFECTS).
     parsed = tuple(
         parse_injection(e, where=f"{where}: effects[{i}]") for i, e in enumerate(effects)
     )
@@ -281,8 +281,6 @@ def load_physics(name_or_path: str | os.PathLike[str]) -> Physics:
 
 def write_physics(physics: Physics, path: str | os.PathLike[str]) -> Path:
     """Write a physics file (atomically)."""
-    from humimic.io import atomic_write_text
-
     text = f"# humimic physics file: {physics.name}\n" + yaml.safe_dump(
         physics.as_dict(), sort_keys=False
     )
@@ -290,34 +288,11 @@ def write_physics(physics: Physics, path: str | os.PathLike[str]) -> Path:
     return Path(path)
 
 
-def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | None) -> Physics:
-    """The correction ``humimic sysid diagnose`` claimed (its ``report.json``) as physics.
-
-    Only claimed effects (confidence >= 0.5) are kept; a residual network, if the report has
-    one, is not part of a model and is left out.
-    """
-    from humimic.real2sim.diagnose import CLAIM
-
-    effects = []
-    for e in report.get("effects", []):
-        if e["confidence"] < CLAIM:
-            continue
-        targets = (e["body"],) if "body" in e else tuple(e["joints"])
-        effects.append(Injection(effect=e["effect"], targets=targets, value=e["params"]["value"]))
-    return Physics(
-        name=name,
-        description=f"effects claimed by sysid diagnose on {report.get('log', 'a log')}",
-        robot=robot,
-        effects=tuple(effects),
-    )
-
-
 __all__ = [
     "SHIPPED",
     "Physics",
     "load_physics",
     "parse_physics",
-    "physics_from_sysid",
     "physics_path",
     "write_physics",
 ]

@@ -1,27 +1,11 @@
-"""Physics backends for the tracking environment, behind one small :class:`PhysicsBackend` protocol.
+"""Batched physics backends behind one :class:`PhysicsBackend` protocol.
 
-The environment never touches MuJoCo itself: it sets joint targets, steps, and reads batched
-arrays. :class:`MujocoCpuBackend` runs ``num_envs`` MuJoCo CPU simulations, either through
-``mujoco.rollout`` (C++ thread pool, one call for all envs) or through a Python thread pool over
-``mj_step`` (the GIL is released inside ``mj_step``). :class:`~humimic.tracking.warp_backend.MujocoWarpBackend`
-implements the same protocol with MuJoCo Warp (GPU), plus :class:`TensorBackend`.
-
-Everything the environment reads about bodies comes from MuJoCo *sensors* compiled into the
-training model (``framepos``/``framequat``/``framelinvel``/``frameangvel`` on the body frames, and
-``contact`` sensors between bodies and the floor), so that both stepping methods (and a GPU
-backend) return the same quantities from ``sensordata`` without per-env Python work.
-
-Contact model (:func:`training_model`). Stepping with mesh colliders is slow and a per-env
-``MjModel`` copy with meshes is large, so the training model has no meshes at all:
-
-* visual mesh geoms are removed;
-* each collision mesh geom becomes a box: the mesh's axis-aligned bounding box in the geom
-  frame (MuJoCo's ``geom_aabb``), at the same pose;
-* primitive colliders of the robot (the G1's foot spheres) are kept as they are;
-* robot geoms collide with the floor only (``contype=0, conaffinity=1``): no self-collision.
-  Self-collision is left to a later slice (mjlab's G1 tracking only *penalizes* it).
-
-Quaternions are wxyz. Suffixes: ``_w`` world frame, ``_b`` body frame.
+A caller sets joint targets, steps and reads batched arrays; it never touches MuJoCo itself.
+:class:`MujocoCpuBackend` runs ``num_envs`` MuJoCo CPU simulations through ``mujoco.rollout``
+(C++ thread pool) or a Python thread pool over ``mj_step``;
+:class:`~humimic.sim.warp_backend.MujocoWarpBackend` implements the same protocol with MuJoCo
+Warp (GPU). Body kinematics and contacts come from the sensors :func:`~humimic.sim.models.training_model`
+compiles in, so every backend returns them from ``sensordata``.
 """
 
 from __future__ import annotations
@@ -29,9 +13,9 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Literal, Protocol, runtime_checkable
 
 import mujoco
@@ -39,40 +23,10 @@ import numpy as np
 import torch
 from mujoco import rollout as mj_rollout
 
-from humimic.errors import InputError, UnknownNameError
-from humimic.robots.model import nominal_spec
-from humimic.robots.registry import RobotConfig
+from humimic.errors import InputError
+from humimic.sim.params import ModelLayout, PhysicsParams
 
 StepMethod = Literal["rollout", "threads"]
-
-_CONTACT_FOUND = 1 << int(mujoco.mjtConDataField.mjCONDATA_FOUND)
-_CONTACT_FORCE = 1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)
-_REDUCE_NETFORCE = 3
-
-
-@dataclass(frozen=True, kw_only=True)
-class PhysicsParams:
-    """Per-env physics parameters (domain randomization). Every array has a leading env axis n.
-
-    Attributes:
-        friction: Sliding friction of the floor and of every robot collider. Shape: (n,).
-        mass_scale: Multiplier of each robot body's mass and inertia. Shape: (n, num_bodies).
-        com_offset: Added to the CoM of the backend's ``com_body`` [m]. Shape: (n, 3).
-        kp_scale: Multiplier of each actuator's stiffness. Shape: (n, num_actuators).
-        kd_scale: Multiplier of each actuator's damping. Shape: (n, num_actuators).
-        armature_scale: Multiplier of each actuated joint's armature. Shape: (n, num_actuators).
-    """
-
-    friction: np.ndarray
-    mass_scale: np.ndarray
-    com_offset: np.ndarray
-    kp_scale: np.ndarray
-    kd_scale: np.ndarray
-    armature_scale: np.ndarray
-
-    def select(self, rows: slice | np.ndarray) -> PhysicsParams:
-        """The parameters of some envs: every array indexed by ``rows`` on its env axis."""
-        return PhysicsParams(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -101,7 +55,7 @@ class PhysicsReadout:
 
 
 class PhysicsBackend(Protocol):
-    """What the tracking environment needs from a simulator. Arrays are float64 numpy.
+    """What callers need from a batched simulator. Arrays are float64 numpy.
 
     ``body_names`` (kinematics read), ``contact_body_names`` (contact counts) and
     ``foot_body_names`` (contact forces) fix the layout of :class:`PhysicsReadout`;
@@ -111,7 +65,16 @@ class PhysicsBackend(Protocol):
     num_envs: int
     nq: int
     nv: int
+    nu: int
     num_bodies_total: int
+    layout: ModelLayout
+    """The model's layout: actuated joints, sensors, randomized bodies and nominal values."""
+
+    @property
+    def nthread(self) -> int | None:
+        """CPU threads that step the envs (``None``: the backend steps on a GPU)."""
+        ...
+
     joint_names: tuple[str, ...]
     body_names: tuple[str, ...]
     contact_body_names: tuple[str, ...]
@@ -158,6 +121,30 @@ class PhysicsBackend(Protocol):
         """Apply per-env physics parameters (leading axis of ``params`` matches ``env_ids``)."""
         ...
 
+    @property
+    def sensor_slices(self) -> dict[str, slice]:
+        """Where the read-out sensors sit in a row of sensor data."""
+        ...
+
+    def nominal_params(self, n: int) -> PhysicsParams:
+        """Parameters that leave the model nominal, for ``n`` envs."""
+        ...
+
+    def env_state(self, env_id: int) -> np.ndarray:
+        """Env ``env_id``'s full physics state (``mjSTATE_FULLPHYSICS``). Shape: (nstate,)."""
+        ...
+
+    def rollout(
+        self, state: np.ndarray, controls: np.ndarray, warmstart: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Open-loop rollouts of every env from full physics states, one control per physics
+        step (see :meth:`MujocoCpuBackend.rollout`)."""
+        ...
+
+    def close(self) -> None:
+        """Release threads or device memory."""
+        ...
+
 
 @runtime_checkable
 class TensorBackend(Protocol):
@@ -182,150 +169,6 @@ def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
         return slice(int(idx[0]), int(idx[0]) + idx.size)
     return idx
-
-
-def _robot_bodies(model: mujoco.MjModel) -> list[int]:
-    return [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
-
-
-# Model fields that domain randomization (PhysicsParams) changes, with their nominal values kept.
-DR_FIELDS = (
-    "geom_friction",
-    "body_mass",
-    "body_inertia",
-    "body_ipos",
-    "actuator_gainprm",
-    "actuator_biasprm",
-    "dof_armature",
-)
-
-
-@dataclass(frozen=True, kw_only=True)
-class ModelLayout:
-    """What every backend reads off a training model: the actuated joints, the read-out
-    sensors, the bodies and colliders that domain randomization changes, and their nominal
-    values. Build it with :meth:`of`.
-
-    Attributes:
-        joint_names: The actuated joints, in actuator (= qpos) order.
-        dof: Their dof addresses. Shape: (J,).
-        joint_range: Their position limits. Shape: (J, 2).
-        default_joint_pos: The home pose (first keyframe, else ``qpos0``). Shape: (J,).
-        kp: Nominal PD stiffness. Shape: (J,).
-        effort_limit: Torque limits. Shape: (J,).
-        robot_bodies: Bodies that move with the robot (mass randomization). Shape: (Bm,).
-        collider_geoms: Geoms that collide (friction randomization). Shape: (G,).
-        com_body: The body whose CoM ``PhysicsParams.com_offset`` moves, or -1.
-        sensor_slices: Where ``pos``, ``quat``, ``lin``, ``ang``, ``found``, ``force`` sit in a
-            row of sensor data.
-        nominal: Copies of the :data:`DR_FIELDS` of the model.
-    """
-
-    body_names: tuple[str, ...]
-    contact_body_names: tuple[str, ...]
-    foot_body_names: tuple[str, ...]
-    joint_names: tuple[str, ...]
-    dof: np.ndarray
-    joint_range: np.ndarray
-    default_joint_pos: np.ndarray
-    kp: np.ndarray
-    effort_limit: np.ndarray
-    robot_bodies: np.ndarray
-    collider_geoms: np.ndarray
-    com_body: int
-    sensor_slices: dict[str, slice]
-    nominal: dict[str, np.ndarray]
-
-    @classmethod
-    def of(
-        cls,
-        model: mujoco.MjModel,
-        body_names: Sequence[str],
-        contact_body_names: Sequence[str] = (),
-        foot_body_names: Sequence[str] = (),
-        com_body: str | None = None,
-    ) -> ModelLayout:
-        """The layout of a model from :func:`training_model` built with these names.
-
-        Raises:
-            InputError: If the actuators do not drive the joints after the free joint in qpos
-                order, or the sensors are not those of :func:`training_model`.
-            UnknownNameError: If ``com_body`` is not in the model.
-        """
-        joints = [int(model.actuator_trnid[a, 0]) for a in range(model.nu)]
-        qadr = [int(model.jnt_qposadr[j]) for j in joints]
-        if qadr != list(range(model.nq - model.nu, model.nq)):
-            raise InputError(
-                "the actuators must drive the joints after the free joint, in qpos order"
-            )
-        cb = -1
-        if com_body is not None:
-            cb = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, com_body)
-            if cb < 0:
-                raise UnknownNameError(f"com_body {com_body!r} is not in the model")
-        nb, nc, nf = len(body_names), len(contact_body_names), len(foot_body_names)
-        expected = 13 * nb + nc + 3 * nf
-        if model.nsensordata != expected:
-            raise InputError(
-                f"the model has {model.nsensordata} sensor values, expected {expected} for "
-                f"{nb} bodies, {nc} contact bodies and {nf} feet: build it with training_model()"
-            )
-        home = model.key_qpos[0] if model.nkey else model.qpos0
-        return cls(
-            body_names=tuple(body_names),
-            contact_body_names=tuple(contact_body_names),
-            foot_body_names=tuple(foot_body_names),
-            joint_names=tuple(model.joint(j).name for j in joints),
-            dof=np.array([model.jnt_dofadr[j] for j in joints]),
-            joint_range=np.array([model.jnt_range[j] for j in joints]),
-            default_joint_pos=np.array(home[qadr]),
-            kp=model.actuator_gainprm[:, 0].copy(),
-            effort_limit=model.actuator_forcerange[:, 1].copy(),
-            robot_bodies=np.array(_robot_bodies(model)),
-            collider_geoms=np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0),
-            com_body=cb,
-            sensor_slices={
-                "pos": slice(0, 3 * nb),
-                "quat": slice(3 * nb, 7 * nb),
-                "lin": slice(7 * nb, 10 * nb),
-                "ang": slice(10 * nb, 13 * nb),
-                "found": slice(13 * nb, 13 * nb + nc),
-                "force": slice(13 * nb + nc, expected),
-            },
-            nominal={name: getattr(model, name).copy() for name in DR_FIELDS},
-        )
-
-    def fields(self, params: PhysicsParams) -> dict[str, np.ndarray]:
-        """The :data:`DR_FIELDS` of the n models ``params`` describes (the nominal values where
-        domain randomization leaves them). Shape of each: (n, *the model field's shape)."""
-        nom, cb = self.nominal, self.com_body
-        rb, g, dof = self.robot_bodies, self.collider_geoms, self.dof
-        n = len(params.friction)
-        out = {f: np.repeat(nom[f][None], n, axis=0) for f in DR_FIELDS}
-        out["geom_friction"][:, g, 0] = params.friction[:, None]
-        out["body_mass"][:, rb] = nom["body_mass"][rb] * params.mass_scale
-        out["body_inertia"][:, rb] = nom["body_inertia"][rb] * params.mass_scale[..., None]
-        if cb >= 0:
-            out["body_ipos"][:, cb] += params.com_offset
-        kp = nom["actuator_gainprm"][:, 0] * params.kp_scale
-        out["actuator_gainprm"][:, :, 0] = kp
-        out["actuator_biasprm"][:, :, 1] = -kp
-        out["actuator_biasprm"][:, :, 2] = nom["actuator_biasprm"][:, 2] * params.kd_scale
-        out["dof_armature"][:, dof] = nom["dof_armature"][dof] * params.armature_scale
-        return out
-
-    def nominal_params(self, n: int) -> PhysicsParams:
-        """Parameters that leave the model nominal, for ``n`` envs."""
-        j, b = len(self.joint_names), len(self.robot_bodies)
-        friction = float(self.nominal["geom_friction"][self.collider_geoms, 0].max())
-        return PhysicsParams(
-            friction=np.full(n, friction),
-            mass_scale=np.ones((n, b)),
-            com_offset=np.zeros((n, 3)),
-            kp_scale=np.ones((n, j)),
-            kd_scale=np.ones((n, j)),
-            armature_scale=np.ones((n, j)),
-        )
 
 
 class LayoutBackend:
@@ -382,119 +225,6 @@ class LayoutBackend:
             contact_found=sens[:, sl["found"]],
             foot_force=np.linalg.norm(sens[:, sl["force"]].reshape(n, -1, 3), axis=-1),
         )
-
-
-def training_model(
-    robot: RobotConfig,
-    *,
-    body_names: Sequence[str],
-    contact_body_names: Sequence[str] = (),
-    foot_body_names: Sequence[str] = (),
-    timestep: float = 0.005,
-    menagerie_root: str | os.PathLike[str] | None = None,
-    edit: Callable[[mujoco.MjSpec], None] | None = None,
-) -> mujoco.MjModel:
-    """The mesh-free training model of a robot, with the read-out sensors compiled in.
-
-    Solver settings follow mjlab's tracking task: implicitfast, pyramidal cone, 10 solver and
-    20 line-search iterations.
-
-    Args:
-        robot: The robot.
-        body_names: Bodies whose pose and velocity are read (frame sensors).
-        contact_body_names: Bodies whose floor contacts are counted.
-        foot_body_names: Bodies whose net floor contact force is read.
-        timestep: Physics step [s].
-        menagerie_root: Where the robot files are (see :func:`humimic.robots.nominal_spec`).
-        edit: Changes to the model, applied last (e.g. a physics file's
-            :meth:`~humimic.tracking.physics.Physics.edit`).
-
-    Raises:
-        UnknownNameError: If a body name is not in the model.
-    """
-    spec, _ = nominal_spec(robot, menagerie_root=menagerie_root)
-    full = spec.compile()
-    known = {full.body(b).name for b in range(full.nbody)}
-    for name in (*body_names, *contact_body_names, *foot_body_names):
-        if name not in known:
-            raise UnknownNameError(f"body {name!r} is not in robot {robot.name!r}")
-    floor_id = mujoco.mj_name2id(full, mujoco.mjtObj.mjOBJ_GEOM, robot.floor_geom)
-    if floor_id < 0:
-        raise UnknownNameError(f"robot {robot.name!r}: no floor geom {robot.floor_geom!r}")
-
-    for i, geom in reversed(list(enumerate(spec.geoms))):
-        gid = geom.id if geom.id >= 0 else i
-        if gid == floor_id:
-            geom.contype, geom.conaffinity = 1, 1
-            continue
-        collides = full.geom_contype[gid] != 0 or full.geom_conaffinity[gid] != 0
-        if geom.type == mujoco.mjtGeom.mjGEOM_MESH:
-            if not collides:
-                spec.delete(geom)
-                continue
-            # Box of the mesh's bounding box, in the mesh geom's (compiled) frame.
-            center, half = full.geom_aabb[gid, :3], full.geom_aabb[gid, 3:]
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, full.geom_quat[gid])
-            geom.type = mujoco.mjtGeom.mjGEOM_BOX
-            geom.meshname = ""
-            geom.size = half.copy()
-            geom.pos = full.geom_pos[gid] + rot.reshape(3, 3) @ center
-            geom.quat = full.geom_quat[gid].copy()
-        elif not collides:
-            continue
-        geom.contype, geom.conaffinity = 0, 1
-    for mesh in list(spec.meshes):
-        spec.delete(mesh)
-    # Textures (the G1 scene's skybox and floor grid: 5 MB) serve rendering only, and every
-    # per-env copy of the model would carry them: 5 GB at 1024 envs, and caches evicted.
-    for mat in spec.materials:
-        mat.textures = [""] * len(mat.textures)
-    for tex in list(spec.textures):
-        spec.delete(tex)
-
-    spec.option.timestep = timestep
-    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-    spec.option.iterations = 10
-    spec.option.ls_iterations = 20
-
-    for sensor in list(spec.sensors):  # The robot's own sensors (IMU...) are not read here.
-        spec.delete(sensor)
-    xbody = mujoco.mjtObj.mjOBJ_XBODY
-    for kind in (
-        mujoco.mjtSensor.mjSENS_FRAMEPOS,
-        mujoco.mjtSensor.mjSENS_FRAMEQUAT,
-        mujoco.mjtSensor.mjSENS_FRAMELINVEL,
-        mujoco.mjtSensor.mjSENS_FRAMEANGVEL,
-    ):
-        for name in body_names:
-            spec.add_sensor(type=kind, objtype=xbody, objname=name)
-    for data_bits, names in (
-        (_CONTACT_FOUND, contact_body_names),
-        (_CONTACT_FORCE, foot_body_names),
-    ):
-        for name in names:
-            spec.add_sensor(
-                type=mujoco.mjtSensor.mjSENS_CONTACT,
-                objtype=mujoco.mjtObj.mjOBJ_BODY,
-                objname=name,
-                reftype=mujoco.mjtObj.mjOBJ_GEOM,
-                refname=robot.floor_geom,
-                intprm=[data_bits, _REDUCE_NETFORCE, 1],
-            )
-    model = spec.compile()
-    mass_full = float(np.sum(full.body_mass))
-    mass = float(np.sum(model.body_mass))
-    if not np.isclose(mass, mass_full, rtol=1e-6):
-        raise InputError(
-            f"robot {robot.name!r}: removing meshes changed the mass ({mass_full} -> {mass} kg); "
-            "the MJCF must give explicit <inertial> elements"
-        )
-    if edit is not None:
-        edit(spec)
-        model = spec.compile()
-    return model
 
 
 class MujocoCpuBackend(LayoutBackend):

@@ -11,7 +11,7 @@ from humimic.errors import InputError
 
 PLAY_SUFFIX = "_backlash"
 """A joint named ``<joint>_backlash`` is the play of ``<joint>``'s transmission (see
-:func:`~humimic.real2sim.effects.add_backlash`): the drive turns ``<joint>`` (the motor side),
+:func:`~humimic.sim.effects`): the drive turns ``<joint>`` (the motor side),
 the link sits at the sum of both, and the log reports the link."""
 
 

@@ -1,6 +1,6 @@
 """``humimic loop``: deploy on the "real" robot, find what the simulator lacks, fine-tune, redeploy.
 
-The "real" robot is a physics file (:mod:`humimic.tracking.physics`). Only the deploy stage
+The "real" robot is a physics file (:mod:`humimic.sim.physics`). Only the deploy stage
 (:func:`deploy`, :func:`gantry_session`) reads it; the stages after it see what a team would
 have from a real robot: logs.
 
@@ -83,7 +83,7 @@ def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
     from humimic.real2sim.robotlog import write_robot_log
     from humimic.real2sim.simulate import LogSettings, simulate_log
     from humimic.robots import get_robot
-    from humimic.tracking.physics import load_physics
+    from humimic.sim.physics import load_physics
 
     real = load_physics(s.real)
     settings = LogSettings(duration=s.sysid_duration, seed=s.seed)
@@ -93,12 +93,12 @@ def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
 
 
 def _check(s: LoopSettings) -> Any:
-    from humimic.tracking.physics import load_physics
-    from humimic.tracking.train import _run_config
+    from humimic.sim.physics import load_physics
+    from humimic.tracking.train import run_config
 
     s.validate()
     load_physics(s.real)  # Read and checked now: a bad value fails before the first deploy.
-    config, run = _run_config(s.run)
+    config, run = run_config(s.run)
     if config.get("kind") == "student":
         raise InputError(f"{s.run}: a distilled student; the loop fine-tunes PPO runs (fine-tune "
                          "its teacher, then distill again)")  # fmt: skip
@@ -136,8 +136,8 @@ def _summary(r: dict) -> dict:
 
 def loop(settings: LoopSettings) -> dict:
     """Run the loop (see the module docstring); returns ``loop.json``'s content."""
-    from humimic.real2sim.report import run_diagnosis
-    from humimic.tracking.physics import physics_from_sysid, write_physics
+    from humimic.real2sim.report import physics_from_sysid, run_diagnosis
+    from humimic.sim.physics import write_physics
 
     s = settings
     out = s.out
