@@ -25,7 +25,7 @@ import numpy as np
 
 from humimic.configs import retarget_default
 from humimic.datasets import load_clip
-from humimic.mcap_io import read_motion_mcap, write_motion_mcap
+from humimic.formats.mcap import read_motion_mcap, write_motion_mcap
 from humimic.motion import save_motion
 from humimic.retarget import Retargeter
 from humimic.viewer.browser import free_port

@@ -28,7 +28,7 @@ from mcap.writer import Writer
 from archives import flip_bytes, truncate_bytes
 from humimic.cli.main import main
 from humimic.errors import HumimicError
-from humimic.mcap_io import SCHEMAS, TOPICS, read_mcap, read_motion_mcap, write_motion_mcap
+from humimic.formats.mcap import SCHEMAS, TOPICS, read_mcap, read_motion_mcap, write_motion_mcap
 from humimic.motion import Motion, load_motion, motion_from_qpos, save_motion
 from humimic.robots import get_robot, nominal_model
 

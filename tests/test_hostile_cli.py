@@ -17,8 +17,8 @@ import pytest
 
 from humimic.cli.main import main
 from humimic.errors import OutputPathError
+from humimic.formats.mcap import McapWriter
 from humimic.io import atomic_write_text, check_writable
-from humimic.mcap_io import McapWriter
 from humimic.motion import motion_from_qpos, save_motion
 from humimic.robots import get_robot, nominal_model
 

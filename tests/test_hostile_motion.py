@@ -15,7 +15,7 @@ from mcap.writer import Writer
 
 from humimic.cli.main import main
 from humimic.errors import InputError, MotionDataError
-from humimic.mcap_io import SCHEMAS, McapFormatError, read_motion_mcap, write_motion_mcap
+from humimic.formats.mcap import SCHEMAS, McapFormatError, read_motion_mcap, write_motion_mcap
 from humimic.motion import (
     Motion,
     load_motion,
@@ -114,7 +114,7 @@ def _raw_mcap(path: Path, metadata: dict[str, dict[str, str]], messages: list[tu
 
 def _records(motion: Motion, tmp_path: Path) -> tuple[dict[str, dict[str, str]], list[tuple]]:
     """The metadata and messages humimic writes for ``motion`` (to change and rewrite)."""
-    from humimic.mcap_io import TOPICS, read_mcap
+    from humimic.formats.mcap import TOPICS, read_mcap
 
     src = write_motion_mcap(motion, tmp_path / "_good.mcap")
     log = read_mcap(src)

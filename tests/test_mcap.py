@@ -11,7 +11,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from humimic.cli.main import main
-from humimic.mcap_io import (
+from humimic.formats.mcap import (
     SCHEMAS,
     McapFormatError,
     McapWriter,

@@ -294,7 +294,7 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
 
     # The first episode, beside the JSON, with the reference: what `humimic view` plays.
     from humimic.cli.main import load_rollout, read_any_motion
-    from humimic.mcap_io import qpos_from_log, read_mcap
+    from humimic.formats.mcap import qpos_from_log, read_mcap
 
     mcap = tmp_path / "eval.mcap"
     assert r["mcap"] == str(mcap)

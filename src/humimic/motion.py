@@ -236,7 +236,7 @@ def validate_motion(
     labels: dict[str, str] | None = None,
 ) -> None:
     """Check that a motion is whole and consistent: the one check that every reader
-    (:func:`load_motion`, :func:`humimic.mcap_io.read_motion_mcap`) and :func:`save_motion` run.
+    (:func:`load_motion`, :func:`humimic.formats.mcap.read_motion_mcap`) and :func:`save_motion` run.
 
     Checks: a robot name; a finite frame rate in :data:`FPS_RANGE`; unique joint and body
     names; every array of frames real-valued, finite, below :data:`MAX_ABS_VALUE`, with

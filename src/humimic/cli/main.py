@@ -518,7 +518,7 @@ def run_demo(cmd: DemoCommand) -> dict:
 
 def read_any_motion(path: Path):
     """A motion from .npz or .mcap."""
-    from humimic.mcap_io import read_motion_mcap
+    from humimic.formats.mcap import read_motion_mcap
     from humimic.motion import load_motion
 
     if path.suffix == ".npz":
@@ -573,7 +573,7 @@ def run_replay(cmd: ReplayCommand) -> int:
 
 def run_convert(cmd: ConvertCommand) -> None:
     """Run ``humimic convert``."""
-    from humimic.mcap_io import write_motion_mcap
+    from humimic.formats.mcap import write_motion_mcap
     from humimic.motion import save_motion
 
     if cmd.dst.suffix not in (".npz", ".mcap"):
@@ -590,7 +590,7 @@ def run_convert(cmd: ConvertCommand) -> None:
 def load_rollout(rollout: Path | None, motion_path: Path, motion) -> np.ndarray | None:
     """The rollout ``humimic view`` shows, sampled at the motion's frames: ``rollout``'s, else
     the motion MCAP's own ``/qpos`` if it has one, else none. Shape: (frames, nq)."""
-    from humimic.mcap_io import qpos_from_log, read_mcap, sample_at
+    from humimic.formats.mcap import qpos_from_log, read_mcap, sample_at
 
     if rollout is not None:
         log = read_mcap(rollout)

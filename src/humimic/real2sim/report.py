@@ -49,7 +49,7 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
             :func:`~humimic.real2sim.robotlog.read_robot_log` for what a log must hold),
             naming the file.
     """
-    from humimic.mcap_io import read_mcap
+    from humimic.formats.mcap import read_mcap
     from humimic.robots import get_robot
 
     meta = read_mcap(path, topics=[]).meta("robot")

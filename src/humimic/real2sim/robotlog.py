@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from humimic.mcap_io import McapFormatError, McapWriter, read_mcap, stamp
+from humimic.formats.mcap import McapFormatError, McapWriter, read_mcap, stamp
 
 
 @dataclass(frozen=True, kw_only=True)

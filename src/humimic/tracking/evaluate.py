@@ -17,7 +17,7 @@ The open-loop baseline replays the reference's joint positions as PD targets (no
 far the raw reference gets on this robot and these physics.
 
 The first episode of both is written as MCAP with the reference (``--mcap``): the reference
-topics of :func:`humimic.mcap_io.write_motion_topics`, the policy's rollout on ``/qpos``,
+topics of :func:`humimic.formats.mcap.write_motion_topics`, the policy's rollout on ``/qpos``,
 ``/joint_states``, ``/joint_commands`` (PD targets) and ``/reward_terms`` (the step's total
 reward), the open-loop rollout on ``/open_loop/qpos``, and the metrics as metadata ``eval``.
 ``humimic view EVAL.mcap`` plays the rollout against the reference.
@@ -275,7 +275,7 @@ def write_eval_mcap(
     results: dict,
 ) -> None:
     """Write the reference and the first episode's rollouts (see the module docstring)."""
-    from humimic.mcap_io import McapWriter, stamp, write_motion_topics
+    from humimic.formats.mcap import McapWriter, stamp, write_motion_topics
 
     names = list(joint_names)
     with McapWriter(path) as w:
