@@ -38,10 +38,10 @@ import numpy as np
 
 from humimic.configs import InteractionConfig, RetargetConfig
 from humimic.datasets import load_clip
+from humimic.datasets.scene import load_scene
 from humimic.errors import InputError
 from humimic.retarget import Retargeter
 from humimic.retarget.interaction import feet_planted
-from humimic.retarget.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "holosoma_climb"

@@ -65,7 +65,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         motion = Path(tmp) / "climb_120fps.npz"
         save_motion(out.motion, motion)
-        view_args = [str(motion), "--human", str(clip_path), "--scene", str(seq / "box_models")]
+        view_args = [str(motion), "--human", str(clip_path), "--scene", str(seq)]
         times = [time_view(view_args) for _ in range(args.repeats)]
         mcap = Path(tmp) / "climb_120fps.mcap"
         t0 = time.perf_counter()

@@ -24,9 +24,9 @@ from numpy.lib import format as npformat
 
 from archives import zip_bytes
 from humimic.datasets import load_bvh, load_clip, load_positions
+from humimic.datasets.scene import load_scene
 from humimic.errors import HumimicError
 from humimic.io import read_yaml
-from humimic.retarget.scene import load_scene
 from humimic.robots.maps import builtin_maps, load_map_file
 
 # --------------------------------------------------------------------------- valid inputs

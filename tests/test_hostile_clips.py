@@ -22,9 +22,9 @@ from archives import zip_bytes
 from humimic.cli.main import main
 from humimic.datasets import HumanClip, load_bvh, load_clip, load_positions
 from humimic.datasets.positions import MAX_ARRAY_BYTES
+from humimic.datasets.scene import load_scene
 from humimic.errors import BvhParseError, InputError, MapError, MotionDataError
 from humimic.io import read_yaml
-from humimic.retarget.scene import load_scene
 from humimic.robots.maps import load_map_file
 from humimic.sim.physics import load_physics
 

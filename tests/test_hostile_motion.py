@@ -450,7 +450,7 @@ def test_a_1000_m_box_is_refused_before_sampling(
 def test_scenes_it_cannot_handle_are_refused_naming_file_and_object(
     tmp_path: Path, obj: str, message: str
 ) -> None:
-    from humimic.retarget.scene import load_scene
+    from humimic.datasets.scene import load_scene
 
     (tmp_path / "empty.obj").write_text("# nothing\n")
     (tmp_path / "flat.obj").write_text(
@@ -481,7 +481,7 @@ def test_scenes_it_cannot_handle_are_refused_naming_file_and_object(
 def test_scene_sampling_is_bounded_analytically(tmp_path: Path) -> None:
     """The largest box a scene may hold, at the default spacing, would have millions of
     points: the count is computed first and the spacing widened; only then are points made."""
-    from humimic.retarget.scene import (
+    from humimic.datasets.scene import (
         MAX_POINTS_PER_OBJECT,
         MAX_SCENE_POINTS,
         _sample_count,

@@ -327,3 +327,89 @@ def test_a_port_refused_for_another_reason_is_an_error(monkeypatch: pytest.Monke
     with pytest.raises(InputError, match=r"^--port 80: cannot listen on 127\.0\.0\.1 port 80 \("):
         viewer.start()
     assert viewer._server is None
+
+
+# A scene folder means the same to `humimic view --scene` as to `humimic retarget --scene`.
+
+
+def _write_box_obj(path: Path, size: tuple[float, float, float], pos: tuple[float, ...]) -> None:
+    """A box mesh of full extents ``size`` centred at ``pos``, as an OBJ file."""
+    from humimic.datasets.scene import box_mesh
+
+    v, f = box_mesh(np.array(size))
+    lines = [f"v {x} {y} {z}" for x, y, z in v + np.array(pos)]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in f]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _over_limit_scene(tmp_path: Path, kind: str) -> tuple[Path, str]:
+    """A holosoma-layout clip folder over one of the scene limits; and what the refusal names."""
+    folder = tmp_path / "climb"
+    _write_box_obj(folder / "box_models" / "step.obj", (1.0, 0.8, 0.2), (0.6, 0.0, 0.1))
+    if kind == "huge":  # More than MAX_EXTENT across.
+        _write_box_obj(folder / "box_models" / "slab.obj", (1000.0, 1000.0, 1.0), (0, 0, -0.5))
+        return folder, f"{folder / 'box_models' / 'slab.obj'}: 1000 m across, more than the 100 m"
+    for k in range(64):  # With step: one more than MAX_OBJECTS.
+        _write_box_obj(folder / "box_models" / f"b{k:02d}.obj", (0.1, 0.1, 0.1), (k, 0, 0))
+    return folder, f"{folder}: 65 meshes in box_models, at most 64"
+
+
+@pytest.mark.parametrize("kind", ["huge", "crowded"])
+def test_view_refuses_the_over_limit_scene_folder_that_retarget_refuses(
+    motion_file: Path,
+    tmp_path: Path,
+    shared_data: Path,
+    kind: str,
+    no_server: None,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    folder, message = _over_limit_scene(tmp_path, kind)
+    out = tmp_path / "out" / "m.npz"
+    clip = shared_data / "cmu" / "35_01.bvh"
+    rc = main(["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(folder),
+               "--out", str(out)])  # fmt: skip
+    assert rc == 2
+    retarget_line = _error_line(capsys)
+    assert message in retarget_line, retarget_line
+    assert not out.parent.exists()
+    assert main(["view", str(motion_file), "--scene", str(folder)]) == 2
+    view_line = _error_line(capsys)
+    assert view_line.startswith(f"humimic: error: {message}"), view_line
+    assert view_line == retarget_line
+
+
+def test_view_and_retarget_read_the_same_objects_from_a_scene_folder(
+    motion_file: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Only box_models/*.obj count (holosoma's layout): other meshes in the folder are no part
+    of the scene for either command."""
+    import humimic.viewer
+    from humimic.datasets.scene import load_scene
+    from humimic.viewer import load_scene_meshes
+
+    folder = tmp_path / "climb"
+    _write_box_obj(folder / "box_models" / "step.obj", (1.0, 0.8, 0.2), (0.6, 0.0, 0.1))
+    _write_box_obj(folder / "box_models" / "wall.obj", (0.2, 2.0, 1.5), (2.0, 0.0, 0.75))
+    _write_box_obj(folder / "stray.obj", (0.5, 0.5, 0.5), (0.0, 3.0, 0.25))
+    _write_box_obj(folder / "box_models" / "extra" / "deep.obj", (0.5, 0.5, 0.5), (0, -3, 0.25))
+    scene = load_scene(folder)
+    assert [o.name for o in scene.objects] == ["step", "wall"]
+    meshes = load_scene_meshes(folder)
+    assert [m.name for m in meshes] == ["step", "wall"]
+    for o, m in zip(scene.objects, meshes, strict=True):
+        np.testing.assert_array_equal(m.vertices, o.world_vertices(0))
+        np.testing.assert_array_equal(m.faces, o.faces)
+        np.testing.assert_array_equal(m.local_vertices, o.vertices)
+    # ...and the command line hands the viewer exactly those.
+    seen: list[list[str]] = []
+
+    class Recording(Viewer):
+        def __init__(self, *args: Any, scene: Any = None, **kw: Any) -> None:
+            seen.append([m.name for m in scene or []])
+            super().__init__(*args, scene=scene, **kw)
+
+    monkeypatch.setattr(humimic.viewer, "Viewer", Recording)
+    assert main(["view", str(motion_file), "--scene", str(folder), "--port", "0",
+                 "--duration", "0"]) == 0  # fmt: skip
+    assert seen == [["step", "wall"]]

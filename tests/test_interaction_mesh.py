@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from humimic.datasets.scene import load_scene
 from humimic.errors import InputError, RetargetError
 from humimic.retarget.interaction_mesh import (
     build_mesh,
@@ -15,7 +16,6 @@ from humimic.retarget.interaction_mesh import (
     laplacian_operator,
     tetra_neighbors,
 )
-from humimic.retarget.scene import load_scene
 
 CUBE = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
 

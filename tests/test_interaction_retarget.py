@@ -12,9 +12,9 @@ import pytest
 from humimic.cli.main import main
 from humimic.configs import InteractionConfig, RetargetConfig
 from humimic.datasets import load_clip
+from humimic.datasets.scene import Scene, SceneObject, box_mesh
 from humimic.motion import load_motion
 from humimic.retarget import Retargeter, RetargetOutput
-from humimic.retarget.scene import Scene, SceneObject, box_mesh
 
 PAD_HEIGHT = 0.08  # Human scale [m].
 
@@ -124,7 +124,7 @@ def test_planted_feet_rest_on_the_floor_while_climbing_down(shared_data: Path) -
     """A real climb down (seq_1, 2.7 s): where the human's foot rests, the robot's rests too.
     Holding a planted foot at its previous frame's height kept one that landed high floating
     through its stance, well past these bounds."""
-    from humimic.retarget.scene import load_scene
+    from humimic.datasets.scene import load_scene
 
     folder = shared_data / "holosoma_climb" / "mocap_climb_seq_1"
     clip = load_clip(next(folder.glob("*.npy"))).slice(1760, 2080)

@@ -311,8 +311,8 @@ def run_retarget(cmd: RetargetCommand) -> list[dict]:
     from tqdm import tqdm
 
     from humimic.datasets import HumanClip, load_bvh, load_clip
+    from humimic.datasets.scene import Scene, load_scene
     from humimic.retarget import Retargeter
-    from humimic.retarget.scene import Scene, load_scene
     from humimic.robots import get_robot
 
     get_robot(cmd.robot, "--robot")  # Unknown robot: fail before any work.

@@ -1,6 +1,8 @@
-"""Human motion in: BVH files, arrays of joint positions, and run-time fetched public clips.
+"""Human motion in: BVH files, arrays of joint positions, run-time fetched public clips, and
+the scenes they happen in.
 
-Every loader returns a :class:`HumanClip` (z up, metres, quaternions wxyz).
+Every clip loader returns a :class:`HumanClip` (z up, metres, quaternions wxyz);
+:func:`load_scene` returns a :class:`Scene` in the clip's frame.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from humimic.datasets.fetch import (
     find_climb_data,
 )
 from humimic.datasets.positions import HOLOSOMA_JOINTS, HOLOSOMA_PARENTS, load_positions
+from humimic.datasets.scene import Scene, SceneObject, load_scene
 from humimic.errors import InputError
 
 __all__ = [
@@ -25,6 +28,8 @@ __all__ = [
     "HOLOSOMA_PARENTS",
     "SUPPORTED_SUFFIXES",
     "HumanClip",
+    "Scene",
+    "SceneObject",
     "climb_clip_paths",
     "estimate_height",
     "extract_climb_from_wheel",
@@ -33,6 +38,7 @@ __all__ = [
     "load_bvh",
     "load_clip",
     "load_positions",
+    "load_scene",
 ]
 
 SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".npy", ".npz")

@@ -13,6 +13,7 @@ import numpy as np
 
 from humimic.configs.retarget import InteractionConfig, RetargetConfig
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.scene import Scene
 from humimic.errors import InputError
 from humimic.motion import Motion, motion_from_qpos
 from humimic.retarget.interaction import (
@@ -23,7 +24,7 @@ from humimic.retarget.interaction import (
 )
 from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX, KinematicRetargeter
 from humimic.retarget.metrics import evaluate, evaluate_scene
-from humimic.retarget.scene import Scene, scene_arrays
+from humimic.retarget.scene import scene_arrays
 from humimic.robots.maps import RetargetMap, get_map, load_map_file
 from humimic.robots.registry import get_robot
 

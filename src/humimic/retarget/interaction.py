@@ -36,6 +36,7 @@ import numpy as np
 
 from humimic.configs.retarget import InteractionConfig, RetargetConfig
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.scene import Scene
 from humimic.errors import RetargetError
 from humimic.retarget.contacts import step_speed
 from humimic.retarget.interaction_mesh import build_mesh
@@ -49,7 +50,7 @@ from humimic.retarget.kinematic import (
     scene_geoms,
 )
 from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
-from humimic.retarget.scene import Scene, human_contacts
+from humimic.retarget.scene import human_contacts
 from humimic.retarget.targets import RobotGeometry, hold_still_points
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
 from humimic.robots.maps import RetargetMap

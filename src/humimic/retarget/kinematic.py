@@ -21,6 +21,7 @@ import numpy as np
 
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.scene import Scene
 from humimic.errors import InputError, MapError, RetargetError
 from humimic.retarget.limits import (
     FloorLimit,
@@ -28,7 +29,6 @@ from humimic.retarget.limits import (
     contact_point_heights,
     foot_contact_points,
 )
-from humimic.retarget.scene import Scene
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask
 from humimic.robots.collision import self_collision_pairs

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from humimic.datasets.scene import Scene
 from humimic.retarget.limits import contact_point_heights, foot_contact_points
-from humimic.retarget.scene import Scene
 
 CONTACT_HEIGHT = 0.010
 """A foot contact point touches the ground when its lowest point is below this [m]."""

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.scene import load_scene
 from humimic.errors import InputError
 from humimic.motion import Motion
 from humimic.transforms import axis_angle_matrix
@@ -41,49 +42,30 @@ SockAddr = tuple[int, tuple[Any, ...]]
 
 @dataclass(frozen=True, kw_only=True)
 class SceneMesh:
-    """A static scene object (box, terrain) in the human clip's frame, before alignment."""
+    """A scene object (box, terrain) in the human clip's frame, before alignment."""
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     local_vertices: np.ndarray | None = None
-    """The vertices in the object's own frame (scene files), for objects that move: the
-    motion's ``scene_poses`` (interaction-mesh retargeting) place them frame by frame."""
+    """The vertices in the object's own frame, for objects that move: the motion's
+    ``scene_poses`` (interaction-mesh retargeting) place them frame by frame."""
 
 
 def load_scene_meshes(path: str | Path) -> list[SceneMesh]:
-    """Scene objects from a scene file (.yaml, :func:`humimic.retarget.scene.load_scene`), a
-    mesh file (.obj, .stl, .ply) or a folder of them (trimesh)."""
-    import trimesh
+    """Scene objects from what ``humimic retarget --scene`` reads: a scene file (.yaml), a
+    mesh file (.obj, .stl) or a clip folder in holosoma's layout (``box_models/*.obj``), with
+    the same checks and limits (:func:`humimic.datasets.scene.load_scene`).
 
-    p = Path(path)
-    if p.suffix.lower() in (".yaml", ".yml"):
-        from humimic.retarget.scene import load_scene
-
-        return [
-            SceneMesh(
-                name=o.name, vertices=o.world_vertices(0), faces=o.faces, local_vertices=o.vertices
-            )
-            for o in load_scene(p).objects
-        ]
-    if p.is_dir():
-        files = sorted(f for f in p.rglob("*") if f.suffix.lower() in (".obj", ".stl", ".ply"))
-        if not files:
-            raise InputError(f"{p}: folder holds no .obj, .stl or .ply meshes")
-    elif p.is_file():
-        files = [p]
-    else:
-        raise InputError(f"{p}: no such file or folder")
-    out = []
-    for f in files:
-        try:
-            mesh = trimesh.load(f, force="mesh")
-        except Exception as e:  # trimesh raises many types for bad files.
-            raise InputError(f"{f}: cannot read mesh ({e})") from None
-        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-            raise InputError(f"{f}: no triangles in this mesh file")
-        out.append(SceneMesh(name=f.stem, vertices=np.asarray(mesh.vertices), faces=mesh.faces))
-    return out
+    Raises:
+        InputError: As :func:`~humimic.datasets.scene.load_scene` (names the file).
+    """
+    return [
+        SceneMesh(
+            name=o.name, vertices=o.world_vertices(0), faces=o.faces, local_vertices=o.vertices
+        )
+        for o in load_scene(path).objects
+    ]
 
 
 def align_human(motion: Motion, clip: HumanClip) -> np.ndarray:
