@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 import mujoco
+import numpy as np
 
 from humimic.real2sim import LogSettings, parse_injection, simulate_log, write_robot_log
 from humimic.real2sim.report import run_diagnosis
@@ -24,7 +25,7 @@ from humimic.robots import get_robot
 def _cable(spec: mujoco.MjSpec) -> None:
     """Outside the vocabulary: a cable pulling the left knee (cubic spring about 0.8 rad)."""
     j = spec.joint("left_knee_joint")
-    j.stiffness = [0.0, 0.0, 300.0]
+    j.stiffness = np.array([0.0, 0.0, 300.0])
     j.springref = 0.8
 
 
