@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 import mujoco
+import numpy as np
 
 from humimic.real2sim import LogSettings, simulate_log, write_robot_log
 from humimic.real2sim.report import run_diagnosis
@@ -25,7 +26,7 @@ from humimic.sim.effects import parse_injection
 def _cable(spec: mujoco.MjSpec) -> None:
     """Outside the vocabulary: a cable pulling the left knee (cubic spring about 0.8 rad)."""
     j = spec.joint("left_knee_joint")
-    j.stiffness = [0.0, 0.0, 300.0]
+    j.stiffness = np.array([0.0, 0.0, 300.0])
     j.springref = 0.8
 
 

@@ -117,7 +117,7 @@ def test_nominal_model_actuators_are_explicit_position_servos(
         assert model.jnt_range[j, 0] < model.jnt_range[j, 1]
         np.testing.assert_array_equal(model.jnt_actfrcrange[j], [-effort, effort])
         # Armature: the simulated joint gets the motor's reflected inertia.
-        armature = model.dof_armature[model.jnt_dofadr[j]]
+        armature = float(model.dof_armature[model.jnt_dofadr[j]])
         motor = _motor_for(cfg.actuators, name)
         assert armature == act.armature == _sig6(motor.armature)
         # The recipe, from the armature the simulator gets.

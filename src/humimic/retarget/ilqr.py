@@ -73,7 +73,7 @@ def control_step_jacobians(
     A, B = np.eye(nx), np.zeros((nx, model.nu))
     data.ctrl[:] = ctrl
     for _ in range(decimation):
-        mujoco.mjd_transitionFD(model, data, eps, 0, a, b, None, None)
+        mujoco.mjd_transitionFD(model, data, eps, False, a, b, None, None)
         A, B = a @ A, a @ B + b
         mujoco.mj_step(model, data)
     return A, B
