@@ -229,7 +229,7 @@ def test_an_offset_the_log_cannot_reveal_is_declared_not_guessed() -> None:
 def _cable_spring(spec: mujoco.MjSpec) -> None:
     """Outside the vocabulary: a cable pulling the left knee, a cubic spring about 0.8 rad."""
     j = spec.joint("left_knee_joint")
-    j.stiffness = [0.0, 0.0, 300.0]
+    j.stiffness = np.array([0.0, 0.0, 300.0])
     j.springref = 0.8
 
 

@@ -357,7 +357,8 @@ def test_export_onnx_matches_the_torch_policy(motion_file: Path, tmp_path: Path)
             expected = policy(obs.expand(5).clone().update({"policy": batch})).numpy()
     finally:
         env.close()
-    (got,) = ReferenceEvaluator(str(path)).run(None, {"obs": batch.numpy()})
+    (out,) = ReferenceEvaluator(str(path)).run(None, {"obs": batch.numpy()})
+    got = np.asarray(out)
     assert got.shape == expected.shape == (5, 29)
     np.testing.assert_allclose(np.asarray(got), expected, rtol=1e-4, atol=1e-5)
     assert main(["export", str(out), "--out", str(tmp_path / "policy.txt")]) == 2

@@ -286,8 +286,8 @@ def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
         )
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
-        v = np.asarray(mesh.vertices, dtype=np.float64)
-        f = np.asarray(mesh.faces, dtype=np.int64)
+        v = np.asarray(getattr(mesh, "vertices", None), dtype=np.float64)
+        f = np.asarray(getattr(mesh, "faces", None), dtype=np.int64)
     except Exception as e:  # trimesh raises many types on bad files.
         text = " ".join(str(e).split())[:200]
         raise InputError(f"{path}: not a readable mesh ({type(e).__name__}: {text})") from None

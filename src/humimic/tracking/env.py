@@ -101,6 +101,8 @@ class TrackingEnv(VecEnv):
         InputError: If the motion does not fit the robot or the policy rate.
     """
 
+    cfg: TrackingConfig  # rsl_rl types it ``dict | object``.
+
     def __init__(
         self,
         cfg: TrackingConfig,
