@@ -3,7 +3,7 @@
 Windows start from logged states and are driven, open loop, by the logged commands (held
 between command messages, as the drives do); the prediction is compared with the logged joint
 positions over the window. All windows of a span, and several candidate models at once, run as
-one threaded :func:`mujoco.rollout.rollout` call: the diagnosis evaluates hundreds of
+one threaded rollout call (:func:`humimic.sim.rollout.batched`): the diagnosis evaluates hundreds of
 candidate corrections per round this way.
 
 A :class:`Correction` is what a prediction adds to the nominal model: the compiled model's own
@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-from mujoco import rollout
 
 from humimic.errors import InputError
 from humimic.real2sim.robotlog import RobotLog
+from humimic.sim import rollout
 from humimic.sim.effects import Correction
 from humimic.sim.joints import JointMap
 from humimic.sim.models import PHYSICS_DT
@@ -290,10 +290,10 @@ class Predictor:
                     ctrls.append(ctrl)
                     states.append(self.initial_states(c, ctrl))
                     models += [c.model] * W
-                result = np.asarray(rollout.rollout(
+                result = rollout.batched(
                     models, self._threads(m0), np.concatenate(states),
                     np.concatenate(ctrls)[:, :K], control_spec=_CONTROL, nstep=K,
-                )[0])  # fmt: skip
+                )[0]  # fmt: skip
             finally:
                 for c, (g, b) in zip(chunk, saved, strict=True):
                     c.model.actuator_gainprm[:], c.model.actuator_biasprm[:] = g, b
@@ -362,9 +362,9 @@ class Predictor:
             for i in range(S):
                 chunk = ctrl[:, i * sub : (i + 1) * sub].copy()
                 chunk[:, :, m.nu + jm.dadr] += torque(errs, vels, poss)[:, None, :]
-                state = np.asarray(rollout.rollout(
+                state = rollout.batched(
                     [m] * W, self._threads(m), state, chunk, control_spec=_CONTROL, nstep=sub
-                )[0])[:, -1]  # fmt: skip
+                )[0][:, -1]  # fmt: skip
                 q = jm.link(state[:, lay["qpos"]], jm.play_q, jm.qadr) + c.offset
                 k = self.starts + i + 1
                 out[:, i] = q - log.q[k]

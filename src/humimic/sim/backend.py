@@ -24,6 +24,7 @@ import torch
 from mujoco import rollout as mj_rollout
 
 from humimic.errors import InputError
+from humimic.sim import rollout
 from humimic.sim.params import ModelLayout, PhysicsParams
 
 StepMethod = Literal["rollout", "threads"]
@@ -359,17 +360,11 @@ class MujocoCpuBackend(LayoutBackend):
             self._out_sens = np.zeros((self.num_envs, n_substeps, self._model.nsensordata))
             self._ctrl_seq = np.zeros((self.num_envs, n_substeps, self.nu))
         self._ctrl_seq[:] = self._ctrl[:, None, :]
-        self._rollout.rollout(
+        rollout.batched(
             self._models if self._per_env else [self._model] * self.num_envs,
-            self._scratch,
-            self._state,
-            self._ctrl_seq,
-            control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-            skip_checks=True,
-            nstep=n_substeps,
-            state=self._out_state,
-            sensordata=self._out_sens,
-        )
+            self._scratch, self._state, self._ctrl_seq, nstep=n_substeps, runner=self._rollout,
+            state_out=self._out_state, sensor_out=self._out_sens, skip_checks=True,
+        )  # fmt: skip
         self._state[:] = self._out_state[:, -1]
         self._qpos[:] = self._state[:, 1 : 1 + self.nq]
         self._qvel[:] = self._state[:, 1 + self.nq : 1 + self.nq + self.nv]
@@ -413,18 +408,11 @@ class MujocoCpuBackend(LayoutBackend):
         warm = np.zeros((n, self.nv)) if warmstart is None else np.asarray(warmstart, float)
         if warm.shape != (n, self.nv):
             raise InputError(f"rollout: warmstart must be ({n}, {self.nv}), got {warm.shape}")
-        self._rollout.rollout(
-            self._models if self._per_env else [self._model] * n,
-            self._scratch,
-            np.ascontiguousarray(state),
-            np.ascontiguousarray(controls),
-            control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-            skip_checks=True,
-            nstep=nstep,
-            initial_warmstart=np.ascontiguousarray(warm),
-            state=out_state,
-            sensordata=out_sens,
-        )
+        rollout.batched(
+            self._models if self._per_env else [self._model] * n, self._scratch, state, controls,
+            nstep=nstep, warmstart=warm, runner=self._rollout, state_out=out_state,
+            sensor_out=out_sens, skip_checks=True,
+        )  # fmt: skip
         return out_state, out_sens
 
     def _step_threads(self, n_substeps: int) -> None:
