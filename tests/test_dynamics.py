@@ -276,7 +276,8 @@ def test_polish_models_the_samplers_cost() -> None:
     import mujoco
 
     from humimic.motion import motion_from_qpos
-    from humimic.retarget.dynamics import DynamicsRetargeter, _simulate
+    from humimic.retarget.dynamics import DynamicsRetargeter
+    from humimic.retarget.dynamics.replays import _simulate
     from humimic.tracking.config import g1_tracking
     from humimic.tracking.env import tracking_model
 

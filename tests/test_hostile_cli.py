@@ -290,11 +290,11 @@ def test_refine_reports_rollouts_that_all_diverge_as_one_line(
 ) -> None:
     """When every sampled rollout's cost is NaN, refine stopped on an AssertionError (a
     traceback); it is an optimizer failure: exit 1, one line, nothing written."""
-    from humimic.retarget import dynamics
+    from humimic.retarget.dynamics import sampler
 
     motion = _stand(tmp_path / "stand.npz")
     monkeypatch.setattr(
-        dynamics.DynamicsRetargeter,
+        sampler.DynamicsRetargeter,
         "_costs",
         lambda self, states, sens, ctrl, f0: np.full(states.shape[0], np.nan),
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from humimic.retarget.ilqr import control_step_jacobians, ilqr
+from humimic.retarget.dynamics.ilqr import control_step_jacobians, ilqr
 
 ARM = """
 <mujoco>

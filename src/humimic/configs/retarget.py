@@ -300,10 +300,10 @@ class DynamicsConfig:
             inverse-dynamics torque at the middle of each frame
             (:func:`humimic.retarget.dynamics.inverse_dynamics_torques`); 0 targets the next
             frame's joint positions (PD on the reference alone).
-        polish_iterations: Iterations of iLQR (:mod:`humimic.retarget.ilqr`) that refine each
-            window's best sampled plan along the cost's Gauss-Newton model before its start is
-            committed (0: sampling alone). Each costs about two thirds of a sampling iteration
-            of 128 samples (BENCHMARKS.md, "Dynamics retargeting").
+        polish_iterations: Iterations of iLQR (:mod:`humimic.retarget.dynamics.ilqr`) that
+            refine each window's best sampled plan along the cost's Gauss-Newton model before
+            its start is committed (0: sampling alone). Each costs about two thirds of a
+            sampling iteration of 128 samples (BENCHMARKS.md, "Dynamics retargeting").
         fall_height: The robot has fallen when its pelvis is lower than this fraction of the
             reference's pelvis height, or tilted more than ``fall_tilt`` [rad] from it.
         fall_tilt: See ``fall_height``.

@@ -1,29 +1,4 @@
-"""iLQR over the PD targets of a MuJoCo model: the local polish of a sampled plan.
-
-Sampling (:mod:`humimic.retarget.dynamics`) finds a plan in the right basin but leaves it
-noisy: its hundreds of knot values are each set by a few hundred random draws. Starting from
-that plan, iterative LQR (Li and Todorov, "Iterative Linear Quadratic Regulator Design for
-Nonlinear Biological Movement Systems", 2004; the regularization and line search of Tassa,
-Erez and Todorov, "Synthesis and Stabilization of Complex Behaviors through Online Trajectory
-Optimization", 2012) moves every value along the cost's local Gauss-Newton model at once:
-
-* the plan holds one control per control step over ``decimation`` physics steps; the control
-  step's Jacobians ``A = dx'/dx``, ``B = dx'/du`` compose MuJoCo's finite-difference
-  transition derivatives (``mjd_transitionFD``) of its physics steps, in the tangent space
-  of the state (``2 nv``: position differences as ``mj_differentiatePos`` gives them, then
-  velocities);
-* the caller's ``stage`` gives, for the state after each control step, residuals ``r`` and
-  their Jacobian ``J`` (the cost ``|r|^2``: gradient ``2 J^T r``, Gauss-Newton Hessian
-  ``2 J^T J``), and the gradient and Hessian of the step's cost in its control;
-* the backward pass is the Riccati recursion with Levenberg-Marquardt regularization ``mu``
-  on ``Q_uu`` (raised tenfold when ``Q_uu`` is not positive definite or no step helps,
-  lowered threefold after a step helps);
-* the forward pass applies ``u + alpha k + K dx`` with the feedback gains ``K`` (clipped to
-  the bounds), for step sizes ``alpha`` 1, 1/2, 1/4, 1/10, and keeps the first whose exact
-  cost (the caller's ``cost``, a full simulation) is lower. The feedback acts only while the
-  plan is made: what it produced is recorded per control step, so the result is an open-loop
-  plan that reproduces the same motion.
-"""
+"""iLQR over the PD targets of a MuJoCo model: the local polish of a sampled plan."""
 
 from __future__ import annotations
 
@@ -140,7 +115,32 @@ def ilqr(
     eps: float = 1e-6,
     mu: float = 2e-2,
 ) -> IlqrResult:
-    """Polish ``controls`` from ``state`` by ``iterations`` of iLQR (module docstring).
+    """Polish ``controls`` from ``state`` by ``iterations`` of iLQR.
+
+    Sampling (:mod:`humimic.retarget.dynamics.sampler`) finds a plan in the right basin but
+    leaves it noisy: its hundreds of knot values are each set by a few hundred random draws.
+    Starting from that plan, iterative LQR (Li and Todorov, "Iterative Linear Quadratic
+    Regulator Design for Nonlinear Biological Movement Systems", 2004; the regularization and
+    line search of Tassa, Erez and Todorov, "Synthesis and Stabilization of Complex Behaviors
+    through Online Trajectory Optimization", 2012) moves every value along the cost's local
+    Gauss-Newton model at once:
+
+    * the plan holds one control per control step over ``decimation`` physics steps; the
+      control step's Jacobians ``A = dx'/dx``, ``B = dx'/du`` compose MuJoCo's
+      finite-difference transition derivatives (``mjd_transitionFD``) of its physics steps,
+      in the tangent space of the state (``2 nv``: position differences as
+      ``mj_differentiatePos`` gives them, then velocities; :func:`control_step_jacobians`);
+    * the caller's ``stage`` gives, for the state after each control step, residuals ``r``
+      and their Jacobian ``J`` (the cost ``|r|^2``: gradient ``2 J^T r``, Gauss-Newton
+      Hessian ``2 J^T J``), and the gradient and Hessian of the step's cost in its control;
+    * the backward pass is the Riccati recursion (:func:`riccati`) with Levenberg-Marquardt
+      regularization ``mu`` on ``Q_uu`` (raised tenfold when ``Q_uu`` is not positive
+      definite or no step helps, lowered threefold after a step helps);
+    * the forward pass applies ``u + alpha k + K dx`` with the feedback gains ``K`` (clipped
+      to the bounds), for step sizes ``alpha`` 1, 1/2, 1/4, 1/10, and keeps the first whose
+      exact cost (the caller's ``cost``, a full simulation) is lower. The feedback acts only
+      while the plan is made: what it produced is recorded per control step, so the result
+      is an open-loop plan that reproduces the same motion.
 
     Args:
         model: The model; its controls are the plan's.

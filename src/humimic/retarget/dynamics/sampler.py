@@ -1,55 +1,13 @@
-"""Sampling-based dynamics retargeting: a reference the simulated robot can replay open-loop.
-
-A kinematic reference can be physically impossible: replay its joint positions as PD targets
-and the robot falls. Following SPIDER (Pan et al., "SPIDER: Scalable Physics-Informed
-Dexterous Retargeting", 2025) and DIAL-MPC (Xue et al., "Full-Order Sampling-Based MPC for
-Torque-Level Locomotion Control via Diffusion-Style Annealing", 2024), retargeting becomes
-optimal control solved by sampling in the simulator:
-
-* nominal PD targets: with ``feedforward`` (the default), the targets whose PD torque is the
-  reference's inverse-dynamics torque (:func:`inverse_dynamics_torques`: the base's share
-  carried by the planted feet), so that the sampler starts from a plan that holds the robot
-  up against gravity and accelerates it along the reference; without, the next frame's
-  joint positions. Targets may lie beyond the joint range (the robot model's actuators do
-  not clamp them, as on the real motor drivers): a low-gain servo needs that to reach its
-  torque limit near the range's ends;
-* decision variables: offsets added to the nominal targets at knots ``knot_dt`` apart over a
-  ``horizon_s`` window, linearly interpolated to the control rate (the reference's frame
-  rate) and held over each control step's physics steps; after the first window, the first
-  knot is the previous window's plan (continuity of the targets);
-* each iteration draws ``samples`` plans around the current mean (the mean itself is one of
-  them) with noise that grows along the window and shrinks across iterations, rolls every one
-  out in MuJoCo from the window's start state (``mujoco.rollout`` threads, through the
-  tracking backend's :meth:`~humimic.sim.backend.MujocoCpuBackend.rollout`), scores it,
-  and moves the mean to the MPPI average of the elites;
-* ``polish_iterations`` of iLQR (:mod:`humimic.retarget.ilqr`) then refine the best sample,
-  one control per control step, on the cost's Gauss-Newton model (:meth:`_stage`), each step
-  accepted only if the exact cost falls: sampling finds the basin, the polish removes the
-  noise that a few hundred samples leave in hundreds of knot values;
-* cost per control step: tracked-body positions, pelvis height and tilt, joint angles and
-  pelvis velocity against the reference, effort, and a fall penalty; the last step counts
-  twice;
-* receding horizon: the polished plan (without the polish: the best plan evaluated, not the
-  unevaluated mean) is committed for
-  ``commit_s``, stepped with ``mj_step`` on one ``MjData`` that runs through the motion, so
-  the stored trajectory is exactly what an open-loop replay of the stored controls produces
-  (:func:`replay`); every window's rollouts start from its state and solver warm start;
-* robust option: every sample is also scored on ``ensemble`` perturbed models, and the
-  mean or the worst cost counts.
-
-The physics is the training model (:func:`humimic.sim.setup.build_model`) the tracking policy
-will see: the same actuators, contacts and time step.
-"""
+"""The dynamics retargeter: receding-horizon sampling MPC over PD targets in MuJoCo, with an
+iLQR polish of each window's best sample."""
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Literal
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -57,9 +15,15 @@ import numpy as np
 from humimic.configs.retarget import DynamicsConfig
 from humimic.errors import InputError, RetargetError
 from humimic.motion import Motion
-from humimic.retarget.contacts import runs, step_speed
-from humimic.retarget.ilqr import ilqr
-from humimic.robots.registry import get_robot
+from humimic.retarget.contacts import step_speed
+from humimic.retarget.dynamics.ilqr import ilqr
+from humimic.retarget.dynamics.inverse import inverse_dynamics_torques
+from humimic.retarget.dynamics.replays import (
+    _simulate,
+    _tilt_and_fall,
+    _up_z,
+    physics_steps_per_frame,
+)
 from humimic.sim import randomization as dr_mod
 from humimic.sim.backend import PhysicsBackend
 from humimic.sim.params import physics_copies
@@ -128,7 +92,49 @@ def knot_weights(num_steps: int, step_dt: float, knot_dt: float) -> np.ndarray:
 
 class DynamicsRetargeter:
     """Receding-horizon sampling MPC that turns a kinematic reference into a dynamically
-    feasible one (see the module docstring).
+    feasible one: a reference the simulated robot can replay open-loop.
+
+    A kinematic reference can be physically impossible: replay its joint positions as PD
+    targets and the robot falls. Following SPIDER (Pan et al., "SPIDER: Scalable
+    Physics-Informed Dexterous Retargeting", 2025) and DIAL-MPC (Xue et al., "Full-Order
+    Sampling-Based MPC for Torque-Level Locomotion Control via Diffusion-Style Annealing",
+    2024), retargeting becomes optimal control solved by sampling in the simulator:
+
+    * nominal PD targets: with ``feedforward`` (the default), the targets whose PD torque is
+      the reference's inverse-dynamics torque (:func:`inverse_dynamics_torques`: the base's
+      share carried by the planted feet), so that the sampler starts from a plan that holds
+      the robot up against gravity and accelerates it along the reference; without, the next
+      frame's joint positions. Targets may lie beyond the joint range (the robot model's
+      actuators do not clamp them, as on the real motor drivers): a low-gain servo needs that
+      to reach its torque limit near the range's ends;
+    * decision variables: offsets added to the nominal targets at knots ``knot_dt`` apart
+      over a ``horizon_s`` window, linearly interpolated to the control rate (the reference's
+      frame rate) and held over each control step's physics steps; after the first window,
+      the first knot is the previous window's plan (continuity of the targets);
+    * each iteration draws ``samples`` plans around the current mean (the mean itself is one
+      of them) with noise that grows along the window and shrinks across iterations, rolls
+      every one out in MuJoCo from the window's start state (``mujoco.rollout`` threads,
+      through the tracking backend's :meth:`~humimic.sim.backend.MujocoCpuBackend.rollout`),
+      scores it, and moves the mean to the MPPI average of the elites;
+    * ``polish_iterations`` of iLQR (:mod:`humimic.retarget.dynamics.ilqr`) then refine the
+      best sample, one control per control step, on the cost's Gauss-Newton model
+      (:meth:`_stage`), each step accepted only if the exact cost falls: sampling finds the
+      basin, the polish removes the noise that a few hundred samples leave in hundreds of
+      knot values;
+    * cost per control step: tracked-body positions, pelvis height and tilt, joint angles and
+      pelvis velocity against the reference, effort, and a fall penalty; the last step counts
+      twice;
+    * receding horizon: the polished plan (without the polish: the best plan evaluated, not
+      the unevaluated mean) is committed for ``commit_s``, stepped with ``mj_step`` on one
+      ``MjData`` that runs through the motion, so the stored trajectory is exactly what an
+      open-loop replay of the stored controls produces
+      (:func:`~humimic.retarget.dynamics.replays.replay`); every window's rollouts start from
+      its state and solver warm start;
+    * robust option: every sample is also scored on ``ensemble`` perturbed models, and the
+      mean or the worst cost counts.
+
+    The physics is the training model (:func:`humimic.sim.setup.build_model`) the tracking
+    policy will see: the same actuators, contacts and time step.
 
     Args:
         motion: The kinematic reference (its frame rate is the control rate; the physics
@@ -513,188 +519,6 @@ class DynamicsRetargeter:
         return np.repeat(u, self.decimation, axis=0)
 
 
-def inverse_dynamics_torques(
-    model: mujoco.MjModel,
-    qpos: np.ndarray,
-    fps: float,
-    joint_names: tuple[str, ...],
-    foot_body_names: tuple[str, ...],
-    *,
-    planted_height: float = 0.03,
-    moment_weight: float = 10.0,
-) -> np.ndarray:
-    """Joint torques that move the robot along ``qpos``: inverse dynamics of its finite-
-    difference velocities and accelerations, the floating base's share carried by the feet
-    on the ground.
-
-    ``mj_inverse`` on the model without constraints gives each frame's generalized force.
-    Its six base rows, which no motor produces, are explained by one wrench per planted foot
-    (within ``planted_height`` of the foot's lowest in the clip) of least weighted norm
-    (moments count ``moment_weight`` times as much as forces); the joint rows less those
-    wrenches' share are the torques. In flight (no foot planted) the base rows stay
-    unexplained: a reference whose flight is not ballistic has no exact torques.
-
-    Args:
-        model: The robot with a free base (dofs 0-5).
-        qpos: The motion. Shape: (T, nq).
-        fps: Its frame rate.
-        joint_names: The joints whose torques are returned, in this order.
-        foot_body_names: The bodies that carry the base's wrench when on the ground.
-
-    Returns:
-        Shape: (T, len(joint_names)).
-    """
-    mi = copy.copy(model)
-    mi.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
-    data = mujoco.MjData(mi)
-    T = qpos.shape[0]
-    qv = np.zeros((T, mi.nv))
-    for t in range(T):
-        a, b = max(t - 1, 0), min(t + 1, T - 1)
-        mujoco.mj_differentiatePos(mi, qv[t], (b - a) / fps, qpos[a], qpos[b])
-    qa = np.gradient(qv, 1.0 / fps, axis=0) if T > 1 else np.zeros_like(qv)
-    feet = [mi.body(b).id for b in foot_body_names]
-    fz = np.zeros((T, len(feet)))
-    for t in range(T):
-        data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(mi, data)
-        fz[t] = data.xpos[feet, 2]
-    planted = fz < fz.min(axis=0) + planted_height
-    dofs = [int(mi.joint(j).dofadr[0]) for j in joint_names]
-    out = np.zeros((T, len(dofs)))
-    jp, jr = np.zeros((3, mi.nv)), np.zeros((3, mi.nv))
-    w_inv = np.r_[np.ones(3), np.full(3, 1.0 / moment_weight)]
-    for t in range(T):
-        data.qpos[:], data.qvel[:], data.qacc[:] = qpos[t], qv[t], qa[t]
-        mujoco.mj_inverse(mi, data)
-        f = data.qfrc_inverse.copy()
-        jac = []
-        for k, b in enumerate(feet):
-            if planted[t, k]:
-                mujoco.mj_jacBody(mi, data, jp, jr, b)
-                jac.append(np.vstack([jp, jr]))
-        if jac:
-            J = np.vstack(jac)  # (6k, nv): the planted feet's wrenches in generalized forces
-            A = J[:, :6].T  # (6, 6k)
-            wi = np.tile(w_inv, len(jac))
-            lam = np.linalg.lstsq((A * wi) @ A.T, f[:6], rcond=None)[0]
-            f = f - J.T @ (wi * (A.T @ lam))  # A w = f[:6] with w = wi A^T lam
-        out[t] = f[dofs]
-    return out
-
-
-def evaluate_replay(
-    dyn: DynamicsRetargeter,
-    ctrl: np.ndarray,
-    initial_state: np.ndarray,
-    model: mujoco.MjModel | None = None,
-) -> dict[str, float]:
-    """Open-loop replay of ``ctrl`` from ``initial_state`` (on ``model``, default: the
-    nominal training model), against the reference of ``dyn``.
-
-    Returns:
-        ``seconds_until_fall`` (the clip's length if it never falls: pelvis below
-        ``fall_height`` of the reference's, or tilted ``fall_tilt`` from it),
-        ``fell`` (0 or 1), ``mpjpe_mm`` (tracked bodies' world positions against the
-        reference, mean over the frames before a fall), ``foot_skating_mm_per_s`` (mean
-        horizontal speed of a foot body below 3 cm above its lowest height in the clip's
-        reference, while the reference foot is that low too), ``effort`` (mean squared torque
-        relative to the motors' limits).
-    """
-    model = dyn.model if model is None else model
-    assert model is not None
-    cfg, d = dyn.cfg, dyn.decimation
-    states = replay(model, initial_state, ctrl)
-    nq, nv = model.nq, model.nv
-    qpos = np.concatenate([initial_state[None, 1 : 1 + nq], states[d - 1 :: d, 1 : 1 + nq]])
-    T = qpos.shape[0]
-    data = mujoco.MjData(model)
-    bodies = [model.body(b).id for b in dyn.body_names]
-    feet = [dyn.body_names.index(f) for f in dyn.foot_body_names]
-    pos = np.zeros((T, len(bodies), 3))
-    up = np.zeros(T)
-    for t in range(T):
-        data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(model, data)
-        pos[t] = data.xpos[bodies]
-        up[t] = data.xmat[bodies[0]][8]
-    ref = dyn.ref_body[:T]
-    _, fallen = _tilt_and_fall(pos[:, 0, 2], ref[:, 0, 2], up, _up_z(dyn.ref_quat_root[:T]), cfg)
-    first = int(np.argmax(fallen)) if fallen.any() else T
-    live = slice(0, max(first, 1))
-    err = np.linalg.norm(pos[live] - ref[live], axis=-1).mean()
-    fps = 1.0 / dyn.step_dt
-    skate = []
-    for f in feet:
-        low_ref = ref[:, f, 2] < ref[:, f, 2].min() + 0.03
-        low = pos[:, f, 2] < pos[live, f, 2].min() + 0.03
-        both = (low & low_ref)[1:first]
-        v = np.linalg.norm(np.diff(pos[:first, f, :2], axis=0), axis=-1) * fps
-        if both.any():
-            skate.append(v[both].mean())
-    q = states[:, 1 + 7 : 1 + nq]
-    qd = states[:, 1 + nq + 6 : 1 + nq + nv]
-    tau = np.clip(dyn.kp * (ctrl - q) - dyn.kd * qd, -dyn.effort, dyn.effort)
-    return {
-        "seconds_until_fall": first / fps if fallen.any() else (T - 1) / fps,
-        "fell": float(fallen.any()),
-        "mpjpe_mm": 1000.0 * float(err),
-        "foot_skating_mm_per_s": 1000.0 * float(np.mean(skate)) if skate else 0.0,
-        "effort": float(np.mean((tau[: first * d] / dyn.effort) ** 2)) if first else 0.0,
-    }
-
-
-def perturbed_models(
-    model: mujoco.MjModel, backend: PhysicsBackend, count: int, seed: int
-) -> list[mujoco.MjModel]:
-    """``count`` copies of ``model`` with friction, masses, CoM, PD gains and armature drawn
-    from the ``default`` domain-randomization ranges (robustness of a replay)."""
-    rng = np.random.default_rng(seed)
-    smp = dr_mod.sample(dr_default(), count, num_bodies=backend.num_bodies_total,
-                        num_joints=backend.nu, rng=rng)  # fmt: skip
-    return physics_copies(model, backend.layout, smp.physics)
-
-
-def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -> np.ndarray:
-    """Open-loop replay: ``mj_step`` from ``initial_state`` under one control per step.
-
-    Returns:
-        The full physics state after each step. Shape: (S, ``mj_stateSize``).
-    """
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    if initial_state.shape != (mujoco.mj_stateSize(model, spec),):
-        raise InputError(
-            f"initial state has shape {initial_state.shape}, the model's is "
-            f"({mujoco.mj_stateSize(model, spec)},)"
-        )
-    if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
-        raise InputError(f"controls must be (steps, {model.nu}), got {ctrl.shape}")
-    return _simulate(model, initial_state, ctrl)[0]
-
-
-def _simulate(
-    model: mujoco.MjModel, state: np.ndarray, ctrl: np.ndarray, warm: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``mj_step`` from ``state`` (and solver warm start ``warm``, default zeros) under one
-    control per step. Returns the full physics state and the sensor data after each step
-    (what ``mujoco.rollout`` returns). Shape: (S, ``mj_stateSize``), (S, nsensordata)."""
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, state, spec)
-    if warm is not None:
-        data.qacc_warmstart[:] = warm
-    states, sens = (
-        np.zeros((ctrl.shape[0], state.size)),
-        np.zeros((ctrl.shape[0], model.nsensordata)),
-    )
-    for s in range(ctrl.shape[0]):
-        data.ctrl[:] = ctrl[s]
-        mujoco.mj_step(model, data)
-        mujoco.mj_getState(model, data, states[s], spec)
-        sens[s] = data.sensordata
-    return states, sens
-
-
 def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
     """The ensemble's ranges: half-width around nominal for friction, masses and PD gains;
     the CoM offsets and armature as ``dr`` has them."""
@@ -713,240 +537,8 @@ def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
     )
 
 
-def _torque_report(dyn: DynamicsRetargeter) -> dict[str, Any] | None:
-    """How far the reference's inverse-dynamics torques pass the motors' limits: the largest
-    ratio |torque| / limit, its joint, and the frames where some joint's ratio exceeds 1."""
-    tau = dyn.reference_torque
-    if tau is None:
-        return None
-    ratio = np.abs(tau) / dyn.effort
-    j = int(np.argmax(ratio.max(axis=0)))
-    return {
-        "max_over_limit": float(ratio[:, j].max()),
-        "joint": dyn.backend.joint_names[j],
-        "frames_over_limit": int((ratio > 1.0).any(axis=1).sum()),
-    }
-
-
-def physics_steps_per_frame(fps: float, sim_dt: float) -> int | None:
-    """The whole number of ``sim_dt`` physics steps in a frame at ``fps``, or None."""
-    ratio = 1.0 / (fps * sim_dt)
-    n = round(ratio)
-    return n if n >= 1 and abs(ratio - n) <= 1e-6 else None
-
-
-def _tilt_and_fall(
-    root_z: np.ndarray,
-    ref_root_z: np.ndarray,
-    up: np.ndarray,
-    up_ref: np.ndarray,
-    cfg: DynamicsConfig,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The pelvis's tilt against the reference's (from the z components of their z axes;
-    signed) and whether the robot has fallen: pelvis below ``fall_height`` of the reference's
-    height, or tilted more than ``fall_tilt``. The one fall test of the optimizer and the
-    replay report."""
-    tilt = np.arccos(np.clip(up, -1.0, 1.0)) - np.arccos(np.clip(up_ref, -1.0, 1.0))
-    return tilt, (root_z < cfg.fall_height * ref_root_z) | (np.abs(tilt) > cfg.fall_tilt)
-
-
-def _up_z(q: np.ndarray) -> np.ndarray:
-    """z component of the body z axis of wxyz quaternions: ``1 - 2 (x^2 + y^2)``."""
-    return 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
-
-
-FLIGHT_CLEARANCE = 0.05
-"""Both feet this far [m] above their lowest in the clip: a flight frame."""
-
-
-def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float | int]:
-    """How ballistic a reference's flight phases are: the frames where both feet are
-    :data:`FLIGHT_CLEARANCE` above their lowest, and the mean vertical acceleration of the
-    whole-body centre of mass there (of ``model``'s masses under the motion's qpos). A physical
-    flight falls at gravity (-9.81 m/s^2 on Earth's model); a retargeted one often does not
-    (the human's timing with the robot's scaled heights), and then no feasible motion follows
-    its timing exactly. How far a feasible one must stay from it: ``ballistic_gap_mm``, the
-    RMS distance between the centre of mass's height and the closest (least-squares) arc of
-    free fall through each flight phase of 3 frames or more (the arcs' start height and
-    vertical speed fitted per phase).
-
-    Returns:
-        ``flight_frames``, ``frames``, ``com_z_acc_in_flight`` [m/s^2] (NaN without flight),
-        ``gravity_z`` [m/s^2], ``ballistic_gap_mm`` (NaN without a flight phase of 3
-        frames).
-    """
-    data = mujoco.MjData(model)
-    feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
-    T = motion.num_frames
-    com, foot_z = np.zeros((T, 3)), np.zeros((T, len(feet)))
-    for t in range(T):
-        data.qpos[:] = motion.qpos[t]
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
-    acc_z = (com[2:, 2] - 2 * com[1:-1, 2] + com[:-2, 2]) * motion.fps**2
-    airborne = (foot_z > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
-    flight = airborne[1:-1]
-    gz = float(model.opt.gravity[2])
-    gaps = []
-    for a, b in runs(airborne):  # Each flight phase [a, b).
-        if b - a < 3:
-            continue
-        t = np.arange(b - a) / motion.fps
-        free = com[a:b, 2] - 0.5 * gz * t**2  # Linear in t for a free fall.
-        basis = np.stack([np.ones_like(t), t], axis=1)
-        gaps.append(free - basis @ np.linalg.lstsq(basis, free, rcond=None)[0])
-    gap = np.concatenate(gaps) if gaps else np.zeros(0)
-    return {
-        "flight_frames": int(flight.sum()),
-        "frames": T,
-        "com_z_acc_in_flight": float(acc_z[flight].mean()) if flight.any() else float("nan"),
-        "gravity_z": gz,
-        "ballistic_gap_mm": 1000.0 * float(np.sqrt(np.mean(gap**2))) if gap.size else float("nan"),
-    }
-
-
-def refine(
-    motion: Motion,
-    cfg: DynamicsConfig | None = None,
-    *,
-    robustness: int = 8,
-    progress: Callable[[int], Any] | None = None,
-    nthread: int | None = None,
-    backend: Literal["cpu", "warp"] = "cpu",
-    device: str = "cpu",
-) -> tuple[Motion, dict[str, Any]]:
-    """``humimic refine``: the dynamically feasible version of ``motion`` and its report.
-
-    The refined motion's frames are the optimized rollout's states at the reference's frame
-    times (its kinematics recomputed from them); its ``dynamics`` section holds the initial
-    state, the controls and the states of every physics step. The report compares the
-    open-loop replay of the kinematic reference (its next frame's joints as PD targets) with
-    that of the result (:func:`evaluate_replay`), and replays the result on ``robustness``
-    perturbed models (``default`` domain-randomization ranges). ``backend`` and ``device``
-    choose the simulator of the sampled rollouts (:class:`DynamicsRetargeter`); the replays
-    are MuJoCo's on the CPU either way.
-    """
-    from humimic.motion import motion_from_qpos
-
-    setup = replace(key_body_setup(motion.robot), backend=backend)
-    dyn = DynamicsRetargeter(motion, cfg, setup=setup, nthread=nthread, device=device)
-    res = dyn.run(progress=progress)
-    kin = evaluate_replay(dyn, dyn.reference_controls(), res.initial_state)
-    mine = evaluate_replay(dyn, res.ctrl, res.initial_state)
-    perturbed = [
-        evaluate_replay(dyn, res.ctrl, res.initial_state, m)
-        for m in perturbed_models(dyn.model, dyn.backend, robustness, dyn.cfg.seed + 2)
-    ]
-    seconds = (motion.num_frames - 1) / motion.fps
-    report: dict[str, Any] = {
-        "robot": motion.robot,
-        "frames": motion.num_frames,
-        "motion_seconds": seconds,
-        "reference_flight": reference_flight(motion, dyn.model),
-        "reference_torque": _torque_report(dyn),
-        "kinematic_replay": kin,
-        "dynamics_replay": mine,
-        "robustness": {
-            "replays": robustness,
-            "stayed_up": float(np.mean([1.0 - p["fell"] for p in perturbed]))
-            if perturbed
-            else None,
-            "mpjpe_mm_mean": float(np.mean([p["mpjpe_mm"] for p in perturbed]))
-            if perturbed
-            else None,
-        },
-        "wall_seconds": res.seconds,
-        "cpu_seconds": res.cpu_seconds,
-        "cpu_seconds_per_motion_second": res.cpu_seconds / seconds,
-        "physics_steps": res.rollouts,
-        "samples": dyn.cfg.samples * (dyn.cfg.ensemble + 1),
-        "mean_iterations_per_window": float(np.mean(res.iterations)),
-        "window_cost": {
-            "sampled": float(res.window_costs[:, 0].mean()),
-            "committed": float(res.window_costs[:, 1].mean()),
-        },
-        "backend": backend,
-        "device": device if backend == "warp" else "cpu",
-        "threads": dyn.backend.nthread,
-    }
-    frames = res.frame_qpos()
-    out = motion_from_qpos(
-        dyn.model, frames, motion.fps, motion.robot, extras=motion.extras,
-        info={**(motion.info or {}), "refined": {"config": dataclasses.asdict(dyn.cfg),
-                                                  "report": report}},
-    )  # fmt: skip
-    if out.body_names != motion.body_names:
-        raise InputError("the training model's bodies differ from the motion's")
-    dynamics = {
-        "initial_state": res.initial_state,
-        "ctrl": res.ctrl,
-        "qpos": res.qpos,
-        "qvel": res.qvel,
-        "physics_dt": np.array(res.physics_dt),
-    }
-    return replace(out, dynamics=dynamics), report
-
-
-def check_replay(motion: Motion) -> dict[str, float]:
-    """Replay a refined motion's stored controls from its stored initial state on the
-    training model it was optimized on, and compare with its stored states.
-
-    Raises:
-        InputError: If the motion has no dynamic section, or one that does not fit the
-            training model (physics step, state size, controls, steps); names the motion's
-            file (``motion.source``).
-    """
-    where = motion.source or "the motion"
-    dyn = motion.dynamics
-    need = ("initial_state", "ctrl", "qpos", "qvel")
-    if not dyn or any(k not in dyn for k in need):
-        raise InputError(f"{where}: no dynamic section: make one with humimic refine")
-    try:
-        task = key_body_setup(motion.robot)
-    except InputError as e:  # An unknown robot name.
-        raise InputError(f"{where}: {e}") from None
-    if "physics_dt" in dyn and abs(float(dyn["physics_dt"]) - task.sim_dt) > 1e-12:
-        raise InputError(
-            f"{where}: stored physics step {float(dyn['physics_dt'])} s, the training model's "
-            f"is {task.sim_dt} s"
-        )
-    model = build_model(task)
-    state, ctrl = np.asarray(dyn["initial_state"]), np.asarray(dyn["ctrl"])
-    size = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
-    if state.shape != (size,):
-        raise InputError(
-            f"{where}: dynamics_initial_state has shape {state.shape}, the training model of "
-            f"{motion.robot} needs ({size},): refine the motion again"
-        )
-    if ctrl.ndim != 2 or ctrl.shape[0] < 1 or ctrl.shape[1] != model.nu:
-        raise InputError(
-            f"{where}: dynamics_ctrl has shape {ctrl.shape}, expected (steps, {model.nu}) for "
-            f"the training model of {motion.robot}"
-        )
-    steps = ctrl.shape[0]
-    for key, width in (("qpos", model.nq), ("qvel", model.nv)):
-        if np.shape(dyn[key]) != (steps, width):
-            raise InputError(
-                f"{where}: dynamics_{key} has shape {np.shape(dyn[key])}, expected ({steps}, "
-                f"{width}): one row per step of dynamics_ctrl"
-            )
-    states = replay(model, state, ctrl)
-    nq, nv = model.nq, model.nv
-    return {
-        "steps": float(states.shape[0]),
-        "max_qpos_error": float(np.abs(states[:, 1 : 1 + nq] - dyn["qpos"]).max()),
-        "max_qvel_error": float(np.abs(states[:, 1 + nq : 1 + nq + nv] - dyn["qvel"]).max()),
-    }
-
-
 __all__ = [
     "DynamicsResult",
     "DynamicsRetargeter",
-    "check_replay",
-    "evaluate_replay",
     "knot_weights",
-    "perturbed_models",
-    "refine",
-    "replay",
 ]
