@@ -1,0 +1,1 @@
+"""What composes the parts: batch jobs and the sim-to-real loop."""
