@@ -10,21 +10,21 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src" / "humimic"
 
 CORE = {"core"}
-LOW = CORE | {"configs", "formats", "datasets", "robots"}
+INPUTS = CORE | {"formats", "datasets", "robots"}
 PARTS = {"retarget", "tracking", "real2sim"}
 ALLOWED: dict[str, set[str]] = {
     "core": CORE,
-    "configs": CORE,
     "formats": CORE,
     "datasets": CORE | {"formats"},
     "robots": CORE | {"formats"},
-    "sim": LOW,
-    "retarget": LOW | {"sim"},
-    "tracking": LOW | {"sim"},
-    "real2sim": LOW | {"sim"},
-    "viewer": LOW,
-    "pipeline": LOW | {"sim"} | PARTS,
-    "cli": LOW | {"sim", "viewer", "pipeline"} | PARTS,
+    "sim": INPUTS,
+    "configs": INPUTS | {"sim"},
+    "retarget": INPUTS | {"sim", "configs"},
+    "tracking": INPUTS | {"sim", "configs"},
+    "real2sim": INPUTS | {"sim", "configs"},
+    "viewer": INPUTS | {"configs"},
+    "pipeline": INPUTS | {"sim", "configs"} | PARTS,
+    "cli": INPUTS | {"sim", "configs", "viewer", "pipeline"} | PARTS,
 }
 """Layer -> the layers it may import (its own always). ``core`` is the top-level modules
 (errors, io, transforms, motion, npyio)."""

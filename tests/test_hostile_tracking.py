@@ -10,12 +10,15 @@ from __future__ import annotations
 import csv
 import re
 import shutil
-from dataclasses import fields
+import typing
+from collections.abc import Iterator
+from dataclasses import fields, is_dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import tyro
 
 from humimic.cli.main import main
 from humimic.configs.runs import (
@@ -419,6 +422,24 @@ def _help_entries(text: str) -> dict[str, str]:
     return entries
 
 
+_SUPPRESS = typing.get_args(tyro.conf.Suppress[int])[1]
+
+
+def _flags(cls: type, prefix: str = "--") -> Iterator[tuple[str, str]]:
+    """(field name, flag) of every field of a settings class the command line shows: nested
+    configs' fields under their prefix (``--ppo.learning-rate``), suppressed ones left out."""
+    hints = typing.get_type_hints(cls, include_extras=True)
+    for f in fields(cls):
+        hint = hints[f.name]
+        if _SUPPRESS in getattr(hint, "__metadata__", ()):
+            continue
+        flag = prefix + f.name.replace("_", "-")
+        if is_dataclass(hint) and isinstance(hint, type):
+            yield from _flags(hint, flag + ".")
+        else:
+            yield f.name, flag
+
+
 @pytest.mark.parametrize(
     ("command", "cls"),
     [("train", TrainSettings), ("eval", EvalSettings), ("export", ExportSettings),
@@ -428,7 +449,9 @@ def test_every_tracking_subcommand_and_flag_has_help(
     command: str, cls: type, capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:  # fmt: skip
-    monkeypatch.setenv("COLUMNS", "250")  # One line per option where the help fits.
+    # Wide, so that an option's help fits its line where its flags are short; under 130
+    # columns, so that tyro does not set the option groups side by side.
+    monkeypatch.setenv("COLUMNS", "129")
     with pytest.raises(SystemExit) as e:
         main([command, "--help"])
     assert e.value.code == 0
@@ -437,14 +460,13 @@ def test_every_tracking_subcommand_and_flag_has_help(
     description = text.split("\n\n")[1].strip()
     assert len(description.split()) >= 5 and not description.startswith("╭"), description
     entries = _help_entries(text)
-    for f in fields(cls):
-        flag = "--" + f.name.replace("_", "-")
+    for name, flag in _flags(cls):
         keys = [k for k in entries if k.split()[0].rstrip(",") == flag]
-        if not keys and f.name == "run" and command in ("eval", "export"):
+        if not keys and name == "run" and command in ("eval", "export"):
             keys = [k for k in entries if k.split()[0] == "PATH"]  # Positional.
-        assert len(keys) == 1, (f.name, sorted(entries))
+        assert len(keys) == 1, (flag, sorted(entries))
         help_text = re.sub(r"\((default|required|fixed)[^)]*\)", "", entries[keys[0]])
-        assert re.search(r"[A-Za-z]{3}", help_text), (f.name, entries[keys[0]])
+        assert re.search(r"[A-Za-z]{3}", help_text), (flag, entries[keys[0]])
 
 
 def test_top_level_help_describes_the_tracking_commands(

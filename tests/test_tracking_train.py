@@ -81,6 +81,52 @@ def test_train_writes_a_run_and_refuses_to_overwrite_it(
     assert "dr" in capsys.readouterr().err
 
 
+def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
+    motion_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--task.*`` and ``--ppo.*`` change the frozen configs; config.yaml records them, the
+    networks have the sizes asked for, a resume without them is refused naming the setting,
+    and the commands that rebuild the run's task (eval, export) use them."""
+    import yaml
+
+    from humimic.tracking.train import read_run_settings, task_config
+
+    out = tmp_path / "run"
+    tuned = ["--task.action-scale", "0.5", "--task.reward-weights", "body_pos", "2.0",
+             "--ppo.learning-rate", "3e-4", "--ppo.actor-hidden-dims", "32", "16"]  # fmt: skip
+    assert main(_train_args(motion_file, out, 1, *tuned)) == 0
+    cfg = yaml.safe_load((out / "config.yaml").read_text())
+    assert cfg["settings"]["task"]["action_scale"] == 0.5
+    assert cfg["settings"]["task"]["reward_weights"] == {"body_pos": 2.0}
+    assert cfg["settings"]["ppo"]["learning_rate"] == 3e-4
+    assert cfg["tracking"]["action_scale"] == 0.5
+    assert cfg["tracking"]["rewards"]["body_pos"]["weight"] == 2.0
+    assert cfg["tracking"]["rewards"]["body_ori"]["weight"] == 1.0  # The others as they were.
+    assert cfg["ppo"]["algorithm"]["learning_rate"] == 3e-4
+    assert cfg["ppo"]["actor"]["hidden_dims"] == [32, 16]
+    blob = torch.load(out / "checkpoints" / "model_000001.pt", weights_only=True)
+    shapes = [v.shape for k, v in blob["actor_state_dict"].items() if k.endswith("weight")]
+    assert [s[0] for s in shapes[:2]] == [32, 16]
+    settings = read_run_settings(out)
+    assert settings.task.action_scale == 0.5 and settings.ppo.actor_hidden_dims == (32, 16)
+    task = task_config("g1", "none", 0, settings=settings.task)
+    assert task.action_scale == 0.5 and task.rewards["body_pos"].weight == 2.0
+    capsys.readouterr()
+    assert main(_train_args(motion_file, out, 2, "--resume")) == 2
+    err = capsys.readouterr().err
+    assert "task.action_scale" in err and "ppo.learning_rate" in err
+    assert main(_train_args(motion_file, out, 2, "--resume", *tuned)) == 0
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert main(["export", str(out), "--out", str(tmp_path / "p.onnx")]) == 0
+    # Bad values are refused before anything is written, naming the flag.
+    for bad, named in ((["--task.action-scale", "0"], "--task.action-scale"),
+                       (["--task.reward-weights", "nope", "1"], "nope"),
+                       (["--ppo.gamma", "1.5"], "--ppo.gamma")):  # fmt: skip
+        assert main(_train_args(motion_file, tmp_path / "bad", 1, *bad)) == 2
+        assert named in capsys.readouterr().err
+        assert not (tmp_path / "bad").exists()
+
+
 @pytest.mark.parametrize(
     ("variant", "actor_dim"),
     [("robust", 160), ("asymmetric", 160 + 5 * 160), ("teacher", None)],
@@ -249,6 +295,7 @@ def test_nan_stops_training_with_a_clear_error(
     capsys: pytest.CaptureFixture[str],
 ) -> None:  # fmt: skip
     import humimic.tracking.train as train_mod
+    from humimic.configs.runs import TaskSettings
     from humimic.tracking.config import TermConfig
 
     calls = {"n": 0}
@@ -260,8 +307,9 @@ def test_nan_stops_training_with_a_clear_error(
 
     original = train_mod.task_config
 
-    def task_config(robot: str, dr: str, seed: int, physics: str | None = None):
-        cfg = original(robot, dr, seed, physics)
+    def task_config(robot: str, dr: str, seed: int, physics: str | None = None,
+                    settings: TaskSettings | None = None):  # fmt: skip
+        cfg = original(robot, dr, seed, physics, settings)
         rewards = {**cfg.rewards, "poison": TermConfig(func=poisoned, weight=1.0)}
         return replace(cfg, rewards=rewards)
 
@@ -293,8 +341,8 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     assert r["open_loop"]["joint_error_rad"] < 0.5
 
     # The first episode, beside the JSON, with the reference: what `humimic view` plays.
-    from humimic.cli.main import load_rollout, read_any_motion
     from humimic.formats.mcap import qpos_from_log, read_mcap
+    from humimic.pipeline.files import load_rollout, read_any_motion
 
     mcap = tmp_path / "eval.mcap"
     assert r["mcap"] == str(mcap)

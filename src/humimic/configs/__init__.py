@@ -1,6 +1,7 @@
 """Configuration dataclasses and their named variants (factory functions)."""
 
 from humimic.configs.retarget import (
+    RETARGET_CONFIGS,
     DynamicsConfig,
     InteractionConfig,
     RetargetConfig,
@@ -9,6 +10,7 @@ from humimic.configs.retarget import (
 )
 
 __all__ = [
+    "RETARGET_CONFIGS",
     "DynamicsConfig",
     "InteractionConfig",
     "RetargetConfig",

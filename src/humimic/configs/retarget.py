@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from humimic.errors import InputError
@@ -142,6 +143,13 @@ def retarget_default() -> RetargetConfig:
 def retarget_fast() -> RetargetConfig:
     """Fewer iterations per frame, for previews."""
     return RetargetConfig(stage1_iters=1, stage2_iters=2, first_frame_iters=5)
+
+
+RETARGET_CONFIGS: dict[str, Callable[[], RetargetConfig]] = {
+    "default": retarget_default,
+    "fast": retarget_fast,
+}
+"""Named retargeting configurations (``humimic retarget --preset NAME``): name -> factory."""
 
 
 @dataclass(frozen=True, kw_only=True)

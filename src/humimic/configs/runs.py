@@ -1,14 +1,17 @@
-"""Settings of tracking runs (``humimic train``, ``distill``, ``eval``, ``export``, ``loop``):
-light to import. Each has ``validate()``, which the command calls before any work."""
+"""Settings of tracking runs (``humimic train``, ``distill``, ``eval``, ``export``, ``loop``),
+of the task a run changes and of PPO: light to import. Each has ``validate()``, which the
+command calls before any work."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
 
+from humimic.configs.choices import DrChoice, PhysicsChoice, RobotName
 from humimic.errors import InputError
 
 MAX_SEED = 2**32 - 1
@@ -21,6 +24,18 @@ their states are allocated at once, and more than this exhausts a machine's memo
 
 MAX_STEPS_PER_ENV = 1000
 """The longest ``--num-steps-per-env`` (the PPO rollout buffer holds every env's steps)."""
+
+MAX_HISTORY = 100
+"""The longest ``--task.history-length`` (every env keeps that many observations)."""
+
+MAX_HIDDEN = 8192
+"""The widest hidden layer of ``--ppo.actor-hidden-dims`` and ``--ppo.critic-hidden-dims``."""
+
+MAX_EPOCHS = 1000
+"""The most ``--ppo.num-learning-epochs`` and ``--ppo.num-mini-batches``."""
+
+MAX_WEIGHT = 1e6
+"""The largest ``--task.reward-weights`` magnitude."""
 
 
 def _flag(name: str) -> str:
@@ -53,6 +68,19 @@ def _check_minutes(minutes: float | None) -> None:
         raise InputError(f"--max-minutes {minutes}: must be a positive number of minutes")
 
 
+def _check_reals(s: object, prefix: str, names: tuple[str, ...], *, positive: bool) -> None:
+    """Each named field of ``s`` that is set must be a finite number > 0 (``positive``) or
+    >= 0; :class:`InputError` names the flag ``--<prefix>.<field>``."""
+    for name in names:
+        v = getattr(s, name)
+        if v is None:
+            continue
+        ok = math.isfinite(v) and (v > 0 if positive else v >= 0)
+        if not ok:
+            what = "a positive number" if positive else "a number >= 0"
+            raise InputError(f"--{prefix}.{name.replace('_', '-')} {v}: must be {what}")
+
+
 def check_device(device: str, flag: str = "--device") -> None:
     """Fail before any work when ``device`` is not a torch device this machine has.
 
@@ -78,6 +106,129 @@ def check_device(device: str, flag: str = "--device") -> None:
         raise InputError(f"{flag} {device}: this machine has {count} CUDA device(s)")
 
 
+_TASKS = tyro.conf.arg(help_behavior_hint="(default: the robot's task's)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TaskSettings:
+    """Settings of the tracking task a run changes (``--task.*``); each one unset keeps the
+    value of the robot's registered task (:func:`humimic.tracking.config.tracking_task`)."""
+
+    episode_length_s: Annotated[float | None, _TASKS] = None
+    """Episode length [s]; the clip's end also ends an episode."""
+    action_scale: Annotated[float | None, _TASKS] = None
+    """PD target = default + action_scale * effort limit / kp * action, per joint
+    (BeyondMimic's scaling)."""
+    soft_limit_factor: Annotated[float | None, _TASKS] = None
+    """Soft joint limits, as a fraction of each joint's range (centred; 0 to 1)."""
+    history_length: Annotated[int | None, _TASKS] = None
+    """Policy observations stacked in the proprioceptive history (what the ``asymmetric``
+    variant's actor reads)."""
+    reward_weights: Annotated[
+        dict[str, float], tyro.conf.arg(help_behavior_hint="(default: the task's weights)")
+    ] = field(default_factory=dict)
+    """New weights of reward terms, by name: ``--task.reward-weights body_pos 2.0
+    action_rate_l2 -0.05`` (the terms: docs/tracking.md)."""
+
+    def validate(self) -> None:
+        """Check the values; :class:`InputError` names the flag."""
+        _check_reals(self, "task", ("episode_length_s", "action_scale"), positive=True)
+        if self.soft_limit_factor is not None and not 0 < self.soft_limit_factor <= 1:
+            raise InputError(
+                f"--task.soft-limit-factor {self.soft_limit_factor}: must be in (0, 1]"
+            )
+        if self.history_length is not None and not 1 <= self.history_length <= MAX_HISTORY:
+            raise InputError(
+                f"--task.history-length {self.history_length}: must be in 1 to {MAX_HISTORY}"
+            )
+        for name, w in self.reward_weights.items():
+            if not (math.isfinite(w) and abs(w) <= MAX_WEIGHT):
+                raise InputError(
+                    f"--task.reward-weights {name} {w}: must be a number of magnitude at most "
+                    f"{MAX_WEIGHT:g}"
+                )
+
+
+@dataclass(frozen=True, kw_only=True)
+class PpoConfig:
+    """PPO and its actor-critic networks (``--ppo.*``): BeyondMimic's / mjlab's G1 tracking
+    values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``). Turned into rsl_rl's config dict by
+    :func:`humimic.tracking.rsl.train_cfg`.
+
+    Attributes:
+        actor_hidden_dims: Hidden layer sizes of the actor MLP.
+        critic_hidden_dims: Hidden layer sizes of the critic MLP.
+        activation: Activation of both MLPs.
+        obs_normalization: Empirical observation normalization in both models.
+        init_std: Initial action noise standard deviation (scalar parameterization).
+        learning_rate: Adam learning rate (adapted to ``desired_kl``).
+        schedule: ``adaptive`` or ``fixed``.
+        desired_kl: Target KL divergence of the adaptive schedule.
+        entropy_coef: Entropy bonus.
+        value_loss_coef: Value loss weight.
+        use_clipped_value_loss: Clip the value loss like the policy loss.
+        clip_param: PPO clipping.
+        num_learning_epochs: Epochs per update.
+        num_mini_batches: Mini-batches per epoch.
+        gamma: Discount.
+        lam: GAE lambda.
+        max_grad_norm: Gradient clipping.
+        num_steps_per_env: Rollout length per env and iteration (``--num-steps-per-env``).
+        save_interval: Iterations between checkpoints (``--checkpoint-every``).
+        obs_groups: Observation sets -> env observation groups (``--variant``).
+        logger: rsl_rl log writer (``tensorboard``).
+        run_name: Suffix of the run folder.
+        check_for_nan: Check observations and rewards for NaN every step.
+    """
+
+    actor_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    activation: tyro.conf.Suppress[str] = "elu"
+    obs_normalization: bool = True
+    init_std: float = 1.0
+    learning_rate: float = 1e-3
+    schedule: Literal["adaptive", "fixed"] = "adaptive"
+    desired_kl: float = 0.01
+    entropy_coef: float = 0.005
+    value_loss_coef: float = 1.0
+    use_clipped_value_loss: bool = True
+    clip_param: float = 0.2
+    num_learning_epochs: int = 5
+    num_mini_batches: int = 4
+    gamma: float = 0.99
+    lam: float = 0.95
+    max_grad_norm: float = 1.0
+    num_steps_per_env: tyro.conf.Suppress[int] = 24
+    save_interval: tyro.conf.Suppress[int] = 500
+    obs_groups: tyro.conf.Suppress[dict[str, tuple[str, ...]]] = field(
+        default_factory=lambda: {"actor": ("policy",), "critic": ("critic",)}
+    )
+    logger: tyro.conf.Suppress[str] = "tensorboard"
+    run_name: tyro.conf.Suppress[str] = ""
+    check_for_nan: tyro.conf.Suppress[bool] = True
+
+    def validate(self) -> None:
+        """Check the values; :class:`InputError` names the flag (``--ppo.<field>``)."""
+        positive = ("init_std", "learning_rate", "desired_kl", "clip_param", "max_grad_norm")
+        _check_reals(self, "ppo", positive, positive=True)
+        _check_reals(self, "ppo", ("entropy_coef", "value_loss_coef"), positive=False)
+        for name in ("gamma", "lam"):
+            v = getattr(self, name)
+            if not 0 < v <= 1:  # NaN fails too.
+                raise InputError(f"--ppo.{name} {v}: must be in (0, 1]")
+        for name in ("num_learning_epochs", "num_mini_batches"):
+            v = getattr(self, name)
+            if not 1 <= v <= MAX_EPOCHS:
+                raise InputError(f"--ppo.{_flag(name)[2:]} {v}: must be in 1 to {MAX_EPOCHS}")
+        for name in ("actor_hidden_dims", "critic_hidden_dims"):
+            dims = getattr(self, name)
+            if not dims or not all(1 <= d <= MAX_HIDDEN for d in dims):
+                raise InputError(
+                    f"--ppo.{_flag(name)[2:]} {' '.join(map(str, dims)) or '(none)'}: one or "
+                    f"more layer sizes, each 1 to {MAX_HIDDEN}"
+                )
+
+
 @dataclass(frozen=True, kw_only=True)
 class TrainSettings:
     """Train a tracking policy with PPO on a reference motion; the run folder survives crashes
@@ -87,7 +238,7 @@ class TrainSettings:
     """Reference motion file (``.npz`` from ``humimic retarget``)."""
     out: Path
     """Run folder (config.yaml, progress.csv, checkpoints/, tensorboard/)."""
-    robot: str = "g1"
+    robot: RobotName = "g1"
     """Registry name; must match the motion's."""
     num_envs: int = 4096
     """Parallel environments (under torchrun: each process's)."""
@@ -99,9 +250,9 @@ class TrainSettings:
     backend: Literal["cpu", "warp"] = "cpu"
     """The simulator: ``cpu`` (MuJoCo on the CPU) or ``warp`` (MuJoCo Warp on ``--device``:
     GPU throughput; needs ``humimic[gpu]``)."""
-    dr: str = "default"
+    dr: DrChoice = "default"
     """Domain randomization: a profile name (``none``, ``default``) or a YAML file."""
-    physics: str | None = None
+    physics: PhysicsChoice | None = None
     """Train on a fixed model: a physics file (docs/tracking.md, "Physics files"), e.g. the
     correction ``humimic sysid diagnose`` found; DR acts on top of it."""
     init_from: Path | None = None
@@ -128,6 +279,10 @@ class TrainSettings:
     seconds at the start; cuts the env's own cost per step, BENCHMARKS.md)."""
     quiet: bool = False
     """No progress bar."""
+    task: TaskSettings = field(default_factory=TaskSettings)
+    """The tracking task's settings."""
+    ppo: PpoConfig = field(default_factory=PpoConfig)
+    """PPO's settings."""
 
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
@@ -135,6 +290,8 @@ class TrainSettings:
         _at_most(self, {"num_envs": MAX_NUM_ENVS, "num_steps_per_env": MAX_STEPS_PER_ENV})
         _check_minutes(self.max_minutes)
         _check_seed(self.seed)
+        self.task.validate()
+        self.ppo.validate()
         check_device(self.device)
 
 
@@ -158,7 +315,7 @@ class DistillSettings:
     """Total distillation iterations (a resumed run continues up to it)."""
     device: str = "cpu"
     """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
-    dr: str | None = None
+    dr: DrChoice | None = None
     """Domain randomization: a profile name or a YAML file (default: the teacher's)."""
     resume: bool = False
     """Continue the run in ``--out`` from its newest checkpoint."""
@@ -195,9 +352,9 @@ class EvalSettings:
     """Episodes to run (each plays the whole clip from its first frame)."""
     motion: Path | None = None
     """Evaluate on this clip (a motion file of the run's robot) instead of the run's."""
-    dr: str = "none"
+    dr: DrChoice = "none"
     """Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file."""
-    physics: str | None = None
+    physics: PhysicsChoice | None = None
     """Evaluate on a fixed robot: a physics file or a shipped one (``backpack``,
     ``worn_knees``; docs/tracking.md, "Physics files"), e.g. a "real" robot training never saw.
     DR (``--dr``) acts on top of it."""
@@ -237,7 +394,7 @@ class LoopSettings:
 
     run: Path
     """The policy's run folder (``humimic train``; not a teacher or a student)."""
-    real: str
+    real: PhysicsChoice
     """The "real" robot: a physics file or a shipped one (``backpack``, ``worn_knees``)."""
     out: Path
     """The loop's folder (new or empty)."""
@@ -295,6 +452,8 @@ class ExportSettings:
 
 
 __all__ = [
+    "MAX_HIDDEN",
+    "MAX_HISTORY",
     "MAX_NUM_ENVS",
     "MAX_SEED",
     "MAX_STEPS_PER_ENV",
@@ -302,6 +461,8 @@ __all__ = [
     "EvalSettings",
     "ExportSettings",
     "LoopSettings",
+    "PpoConfig",
+    "TaskSettings",
     "TrainSettings",
     "check_device",
 ]

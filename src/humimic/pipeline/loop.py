@@ -124,7 +124,8 @@ def _finetune(s: LoopSettings, run: Any, out: Path, physics: Path | None) -> dic
                        dr=run.dr, physics=None if physics is None else str(physics),
                        init_from=s.run, variant=run.variant, seed=s.seed,
                        checkpoint_every=s.iterations, num_steps_per_env=run.num_steps_per_env,
-                       max_minutes=s.max_minutes, quiet=s.quiet)  # fmt: skip
+                       max_minutes=s.max_minutes, quiet=s.quiet, task=run.task,
+                       ppo=run.ppo)  # fmt: skip
     last = train(ts)
     return {"run": str(out), "physics": None if physics is None else str(physics),
             "seconds": time.perf_counter() - t0, "last": last}  # fmt: skip

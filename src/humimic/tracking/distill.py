@@ -145,7 +145,8 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         raise InputError(f"--teacher {s.teacher}: the run's motion {teacher.motion} is missing")
     run = s.out
     dr = s.dr or teacher.dr
-    task = replace(task_config(teacher.robot, dr, s.seed, teacher.physics), torch_compile=s.compile)
+    task = task_config(teacher.robot, dr, s.seed, teacher.physics, teacher.task)
+    task = replace(task, torch_compile=s.compile)
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     created = not run.exists()

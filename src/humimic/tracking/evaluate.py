@@ -183,7 +183,7 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     s.validate()
     run = read_run_settings(s.run)
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
-    base = task_config(run.robot, s.dr, s.seed, s.physics)
+    base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
     motion_path = s.motion if s.motion is not None else run.motion
     if not motion_path.is_file():
         raise InputError(

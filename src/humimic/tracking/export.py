@@ -50,7 +50,7 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     path, blob = resolve_checkpoint(run, checkpoint)
     if not settings.motion.is_file():  # The env needs it for the observation sizes.
         raise InputError(f"{run}: the run's motion {settings.motion} is missing (moved?)")
-    task = task_config(settings.robot, "none", settings.seed)
+    task = task_config(settings.robot, "none", settings.seed, settings=settings.task)
     motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)
     try:

@@ -1,7 +1,7 @@
 """The one boundary module to rsl_rl (pinned: rsl-rl-lib 5.5.1).
 
-:func:`train_cfg` turns a :class:`PpoConfig` into the dict ``OnPolicyRunner`` reads. Defaults
-are BeyondMimic's / mjlab's G1 tracking values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``).
+:func:`train_cfg` turns a :class:`~humimic.configs.runs.PpoConfig` (BeyondMimic's / mjlab's G1
+tracking values, ``humimic train --ppo.*``) into the dict ``OnPolicyRunner`` reads.
 """
 
 from __future__ import annotations
@@ -10,74 +10,18 @@ import contextlib
 import copy
 import io
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from humimic.configs.runs import PpoConfig
 from humimic.errors import InputError
 from humimic.io import atomic_write
 from humimic.tracking.distributed import Ranks
 
 RSL_RL_VERSION = "5.5.1"
-
-
-@dataclass(frozen=True, kw_only=True)
-class PpoConfig:
-    """PPO and its actor-critic networks.
-
-    Attributes:
-        actor_hidden_dims: Hidden layer sizes of the actor MLP.
-        critic_hidden_dims: Hidden layer sizes of the critic MLP.
-        activation: Activation of both MLPs.
-        obs_normalization: Empirical observation normalization in both models.
-        init_std: Initial action noise standard deviation (scalar parameterization).
-        learning_rate: Adam learning rate (adapted to ``desired_kl``).
-        schedule: ``adaptive`` or ``fixed``.
-        desired_kl: Target KL divergence of the adaptive schedule.
-        entropy_coef: Entropy bonus.
-        value_loss_coef: Value loss weight.
-        use_clipped_value_loss: Clip the value loss like the policy loss.
-        clip_param: PPO clipping.
-        num_learning_epochs: Epochs per update.
-        num_mini_batches: Mini-batches per epoch.
-        gamma: Discount.
-        lam: GAE lambda.
-        max_grad_norm: Gradient clipping.
-        num_steps_per_env: Rollout length per env and iteration.
-        save_interval: Iterations between checkpoints.
-        obs_groups: Observation sets -> env observation groups.
-        logger: rsl_rl log writer (``tensorboard``).
-        run_name: Suffix of the run folder.
-        check_for_nan: Check observations and rewards for NaN every step.
-    """
-
-    actor_hidden_dims: tuple[int, ...] = (512, 256, 128)
-    critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
-    activation: str = "elu"
-    obs_normalization: bool = True
-    init_std: float = 1.0
-    learning_rate: float = 1e-3
-    schedule: str = "adaptive"
-    desired_kl: float = 0.01
-    entropy_coef: float = 0.005
-    value_loss_coef: float = 1.0
-    use_clipped_value_loss: bool = True
-    clip_param: float = 0.2
-    num_learning_epochs: int = 5
-    num_mini_batches: int = 4
-    gamma: float = 0.99
-    lam: float = 0.95
-    max_grad_norm: float = 1.0
-    num_steps_per_env: int = 24
-    save_interval: int = 500
-    obs_groups: dict[str, tuple[str, ...]] = field(
-        default_factory=lambda: {"actor": ("policy",), "critic": ("critic",)}
-    )
-    logger: str = "tensorboard"
-    run_name: str = ""
-    check_for_nan: bool = True
 
 
 VARIANT_OBS_GROUPS: dict[str, dict[str, tuple[str, ...]]] = {
@@ -90,12 +34,13 @@ VARIANT_OBS_GROUPS: dict[str, dict[str, tuple[str, ...]]] = {
 rsl_rl's actor and critic."""
 
 
-def tracking_ppo(variant: str = "beyondmimic") -> PpoConfig:
-    """PPO for whole-body tracking (BeyondMimic / mjlab G1 defaults) for a training variant
-    (:data:`VARIANT_OBS_GROUPS`)."""
+def tracking_ppo(variant: str = "beyondmimic", base: PpoConfig | None = None) -> PpoConfig:
+    """PPO for whole-body tracking for a training variant (:data:`VARIANT_OBS_GROUPS`): the
+    settings of ``base`` (default: BeyondMimic's / mjlab's G1 values), the variant's
+    observation groups."""
     if variant not in VARIANT_OBS_GROUPS:
         raise InputError(f"variant {variant!r}: expected one of {', '.join(VARIANT_OBS_GROUPS)}")
-    return PpoConfig(obs_groups=dict(VARIANT_OBS_GROUPS[variant]))
+    return replace(base or PpoConfig(), obs_groups=dict(VARIANT_OBS_GROUPS[variant]))
 
 
 def train_cfg(cfg: PpoConfig) -> dict[str, Any]:

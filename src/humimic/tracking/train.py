@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import yaml
 
-from humimic.configs.runs import TrainSettings
+from humimic.configs.runs import PpoConfig, TaskSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
@@ -34,7 +34,7 @@ from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_
 from humimic.tracking import distributed
 from humimic.tracking.config import TrackingConfig, tracking_task
 from humimic.tracking.distributed import Ranks, agree, parameter_spread
-from humimic.tracking.rsl import PpoConfig, make_runner, tracking_ppo, train_cfg
+from humimic.tracking.rsl import make_runner, tracking_ppo, train_cfg
 
 if TYPE_CHECKING:
     from humimic.tracking.env import TrackingEnv
@@ -57,6 +57,8 @@ _MUST_MATCH_ON_RESUME = (
     "variant",
     "seed",
     "num_steps_per_env",
+    "task",
+    "ppo",
 )
 
 
@@ -72,12 +74,45 @@ def resolve_dr(dr: str) -> DomainRandomization:
     return load_dr_profile(path)
 
 
-def task_config(robot: str, dr: str, seed: int, physics: str | None = None) -> TrackingConfig:
-    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile and,
-    if given, a physics file (or a shipped one's name)."""
+def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> TrackingConfig:
+    """The task with the values ``settings`` sets (``--task.*``; unset ones keep the task's).
+
+    Raises:
+        InputError: ``--task.reward-weights`` names a term the task does not have.
+    """
+    names = ("episode_length_s", "action_scale", "soft_limit_factor", "history_length")
+    changes: dict[str, Any] = {n: getattr(settings, n) for n in names}
+    changes = {n: v for n, v in changes.items() if v is not None}
+    weights = settings.reward_weights
+    unknown = sorted(set(weights) - set(task.rewards))
+    if unknown:
+        raise InputError(
+            f"--task.reward-weights: the {task.robot} task has no reward term {unknown[0]!r}; "
+            f"its terms: {', '.join(task.rewards)}"
+        )
+    if weights:
+        changes["rewards"] = {
+            name: replace(term, weight=float(weights.get(name, term.weight)))
+            for name, term in task.rewards.items()
+        }
+    return replace(task, **changes)
+
+
+def task_config(
+    robot: str,
+    dr: str,
+    seed: int,
+    physics: str | None = None,
+    settings: TaskSettings | None = None,
+) -> TrackingConfig:
+    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile, the
+    values a run's ``settings`` set (:func:`apply_task_settings`) and, if given, a physics file
+    (or a shipped one's name)."""
     from humimic.sim.physics import load_physics
 
     task = replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
+    if settings is not None:
+        task = apply_task_settings(task, settings)
     return task if physics is None else replace(task, physics=load_physics(physics))
 
 
@@ -348,8 +383,9 @@ def resolved_source(value: str | None, names: Any) -> str | None:
 
 
 def resolved_settings(s: TrainSettings) -> TrainSettings:
-    """The settings with every file path absolute: what config.yaml records, so that ``eval``,
-    ``export``, ``distill`` and ``--resume`` run from any folder find the files."""
+    """The settings with every file path absolute and PPO's as the run uses them
+    (:func:`ppo_for`): what config.yaml records, so that ``eval``, ``export``, ``distill`` and
+    ``--resume`` run from any folder find the files."""
     return replace(
         s,
         motion=s.motion.resolve(),
@@ -357,7 +393,42 @@ def resolved_settings(s: TrainSettings) -> TrainSettings:
         init_from=None if s.init_from is None else s.init_from.resolve(),
         dr=resolved_source(s.dr, DR_PROFILES) or s.dr,
         physics=resolved_source(s.physics, _physics_names()),
+        ppo=ppo_for(s),
     )
+
+
+def _differences(old: Any, new: Any, names: tuple[str, ...], prefix: str = "") -> list[str]:
+    """``name=old value`` for each named field that differs; a nested config's fields are
+    compared one by one (``ppo.learning_rate=0.001``)."""
+    out = []
+    for name in names:
+        a, b = getattr(old, name), getattr(new, name)
+        if a == b:
+            continue
+        if is_dataclass(a) and is_dataclass(b):
+            inner = tuple(f.name for f in fields(a))
+            out += _differences(a, b, inner, f"{prefix}{name}.")
+        else:
+            out.append(f"{prefix}{name}={a!s}")
+    return out
+
+
+def _settings_from(data: dict[str, Any]) -> TrainSettings:
+    """Training settings from config.yaml's ``settings``: the nested configs from their
+    mappings (older run folders have no ``task`` and ``ppo``: the defaults), PPO's resolved
+    as :func:`resolved_settings` records it."""
+    if data.get("task") is not None:
+        data["task"] = TaskSettings(**data["task"])
+    if data.get("ppo") is not None:
+        ppo = dict(data["ppo"])
+        for key in ("actor_hidden_dims", "critic_hidden_dims"):
+            if key in ppo:
+                ppo[key] = tuple(ppo[key])
+        if "obs_groups" in ppo:
+            ppo["obs_groups"] = {k: tuple(v) for k, v in ppo["obs_groups"].items()}
+        data["ppo"] = PpoConfig(**ppo)
+    settings = TrainSettings(**data)
+    return replace(settings, ppo=ppo_for(settings))
 
 
 def _write_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
@@ -405,7 +476,7 @@ def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
         for key, names in (("dr", DR_PROFILES), ("physics", _physics_names())):
             if data.get(key) is not None and data[key] not in names:
                 data[key] = str(_absolute(data[key], start))
-        return config, TrainSettings(**data)
+        return config, _settings_from(data)
     except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: not a humimic run configuration ({_first_line(e)})") from None
 
@@ -427,8 +498,9 @@ def run_rsl_cfg(run: Path) -> dict[str, Any]:
 
 
 def ppo_for(settings: TrainSettings) -> PpoConfig:
-    """The PPO configuration of a run."""
-    ppo = tracking_ppo(settings.variant)
+    """The PPO configuration of a run: its ``--ppo.*`` settings, its variant's observation
+    groups, its ``--num-steps-per-env``."""
+    ppo = tracking_ppo(settings.variant, settings.ppo)
     if settings.num_steps_per_env is not None:
         ppo = replace(ppo, num_steps_per_env=settings.num_steps_per_env)
     return ppo
@@ -447,11 +519,13 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     if s.resume:
         # Compared with the paths resolved: ./walk.npz and /abs/walk.npz are the same motion.
         old, new = read_run_settings(run), resolved_settings(s)
-        diff = [n for n in _MUST_MATCH_ON_RESUME if getattr(old, n) != getattr(new, n)]
+        diff = _differences(old, new, _MUST_MATCH_ON_RESUME)
         if diff:
-            was = ", ".join(f"{n}={getattr(old, n)!s}" for n in diff)
+            names = [d.split("=", 1)[0] for d in diff]
             verb = "differs" if len(diff) == 1 else "differ"
-            raise InputError(f"--resume: {', '.join(diff)} {verb} from the run's ({was})")
+            raise InputError(
+                f"--resume: {', '.join(names)} {verb} from the run's ({', '.join(diff)})"
+            )
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     cfg = train_cfg(ppo or ppo_for(s))
@@ -459,7 +533,9 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     _check_train_outputs(s, has_run)
     seed = s.seed + ranks.rank  # Each rank collects its own experience.
     task = replace(
-        task_config(s.robot, s.dr, seed, s.physics), torch_compile=s.compile, backend=s.backend
+        task_config(s.robot, s.dr, seed, s.physics, s.task),
+        torch_compile=s.compile,
+        backend=s.backend,
     )
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
     init = None
@@ -530,7 +606,8 @@ def check_batch(cfg: dict[str, Any], num_envs: int) -> None:
     if num_envs * steps < minis:
         raise InputError(
             f"--num-envs {num_envs} x --num-steps-per-env {steps}: a rollout of "
-            f"{num_envs * steps} samples cannot fill PPO's {minis} mini-batches; raise either"
+            f"{num_envs * steps} samples cannot fill PPO's {minis} mini-batches "
+            "(--ppo.num-mini-batches); raise either"
         )
 
 
@@ -690,6 +767,7 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
 __all__ = [
     "TrainSettings",
     "TrainingDiverged",
+    "apply_task_settings",
     "check_batch",
     "check_run_settings",
     "fit",

@@ -1,0 +1,339 @@
+"""``humimic retarget``, ``refine``, ``replay``, ``demo`` and ``convert``: human clips to robot
+motions, dynamics, and motion files."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tyro
+
+from humimic.configs import (
+    RETARGET_CONFIGS,
+    DynamicsConfig,
+    InteractionConfig,
+    RetargetConfig,
+    retarget_default,
+)
+from humimic.configs.choices import RetargetPreset, RobotName
+from humimic.configs.runs import check_device
+from humimic.errors import InputError
+from humimic.io import check_not_input, check_writable, json_ready
+from humimic.pipeline.batch import Method
+
+MAX_ROBUSTNESS = 1000
+"""The most perturbed replays ``humimic refine --robustness`` makes for its report."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RetargetCommand:
+    """Retarget human motion clips (BVH, joint-position arrays) to a robot."""
+
+    inputs: Annotated[tuple[Path, ...], tyro.conf.Positional]
+    """Clip files (.bvh, .npy, .npz) or folders of them."""
+    robot: RobotName = "g1"
+    """Robot name from the registry (`humimic robots list`)."""
+    out: Path
+    """Output .npz for one input; an output folder for several inputs or a folder."""
+    report: Path | None = None
+    """Quality report (JSON) for one input; with several, one <name>.json per clip in --out."""
+    units: str = "auto"
+    """BVH units: auto, m, cm, mm, inch, or metres per file unit."""
+    up: Literal["y", "z"] = "y"
+    """Up axis of BVH files (arrays of positions are z up)."""
+    skeleton: str | None = None
+    """Skeleton name for the map (default: detected from the joint names)."""
+    map: Path | None = None
+    """Your own human-to-robot map (YAML); default: the shipped map for skeleton and robot."""
+    menagerie_root: Path | None = None
+    """A MuJoCo Menagerie folder (or the robot's own folder) to load the robot from."""
+    start: int | None = None
+    """First source frame to use (default: 1 for CMU files, whose frame 0 is a T-pose)."""
+    preset: RetargetPreset = "default"
+    """Named IK settings (humimic.configs); --ik.* flags change single fields on top of it."""
+    ik: RetargetConfig = field(default_factory=retarget_default)
+    """IK settings (defaults: those of --preset)."""
+    method: Method = "kinematic"
+    """kinematic (mink IK), interaction-mesh (keeps the contacts with --scene), or dynamics
+    (kinematic, then humimic refine: a motion that replays open-loop in simulation)."""
+    scene: Path | None = None
+    """The scene of the clips (interaction-mesh): a scene .yaml, a mesh (.obj/.stl) or a
+    folder with box_models/*.obj (holosoma's layout); 'auto': each clip's own folder."""
+    mesh: InteractionConfig = field(default_factory=InteractionConfig)
+    """Interaction-mesh settings."""
+    dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
+    """Dynamics settings (--method dynamics; see humimic refine)."""
+    quiet: bool = False
+    """No progress bars; print only the report summary."""
+
+
+def scan_preset(argv: list[str]) -> str:
+    """The ``--preset`` on a command line, before it is parsed (``default`` without one)."""
+    for i, a in enumerate(argv):
+        if a == "--preset" and i + 1 < len(argv):
+            return argv[i + 1]
+        if a.startswith("--preset="):
+            return a.split("=", 1)[1]
+    return "default"
+
+
+def retarget_defaults(argv: list[str]) -> RetargetCommand:
+    """The defaults of ``humimic retarget`` for a command line: the ``--ik.*`` settings of
+    its ``--preset`` (an unknown preset is left for the parser to refuse)."""
+    preset = scan_preset(argv)
+    if preset not in RETARGET_CONFIGS:
+        preset = "default"
+    return RetargetCommand(
+        inputs=tyro.MISSING, out=tyro.MISSING, preset=preset, ik=RETARGET_CONFIGS[preset]()
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefineCommand:
+    """Make a motion dynamically feasible: sampling MPC in MuJoCo, so that its stored controls
+    replay open-loop on the simulated robot (humimic.retarget.dynamics)."""
+
+    motion: Annotated[Path, tyro.conf.Positional]
+    """A robot motion (.npz), e.g. from humimic retarget."""
+    out: Path
+    """The refined motion (.npz), with its dynamic section."""
+    report: Path | None = None
+    """Report (JSON): open-loop replays of the input and of the result, robustness, compute."""
+    dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
+    """Sampler settings."""
+    robustness: int = 8
+    """Replays of the result on perturbed physics, for the report."""
+    backend: Literal["cpu", "warp"] = "cpu"
+    """Simulator of the sampled rollouts: cpu (mujoco.rollout) or warp (MuJoCo Warp on --device;
+    humimic[gpu])."""
+    device: str = "cpu"
+    """Where the warp backend simulates (cuda)."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReplayCommand:
+    """Replay a refined motion's controls open-loop and check that they reproduce its
+    stored states (exit code 1 if they differ by more than --tol)."""
+
+    motion: Annotated[Path, tyro.conf.Positional]
+    """A motion with a dynamic section (humimic refine), .npz or .mcap."""
+    tol: float = 1e-9
+    """Largest accepted difference of qpos and qvel."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class DemoCommand:
+    """Fetch a real climbing clip (PyPI package holosoma-retargeting) and retarget it."""
+
+    robot: RobotName = "g1"
+    """Robot name from the registry (`humimic robots list`)."""
+    out: Path = Path("out/demo")
+    """Output folder."""
+    clip: int = 0
+    """Which climbing sequence (0-2)."""
+    quiet: bool = False
+    """No progress bars; print only the report."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ConvertCommand:
+    """Convert a motion between .npz and .mcap (lossless both ways)."""
+
+    src: Annotated[Path, tyro.conf.Positional]
+    """The motion to read (.npz or .mcap)."""
+    dst: Annotated[Path, tyro.conf.Positional]
+    """The file to write (.npz or .mcap); it must not be the source."""
+
+
+def _units(units: str) -> str | float:
+    """``--units``: a unit name, or metres per file unit."""
+    try:
+        return float(units)
+    except ValueError:
+        return units
+
+
+def _bars(quiet: bool) -> Callable[[str, int], Any]:
+    """Progress bars of frames (tqdm), none if ``quiet``."""
+    from tqdm import tqdm
+
+    @contextmanager
+    def bar(description: str, total: int) -> Iterator[Callable[[int], Any]]:
+        with tqdm(total=total, desc=description, unit="frame", disable=quiet,
+                  leave=False) as b:  # fmt: skip
+            yield b.update
+
+    return bar
+
+
+def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
+    """One line of a retargeting report; with a scene, a second, and a warning for objects
+    sampled more coarsely than ``spacing`` [m] (``--mesh.scene_spacing``)."""
+    print(
+        f"{Path(r['input']).name} -> {path}: {r['frames']} frames at {r['fps']:g} fps, "
+        f"{r['frames_per_second']:.0f} frames/s | key points {r['keypoint_error_mm_mean']:.1f} mm "
+        f"(p95 {r['keypoint_error_mm_p95']:.1f}) | skating {r['foot_skating_mm_per_s']:.0f} mm/s | "
+        f"ground penetration {r['max_ground_penetration_mm']:.1f} mm | lowest foot (median) "
+        f"{r['median_lowest_foot_mm']:.1f} mm | joint-limit violations {r['joint_limit_violations']} "
+        f"| self-collision frames {r['self_collision_frames']} "
+        f"(max {r['max_self_penetration_mm']:.1f} mm) | jerk {r['mean_joint_jerk']:.0f} rad/s^3"
+    )
+    if "max_scene_penetration_mm" in r:
+        k = r["kinematic"]
+        print(
+            f"  scene: penetration max {r['max_scene_penetration_mm']:.1f} mm in "
+            f"{r['scene_penetration_frames']} frames (kinematic: {k['max_scene_penetration_mm']:.1f}"
+            f" mm in {k['scene_penetration_frames']}) | contacts kept "
+            f"{100 * r['contact_preservation']:.0f}% of {r['human_contacts']} (kinematic: "
+            f"{100 * k['contact_preservation']:.0f}%) | planted feet {r['planted_foot_gap_mm']:.1f} mm"
+            f" above the surface (kinematic: {k['planted_foot_gap_mm']:.1f}) | skating "
+            f"{r['scene_foot_skating_mm_per_s']:.0f} mm/s | interaction "
+            f"{r['interaction_frames_per_second']:.0f} frames/s"
+        )
+        wanted = 1e3 * spacing if spacing is not None else None
+        coarse = {n: s for n, s in r["scene_spacing_mm"].items() if wanted and s > 1.01 * wanted}
+        if coarse:
+            print(
+                f"warning: objects too large to sample every {wanted:.0f} mm were sampled more "
+                "coarsely: " + ", ".join(f"{n} every {s:.0f} mm" for n, s in coarse.items()),
+                file=sys.stderr,
+            )
+
+
+def print_dynamics(report: dict, out: Path) -> None:
+    """The summary of a dynamics refinement (humimic refine, retarget --method dynamics)."""
+    k, d = report["kinematic_replay"], report["dynamics_replay"]
+    fl = report.get("reference_flight")
+    if (
+        fl
+        and fl["flight_frames"]
+        and abs(fl["com_z_acc_in_flight"] - fl["gravity_z"]) > 0.3 * abs(fl["gravity_z"])
+    ):
+        print(
+            f"warning: in the reference's {fl['flight_frames']} flight frames (both feet off the "
+            f"ground) its centre of mass accelerates at {fl['com_z_acc_in_flight']:.1f} m/s^2 "
+            f"vertically, not {fl['gravity_z']:.2f}: no physical motion follows it exactly "
+            f"(the closest arcs of free fall are {fl['ballistic_gap_mm']:.0f} mm RMS from its "
+            "centre of mass's height)"
+        )
+    print(f"open-loop replay, kinematic: {'fell at ' + format(k['seconds_until_fall'], '.2f') + ' s' if k['fell'] else 'stayed up'}, "
+          f"MPJPE {k['mpjpe_mm']:.0f} mm; refined: {'fell at ' + format(d['seconds_until_fall'], '.2f') + ' s' if d['fell'] else 'stayed up'}, "
+          f"MPJPE {d['mpjpe_mm']:.0f} mm")  # fmt: skip
+    rob = report["robustness"]
+    if rob["stayed_up"] is not None:
+        print(
+            f"perturbed physics: {100 * rob['stayed_up']:.0f}% of {rob['replays']} replays stayed up"
+        )
+    print(
+        f"compute: {report['cpu_seconds_per_motion_second']:.0f} CPU s per second of motion; wrote {out}"
+    )
+
+
+def retarget_clips(cmd: RetargetCommand) -> list[dict]:
+    """Retarget the clips of ``humimic retarget``, printing each one's summary; returns the
+    reports.
+
+    Every input is read and checked before any retargeting, so bad input fails the whole call
+    before anything is written (:func:`humimic.pipeline.batch.plan_retarget`).
+    """
+    from humimic.pipeline.batch import plan_retarget
+
+    batch = plan_retarget(
+        cmd.inputs, cmd.out, report=cmd.report, robot=cmd.robot, method=cmd.method, ik=cmd.ik,
+        mesh=cmd.mesh, dyn=cmd.dyn, units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton,
+        map_file=cmd.map, menagerie_root=cmd.menagerie_root, start=cmd.start, scene=cmd.scene,
+    )  # fmt: skip
+    reports = []
+    for r in batch.run(progress=_bars(cmd.quiet)):
+        print_summary(r.report, r.motion_path, cmd.mesh.scene_spacing)
+        if "dynamics" in r.report:
+            print_dynamics(r.report["dynamics"], r.motion_path)
+        reports.append(r.report)
+    return reports
+
+
+def run_retarget(cmd: RetargetCommand) -> None:
+    """Run ``humimic retarget``."""
+    retarget_clips(cmd)
+
+
+def run_demo(cmd: DemoCommand) -> None:
+    """Run ``humimic demo``: fetch a climbing clip, retarget it, print the full report."""
+    from humimic.datasets import climb_clip_paths, find_climb_data
+
+    root = find_climb_data(quiet=cmd.quiet)
+    clips = climb_clip_paths(root)
+    if not 0 <= cmd.clip < len(clips):
+        raise InputError(f"--clip {cmd.clip}: choose 0 to {len(clips) - 1}")
+    clip = clips[cmd.clip]
+    out = cmd.out / f"{clip.stem}_{cmd.robot}.npz"
+    report = out.with_suffix(".json")
+    (r,) = retarget_clips(
+        RetargetCommand(inputs=(clip,), robot=cmd.robot, out=out, report=report, quiet=cmd.quiet)
+    )
+    print(json.dumps(r, indent=2, allow_nan=False))
+
+
+def run_refine(cmd: RefineCommand) -> None:
+    """Run ``humimic refine``."""
+    from humimic.motion import load_motion
+    from humimic.pipeline.batch import save_with_report
+    from humimic.retarget.dynamics import refine
+
+    cmd.dyn.validate()
+    if cmd.backend == "warp":
+        check_device(cmd.device)
+    if cmd.out.suffix != ".npz":
+        raise InputError(f"{cmd.out}: the refined motion must end in .npz")
+    if not 0 <= cmd.robustness <= MAX_ROBUSTNESS:
+        raise InputError(f"--robustness: must be in 0 to {MAX_ROBUSTNESS}, got {cmd.robustness}")
+    check_not_input(cmd.out, {"the motion": cmd.motion}, "--out")
+    check_not_input(cmd.report, {"the motion": cmd.motion, "--out": cmd.out}, "--report")
+    check_writable(cmd.out)
+    if cmd.report is not None:
+        check_writable(cmd.report)
+    motion = load_motion(cmd.motion)
+    with _bars(cmd.quiet)(cmd.motion.name, motion.num_frames - 1) as update:
+        refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=update,
+                                 backend=cmd.backend, device=cmd.device)  # fmt: skip
+    report = json_ready(report)
+    save_with_report(refined, cmd.out, report, cmd.report)
+    print_dynamics(report, cmd.out)
+
+
+def run_replay(cmd: ReplayCommand) -> int:
+    """Run ``humimic replay``; returns the exit code."""
+    from humimic.pipeline.files import read_any_motion
+    from humimic.retarget.dynamics import check_replay
+
+    if not cmd.tol >= 0:  # NaN fails too: it would call every replay different.
+        raise InputError(f"--tol {cmd.tol}: must be a number >= 0")
+    r = check_replay(read_any_motion(cmd.motion))
+    ok = max(r["max_qpos_error"], r["max_qvel_error"]) <= cmd.tol
+    print(f"{int(r['steps'])} physics steps replayed: max |qpos| error {r['max_qpos_error']:.2e}, "
+          f"max |qvel| error {r['max_qvel_error']:.2e} ({'reproduced' if ok else 'DIFFERENT'})")  # fmt: skip
+    return 0 if ok else 1
+
+
+def run_convert(cmd: ConvertCommand) -> None:
+    """Run ``humimic convert``."""
+    from humimic.formats.mcap import write_motion_mcap
+    from humimic.motion import save_motion
+    from humimic.pipeline.files import read_any_motion
+
+    if cmd.dst.suffix not in (".npz", ".mcap"):
+        raise InputError(f"{cmd.dst}: convert to .npz or .mcap")
+    check_not_input(cmd.dst, {"the source": cmd.src}, "the destination")
+    motion = read_any_motion(cmd.src)
+    if cmd.dst.suffix == ".mcap":
+        write_motion_mcap(motion, cmd.dst)
+    else:
+        save_motion(motion, cmd.dst)
+    print(f"wrote {cmd.dst} ({motion.num_frames} frames)")

@@ -1,0 +1,74 @@
+"""``humimic train``, ``distill``, ``eval``, ``export`` and ``loop``: tracking policies (their
+settings are :mod:`humimic.configs.runs`)."""
+
+from __future__ import annotations
+
+from humimic.configs.runs import (
+    DistillSettings,
+    EvalSettings,
+    ExportSettings,
+    LoopSettings,
+    TrainSettings,
+)
+
+
+def run_train(cmd: TrainSettings) -> None:
+    """Run ``humimic train``."""
+    from humimic.tracking.distributed import Ranks
+    from humimic.tracking.train import train
+
+    last = train(cmd)
+    if last and Ranks.from_env().main:  # Under torchrun, rank 0 speaks for the run.
+        print(f"{cmd.out}: {int(last['iteration'])} iterations, mean reward "
+              f"{last.get('mean_reward', float('nan')):.4g}, mean episode length "
+              f"{last.get('mean_episode_length', float('nan')):.1f} steps")  # fmt: skip
+
+
+def run_distill(cmd: DistillSettings) -> None:
+    """Run ``humimic distill``."""
+    from humimic.tracking.distill import distill
+
+    row = distill(cmd)
+    if "loss_behavior" in row:
+        print(f"{cmd.out}: {int(row['iteration'])} iterations, imitation loss "
+              f"{row['loss_behavior']:.4g}, mean episode length "
+              f"{row['mean_episode_length']:.1f} steps")  # fmt: skip
+
+
+def run_eval(cmd: EvalSettings) -> None:
+    """Run ``humimic eval``."""
+    from humimic.tracking.evaluate import evaluate
+
+    result = evaluate(cmd)
+    if "physics" in result:
+        print(f"physics {result['physics']['name']}: {result['physics']['description']}")
+    for name in ("policy", "open_loop"):
+        m = result[name]
+        print(f"{name:9s}: success {100 * m['success_rate']:.0f}%, global MPJPE "
+              f"{m['mpjpe_global_mm']:.1f} mm, root-relative {m['mpjpe_root_mm']:.1f} mm, "
+              f"joint error {m['joint_error_rad']:.3f} rad")  # fmt: skip
+    if cmd.out is not None:
+        print(f"wrote {cmd.out}")
+    if "mcap" in result:
+        print(f"wrote {result['mcap']} (humimic view {result['mcap']})")
+
+
+def run_export(cmd: ExportSettings) -> None:
+    """Run ``humimic export``."""
+    from humimic.tracking.export import export
+
+    print(f"wrote {export(cmd)}")
+
+
+def run_loop(cmd: LoopSettings) -> None:
+    """Run ``humimic loop``."""
+    from humimic.pipeline.loop import loop
+
+    r = loop(cmd)
+    for name in ("before", "after", "after_nominal"):
+        if name in r:
+            p = r[name]["policy"]
+            print(f"{name:13s}: success {100 * p['success_rate']:.0f}%, global MPJPE "
+                  f"{p['mpjpe_global_mm']:.1f} mm, joint error {p['joint_error_rad']:.3f} rad")  # fmt: skip
+    print(f"sysid claimed: {', '.join(r['sysid']['claimed']) or 'nothing'}")
+    print(f"wrote {cmd.out / 'loop.md'}")
