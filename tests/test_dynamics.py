@@ -277,7 +277,7 @@ def test_polish_models_the_samplers_cost() -> None:
 
     from humimic.motion import motion_from_qpos
     from humimic.retarget.dynamics import DynamicsRetargeter
-    from humimic.retarget.dynamics.replays import _simulate
+    from humimic.sim.rollout import replay as _simulate
     from humimic.tracking.config import g1_tracking
     from humimic.tracking.env import tracking_model
 

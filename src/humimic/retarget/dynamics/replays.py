@@ -12,6 +12,7 @@ from humimic.configs.retarget import DynamicsConfig
 from humimic.errors import InputError
 from humimic.motion import Motion
 from humimic.sim import randomization as dr_mod
+from humimic.sim import rollout
 from humimic.sim.backend import PhysicsBackend
 from humimic.sim.params import physics_copies
 from humimic.sim.randomization import dr_default
@@ -42,30 +43,7 @@ def replay(model: mujoco.MjModel, initial_state: np.ndarray, ctrl: np.ndarray) -
         )
     if ctrl.ndim != 2 or ctrl.shape[1] != model.nu:
         raise InputError(f"controls must be (steps, {model.nu}), got {ctrl.shape}")
-    return _simulate(model, initial_state, ctrl)[0]
-
-
-def _simulate(
-    model: mujoco.MjModel, state: np.ndarray, ctrl: np.ndarray, warm: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """``mj_step`` from ``state`` (and solver warm start ``warm``, default zeros) under one
-    control per step. Returns the full physics state and the sensor data after each step
-    (what ``mujoco.rollout`` returns). Shape: (S, ``mj_stateSize``), (S, nsensordata)."""
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    data = mujoco.MjData(model)
-    mujoco.mj_setState(model, data, state, spec)
-    if warm is not None:
-        data.qacc_warmstart[:] = warm
-    states, sens = (
-        np.zeros((ctrl.shape[0], state.size)),
-        np.zeros((ctrl.shape[0], model.nsensordata)),
-    )
-    for s in range(ctrl.shape[0]):
-        data.ctrl[:] = ctrl[s]
-        mujoco.mj_step(model, data)
-        mujoco.mj_getState(model, data, states[s], spec)
-        sens[s] = data.sensordata
-    return states, sens
+    return rollout.replay(model, initial_state, ctrl)[0]
 
 
 def check_replay(motion: Motion) -> dict[str, float]:

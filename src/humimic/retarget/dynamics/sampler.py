@@ -19,12 +19,12 @@ from humimic.retarget.contacts import step_speed
 from humimic.retarget.dynamics.ilqr import ilqr
 from humimic.retarget.dynamics.inverse import inverse_dynamics_torques
 from humimic.retarget.dynamics.replays import (
-    _simulate,
     _tilt_and_fall,
     _up_z,
     physics_steps_per_frame,
 )
 from humimic.sim import randomization as dr_mod
+from humimic.sim import rollout
 from humimic.sim.backend import PhysicsBackend
 from humimic.sim.params import physics_copies
 from humimic.sim.randomization import DomainRandomization, dr_default, dr_none
@@ -307,7 +307,7 @@ class DynamicsRetargeter:
         ctrl = np.repeat(u, self.decimation, axis=0)
         costs = []
         for m in self.members:
-            states, sens = _simulate(m, state, ctrl, warm)
+            states, sens = rollout.replay(m, state, ctrl, warm)
             costs.append(self._costs(states[None], sens[None], ctrl[None], f0)[0])
         return float(np.mean(costs) if self.cfg.robust == "mean" else np.max(costs))
 
