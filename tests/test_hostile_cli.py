@@ -214,14 +214,14 @@ def test_loop_out_that_is_a_file_or_cannot_be_made_exits_2(
 ) -> None:
     """--out a regular file or /dev/null raised NotADirectoryError; an --out whose folder
     cannot be created (under /proc) raised FileNotFoundError: tracebacks."""
-    import humimic.tracking.train as train_module
+    import humimic.tracking.runs as runs_module
 
     # The run folder is read before --out is checked: a stand-in run keeps this test fast.
 
     class _Run:
         variant = "beyondmimic"
 
-    monkeypatch.setattr(train_module, "run_config", lambda run: ({}, _Run()))
+    monkeypatch.setattr(runs_module, "run_config", lambda run: ({}, _Run()))
     afile = tmp_path / "afile"
     afile.write_text("x\n")
     base = ["loop", "--run", str(tmp_path / "run"), "--real", "backpack"]

@@ -267,7 +267,7 @@ def test_run_records_absolute_paths_and_works_from_any_folder(
 ) -> None:
     """A run started with relative paths evaluates from another folder, resumes with the
     motion's absolute path, and an older run folder's relative paths are still found."""
-    from humimic.tracking.train import read_run_settings
+    from humimic.tracking.runs import read_run_settings
 
     project = tmp_path / "project"
     (project / "data").mkdir(parents=True)
@@ -342,7 +342,7 @@ def test_resume_after_a_crash_keeps_progress_csv_one_row_per_iteration(
 
 
 def test_trim_progress_drops_rows_past_the_checkpoint(tmp_path: Path) -> None:
-    from humimic.tracking.train import trim_progress
+    from humimic.tracking.runs import trim_progress
 
     path = tmp_path / "progress.csv"
     path.write_text("iteration,seconds,x\n1,2.5,a\n2,5.0,b\n3,7.5,c\n4,10.0,d\n5,1")

@@ -72,7 +72,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
 
     from humimic.real2sim.robotlog import read_robot_log
     from humimic.sim.physics import load_physics
-    from humimic.tracking.train import read_run_settings
+    from humimic.tracking.runs import read_run_settings
 
     corrected = load_physics(out / "corrected.yaml")  # Sysid found the weak knee drive.
     assert [(e.effect, e.targets) for e in corrected.effects] == [

@@ -89,7 +89,8 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
     and the commands that rebuild the run's task (eval, export) use them."""
     import yaml
 
-    from humimic.tracking.train import read_run_settings, task_config
+    from humimic.tracking.runs import read_run_settings
+    from humimic.tracking.train import task_config
 
     out = tmp_path / "run"
     tuned = ["--task.action-scale", "0.5", "--task.reward-weights", "body_pos", "2.0",

@@ -48,7 +48,7 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
     from humimic.robots import get_robot
     from humimic.robots.model import nominal_spec
     from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
-    from humimic.tracking.train import read_run_settings
+    from humimic.tracking.runs import read_run_settings
 
     settings = EvalSettings(run=run, episodes=s.episodes, motion=s.motion, physics=s.real,
                             device=s.device, seed=s.seed)  # fmt: skip
@@ -94,7 +94,7 @@ def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
 
 def _check(s: LoopSettings) -> Any:
     from humimic.sim.physics import load_physics
-    from humimic.tracking.train import run_config
+    from humimic.tracking.runs import run_config
 
     s.validate()
     load_physics(s.real)  # Read and checked now: a bad value fails before the first deploy.

@@ -114,20 +114,16 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     row (``loss_behavior`` is the student's imitation loss)."""
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
-    from humimic.tracking.train import (
-        _first_line,
-        _plain,
-        check_run_settings,
-        fit,
-        load_reference,
+    from humimic.tracking.runs import (
+        first_line,
         read_run_settings,
         resolve_checkpoint,
         resolved_source,
-        run_env,
         run_files,
         run_rsl_cfg,
-        task_config,
+        yaml_ready,
     )
+    from humimic.tracking.train import check_run_settings, fit, load_reference, run_env, task_config
 
     s = settings
     has_run = check_run_settings(s)
@@ -163,7 +159,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
                 shutil.rmtree(run, ignore_errors=True)
             flag = "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
             raise InputError(
-                f"{flag} {ckpt}: does not fit the teacher's actor ({_first_line(e)})"
+                f"{flag} {ckpt}: does not fit the teacher's actor ({first_line(e)})"
             ) from None
         (run / "checkpoints").mkdir(parents=True, exist_ok=True)
         if not has_run:
@@ -177,10 +173,10 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
             )
             blob = {
                 "kind": "student",
-                "settings": _plain(asdict(teacher)),
-                "distill": _plain(asdict(recorded)),
-                "tracking": _plain(task),
-                "rsl": _plain(cfg),
+                "settings": yaml_ready(asdict(teacher)),
+                "distill": yaml_ready(asdict(recorded)),
+                "tracking": yaml_ready(task),
+                "rsl": yaml_ready(cfg),
             }
             atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
         return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))

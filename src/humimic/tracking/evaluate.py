@@ -122,7 +122,7 @@ class Evaluation:
 def eval_inputs(s: EvalSettings) -> dict[str, Any]:
     """What an evaluation reads (label -> path): no output of it may overwrite one."""
     from humimic.sim.randomization import DR_PROFILES
-    from humimic.tracking.train import read_run_settings, run_files
+    from humimic.tracking.runs import read_run_settings, run_files
 
     run = read_run_settings(s.run)
     inputs: dict[str, Any] = {**run_files(s.run), "--checkpoint": s.checkpoint}
@@ -170,14 +170,13 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     """Run the policy and the open loop (writes nothing)."""
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
-    from humimic.tracking.train import (
-        load_reference,
+    from humimic.tracking.runs import (
         load_weights,
         read_run_settings,
         resolve_checkpoint,
         run_rsl_cfg,
-        task_config,
     )
+    from humimic.tracking.train import load_reference, task_config
 
     s = settings
     s.validate()

@@ -37,14 +37,13 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     """
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
-    from humimic.tracking.train import (
-        load_reference,
+    from humimic.tracking.runs import (
         load_weights,
         read_run_settings,
         resolve_checkpoint,
         run_rsl_cfg,
-        task_config,
     )
+    from humimic.tracking.train import load_reference, task_config
 
     settings = read_run_settings(run)
     path, blob = resolve_checkpoint(run, checkpoint)
@@ -104,7 +103,7 @@ def export(settings: ExportSettings) -> Path:
             run's files, the motion or the checkpoint, or a checkpoint that does not load;
             nothing is written.
     """
-    from humimic.tracking.train import read_run_settings, run_files, run_rsl_cfg
+    from humimic.tracking.runs import read_run_settings, run_files, run_rsl_cfg
 
     settings.validate()
     out = settings.out or settings.run / "policy.onnx"

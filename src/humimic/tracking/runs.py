@@ -1,0 +1,333 @@
+"""Run folders: what ``humimic train`` writes and every later command reads.
+
+A run folder holds ``config.yaml`` (everything resolved: the settings, the task, the PPO dict),
+``progress.csv`` (one row per iteration), ``checkpoints/model_<iterations done>.pt`` and
+``tensorboard/``; this module reads and writes them.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import math
+import os
+from dataclasses import asdict, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from humimic.configs.runs import PpoConfig, TaskSettings, TrainSettings
+from humimic.errors import InputError
+from humimic.io import atomic_write_text
+from humimic.sim.randomization import DR_PROFILES
+from humimic.tracking.config import TrackingConfig
+from humimic.tracking.rsl import tracking_ppo, train_cfg
+
+
+def yaml_ready(value: Any) -> Any:
+    """A config as YAML-able data (functions by their import path)."""
+    if is_dataclass(value) and not isinstance(value, type):
+        return {f.name: yaml_ready(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, dict):
+        return {str(k): yaml_ready(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [yaml_ready(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if callable(value):
+        return f"{value.__module__}:{getattr(value, '__qualname__', repr(value))}"
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def checkpoint_files(run: Path) -> list[Path]:
+    folder = run / "checkpoints"
+    if not folder.is_dir():
+        return []
+    return sorted(folder.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1]))
+
+
+def first_line(e: BaseException, limit: int = 160) -> str:
+    """An exception's message on one short line (torch's can span dozens; of a state dict
+    that does not load, the line after its heading says what differs)."""
+    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+        lines = lines[1:]
+    text = lines[0] if lines else type(e).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:
+    """The contents of a checkpoint file (``torch.load(weights_only=True)``).
+
+    Raises:
+        InputError: The file is missing, damaged (truncated, random bytes, text) or holds
+            something else than a humimic checkpoint; names ``flag`` and the file.
+    """
+    if not path.is_file():
+        raise InputError(f"{flag} {path}: no such file")
+    try:
+        blob = torch.load(path, weights_only=True, map_location="cpu")
+    except OSError as e:
+        raise InputError(f"{flag} {path}: cannot read: {e.strerror or e}") from None
+    except Exception:  # torch raises many kinds for damaged files (pickle, zip, EOF, key).
+        raise InputError(
+            f"{flag} {path}: not a readable checkpoint (truncated, damaged, or not a file "
+            "torch.save wrote)"
+        ) from None
+    it = blob.get("iter") if isinstance(blob, dict) else None
+    if (
+        not isinstance(it, int)
+        or isinstance(it, bool)
+        or not any(str(k).endswith("_state_dict") for k in blob)
+    ):
+        raise InputError(
+            f"{flag} {path}: not a humimic checkpoint (expected 'iter' and the networks' "
+            "state dicts)"
+        )
+    return blob
+
+
+def load_weights(runner: Any, blob: dict, path: Path, flag: str = "--checkpoint") -> None:
+    """Load a checkpoint into a runner; one that does not fit its networks is an input error.
+
+    Raises:
+        InputError: Names ``flag`` and the file, with the first line of torch's reason.
+    """
+    try:
+        runner.load_checkpoint(blob)
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as e:
+        raise InputError(
+            f"{flag} {path}: its networks do not fit this run's ({first_line(e)})"
+        ) from None
+
+
+def latest_checkpoint(run: Path) -> tuple[Path, dict] | None:
+    """The newest checkpoint of a run that loads (a damaged one is skipped, and said so)."""
+    for path in reversed(checkpoint_files(run)):
+        try:
+            return path, read_checkpoint(path, "checkpoint")
+        except InputError as e:
+            print(f"humimic: skipping {e}")
+    return None
+
+
+def resolve_checkpoint(
+    run: Path, checkpoint: Path | None, flag: str = "--checkpoint"
+) -> tuple[Path, dict]:
+    """The given checkpoint file (``flag`` names it in errors), or the run's newest that
+    loads."""
+    if checkpoint is not None:
+        return checkpoint, read_checkpoint(checkpoint, flag)
+    found = latest_checkpoint(run)
+    if found is None:
+        raise InputError(f"{run}: the run has no readable checkpoint yet")
+    return found
+
+
+def run_files(run: Path) -> dict[str, Path]:
+    """The files of a run folder that a command reads: what no output may overwrite (label ->
+    path, for :func:`humimic.io.check_not_input`)."""
+    files = {"the run's config.yaml": run / "config.yaml",
+             "the run's progress.csv": run / "progress.csv"}  # fmt: skip
+    for path in checkpoint_files(run):
+        files[f"the run's checkpoint {path.name}"] = path
+    return files
+
+
+def _physics_names() -> tuple[str, ...]:
+    from humimic.sim.physics import SHIPPED
+
+    return tuple(SHIPPED)
+
+
+def resolved_source(value: str | None, names: Any) -> str | None:
+    """A ``--dr`` or ``--physics`` value as a run records it: a name (one of ``names``) as is,
+    a file path absolute."""
+    if value is None or value in names:
+        return value
+    return str(Path(value).resolve())
+
+
+def resolved_settings(s: TrainSettings) -> TrainSettings:
+    """The settings with every file path absolute and PPO's as the run uses them
+    (:func:`ppo_for`): what config.yaml records, so that ``eval``, ``export``, ``distill`` and
+    ``--resume`` run from any folder find the files."""
+    return replace(
+        s,
+        motion=s.motion.resolve(),
+        out=s.out.resolve(),
+        init_from=None if s.init_from is None else s.init_from.resolve(),
+        dr=resolved_source(s.dr, DR_PROFILES) or s.dr,
+        physics=resolved_source(s.physics, _physics_names()),
+        ppo=ppo_for(s),
+    )
+
+
+def settings_differences(old: Any, new: Any, names: tuple[str, ...], prefix: str = "") -> list[str]:
+    """``name=old value`` for each named field that differs; a nested config's fields are
+    compared one by one (``ppo.learning_rate=0.001``)."""
+    out = []
+    for name in names:
+        a, b = getattr(old, name), getattr(new, name)
+        if a == b:
+            continue
+        if is_dataclass(a) and is_dataclass(b):
+            inner = tuple(f.name for f in fields(a))
+            out += settings_differences(a, b, inner, f"{prefix}{name}.")
+        else:
+            out.append(f"{prefix}{name}={a!s}")
+    return out
+
+
+def _settings_from(data: dict[str, Any]) -> TrainSettings:
+    """Training settings from config.yaml's ``settings``: the nested configs from their
+    mappings (older run folders have no ``task`` and ``ppo``: the defaults), PPO's resolved
+    as :func:`resolved_settings` records it."""
+    if data.get("task") is not None:
+        data["task"] = TaskSettings(**data["task"])
+    if data.get("ppo") is not None:
+        ppo = dict(data["ppo"])
+        for key in ("actor_hidden_dims", "critic_hidden_dims"):
+            if key in ppo:
+                ppo[key] = tuple(ppo[key])
+        if "obs_groups" in ppo:
+            ppo["obs_groups"] = {k: tuple(v) for k, v in ppo["obs_groups"].items()}
+        data["ppo"] = PpoConfig(**ppo)
+    settings = TrainSettings(**data)
+    return replace(settings, ppo=ppo_for(settings))
+
+
+def write_run_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
+    s = resolved_settings(settings)
+    blob = {"settings": yaml_ready(asdict(s)), "tracking": yaml_ready(task), "ppo": yaml_ready(ppo)}
+    atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
+
+
+def _started_in(run: Path, recorded_out: Path) -> Path | None:
+    """The folder a run was started from, when its config recorded ``--out`` relative (older
+    run folders): the run folder's path less the recorded one's parts, if they end it."""
+    parts = Path(os.path.normpath(recorded_out)).parts
+    if recorded_out.is_absolute() or ".." in parts:
+        return None
+    here = run.resolve().parts
+    if parts and here[-len(parts) :] != parts:
+        return None
+    return Path(*here[: len(here) - len(parts)])
+
+
+def _absolute(path: str, start: Path | None) -> Path:
+    """A recorded path made absolute: as recorded, or (relative, from an older run folder)
+    from the folder the run was started in if the file is there, else from this folder."""
+    p = Path(path)
+    if p.is_absolute():
+        return p
+    candidates = ([start / p] if start is not None else []) + [p.resolve()]
+    return next((c.resolve() for c in candidates if c.exists()), candidates[0].resolve())
+
+
+def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
+    """A run's config.yaml and the training settings in it (a student's: its teacher's), with
+    the file paths absolute (:func:`resolved_settings`; relative ones of older run folders are
+    found where the run was started, see :func:`_absolute`)."""
+    path = run / "config.yaml"
+    if not path.is_file():
+        raise InputError(f"{run}: not a humimic run folder (no config.yaml)")
+    try:
+        config = yaml.safe_load(path.read_text())
+        data = dict(config["settings"])
+        start = _started_in(run, Path(data["out"]))
+        data["motion"], data["out"] = _absolute(data["motion"], start), Path(data["out"])
+        if data.get("init_from") is not None:
+            data["init_from"] = _absolute(data["init_from"], start)
+        for key, names in (("dr", DR_PROFILES), ("physics", _physics_names())):
+            if data.get(key) is not None and data[key] not in names:
+                data[key] = str(_absolute(data[key], start))
+        return config, _settings_from(data)
+    except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not a humimic run configuration ({first_line(e)})") from None
+
+
+def read_run_settings(run: Path) -> TrainSettings:
+    """The settings a run was started with."""
+    return run_config(run)[1]
+
+
+def run_rsl_cfg(run: Path) -> dict[str, Any]:
+    """The rsl_rl ``train_cfg`` of a run: a PPO run's from its settings, a student's
+    (``humimic distill``) as stored in its config.yaml."""
+    config, settings = run_config(run)
+    if config.get("kind") != "student":
+        return train_cfg(ppo_for(settings))
+    if "rsl" not in config:
+        raise InputError(f"{run}/config.yaml: a student run without its 'rsl' section")
+    return copy.deepcopy(config["rsl"])
+
+
+def ppo_for(settings: TrainSettings) -> PpoConfig:
+    """The PPO configuration of a run: its ``--ppo.*`` settings, its variant's observation
+    groups, its ``--num-steps-per-env``."""
+    ppo = tracking_ppo(settings.variant, settings.ppo)
+    if settings.num_steps_per_env is not None:
+        ppo = replace(ppo, num_steps_per_env=settings.num_steps_per_env)
+    return ppo
+
+
+def trim_progress(path: Path, done: int) -> tuple[float, list[str] | None]:
+    """Make a resumed run's progress.csv end at the checkpoint it resumes from.
+
+    Rows past iteration ``done`` (written after the checkpoint, before a crash) are redone, so
+    they are dropped, as is a last row cut short by ``kill -9`` (no line end). The file is
+    rewritten atomically, or removed when no row is left.
+
+    Returns:
+        The kept last row's ``seconds`` (the column goes on from it; 0 without one) and the
+        file's columns (None when there is no file left).
+    """
+    if not path.is_file():
+        return 0.0, None
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read the run's progress ({first_line(e)})") from None
+    lines = text.splitlines(keepends=True)
+    cut = bool(lines) and not lines[-1].endswith("\n")
+    if cut:
+        lines.pop()  # A row cut short.
+    rows = list(csv.reader(lines))
+    if not rows:  # Empty, or a header cut short: nothing to keep.
+        path.unlink()
+        return 0.0, None
+    if rows[0][:1] != ["iteration"]:
+        raise InputError(
+            f"{path}: not a progress file (its header does not start with 'iteration'); "
+            "move it away to resume"
+        )
+    header = rows[0]
+
+    def iteration(r: list[str]) -> int | None:
+        try:
+            return int(r[0]) if len(r) == len(header) else None
+        except ValueError:
+            return None
+
+    kept = [r for r in rows[1:] if (i := iteration(r)) is not None and i <= done]
+    if not kept:
+        path.unlink()
+        return 0.0, None
+    if cut or len(kept) != len(rows) - 1 or len(lines) != len(rows):
+        out = io.StringIO()
+        csv.writer(out, lineterminator="\n").writerows([header, *kept])
+        atomic_write_text(path, out.getvalue())
+    seconds = 0.0
+    if "seconds" in header:
+        try:
+            seconds = float(kept[-1][header.index("seconds")])
+        except ValueError:
+            seconds = 0.0
+        seconds = seconds if math.isfinite(seconds) else 0.0
+    return seconds, header
