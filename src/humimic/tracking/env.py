@@ -138,7 +138,10 @@ class TrackingEnv(VecEnv):
         )
         be = self.backend
         # A backend on the env's device hands tensors over without a host round trip.
-        self._tensor_io = isinstance(be, TensorBackend) and be.device == self.device
+        self._tensor_backend: TensorBackend | None = None
+        if isinstance(be, TensorBackend) and be.device == self.device:
+            self._tensor_backend = be
+        self._tensor_io = self._tensor_backend is not None
         if be.num_envs != num_envs:
             raise InputError(f"the backend has {be.num_envs} envs, the env {num_envs}")
         self.joint_names = be.joint_names
@@ -335,8 +338,8 @@ class TrackingEnv(VecEnv):
         applied = self._act_hist[self._arange, self._delay]
         targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
         self._targets = targets
-        if self._tensor_io:
-            self.backend.set_ctrl_tensor(targets)  # type: ignore[attr-defined]
+        if self._tensor_backend is not None:
+            self._tensor_backend.set_ctrl_tensor(targets)
         else:
             self.backend.set_ctrl(targets.detach().cpu().double().numpy())
         self.backend.step(cfg.decimation)
@@ -407,8 +410,8 @@ class TrackingEnv(VecEnv):
         """The backend's state into one float64 array (one numpy concatenation), which
         :meth:`_after_physics` copies into the buffer the state's fields view; a tensor
         backend writes that buffer itself."""
-        if self._tensor_io:
-            self.backend.read_into(self._read_buf)  # type: ignore[attr-defined]
+        if self._tensor_backend is not None:
+            self._tensor_backend.read_into(self._read_buf)
             return
         r, n = self.backend.read(), self.num_envs
         parts = (
