@@ -1,8 +1,37 @@
-"""Robot models, their actuators, and the registry."""
+"""Robot models, their actuators, and the registry.
 
-from humimic.robots.actuators import ActuatorRecipe, JointActuator, MotorSpec
-from humimic.robots.model import export_nominal, nominal_model, nominal_spec
-from humimic.robots.registry import ROBOTS, RobotConfig, get_robot, robot_names
+Names load on first use, so that reading the registry does not import MuJoCo.
+"""
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from humimic.robots.actuators import ActuatorRecipe, JointActuator, MotorSpec
+    from humimic.robots.model import export_nominal, nominal_model, nominal_spec
+    from humimic.robots.registry import ROBOTS, RobotConfig, get_robot, robot_names
+
+_WHERE = {
+    "ActuatorRecipe": "humimic.robots.actuators",
+    "JointActuator": "humimic.robots.actuators",
+    "MotorSpec": "humimic.robots.actuators",
+    "export_nominal": "humimic.robots.model",
+    "nominal_model": "humimic.robots.model",
+    "nominal_spec": "humimic.robots.model",
+    "ROBOTS": "humimic.robots.registry",
+    "RobotConfig": "humimic.robots.registry",
+    "get_robot": "humimic.robots.registry",
+    "robot_names": "humimic.robots.registry",
+}
+"""Name -> the module that defines it."""
+
+
+def __getattr__(name: str) -> object:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'humimic.robots' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(_WHERE[name]), name)
+
 
 __all__ = [
     "ROBOTS",

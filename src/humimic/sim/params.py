@@ -10,11 +10,14 @@ from __future__ import annotations
 import copy
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
 
 from humimic.errors import InputError, UnknownNameError
+
+if TYPE_CHECKING:  # MuJoCo loads on use: a DR profile is read without it.
+    import mujoco
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -116,6 +119,8 @@ class ModelLayout:
             raise InputError(
                 "the actuators must drive the joints after the free joint, in qpos order"
             )
+        import mujoco
+
         cb = -1
         if com_body is not None:
             cb = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, com_body)
@@ -191,6 +196,8 @@ def physics_copies(
 ) -> list[mujoco.MjModel]:
     """One copy of ``model`` per row of ``params``, with the randomized fields as a backend
     sets them (and the constants ``mj_setConst`` derives from them)."""
+    import mujoco
+
     values = layout.fields(params)
     out = []
     for k in range(len(params.friction)):
