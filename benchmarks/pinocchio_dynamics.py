@@ -15,7 +15,7 @@ a reference's flight solved by CasADi and by a linear solve.
    with ``--refine-seeds``, ``humimic refine`` of the run and of its fix.
 
 Usage: .venv/bin/python benchmarks/pinocchio_dynamics.py [--repeats 5] [--seed 7]
-    [--duration 40] [--no-diagnose] [--refine-seeds 0 1 2]
+    [--duration 40] [--no-diagnose] [--refine-seeds 0 1 2] [--only SECTION ...]
 """
 
 from __future__ import annotations
@@ -348,20 +348,27 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=40.0, help="log length [s]")
     parser.add_argument("--no-diagnose", action="store_true", help="skip humimic sysid diagnose")
     parser.add_argument(
+        "--only", nargs="+", choices=["model", "inverse_dynamics", "ballistic", "payload"]
+    )
+    parser.add_argument(
         "--refine-seeds", type=int, nargs="*", default=[],
         help="refine the run and its ballistic fix with these seeds (about 1 min each)",
     )  # fmt: skip
     args = parser.parse_args()
     t0 = time.perf_counter()
-    out = {
+    out: dict[str, Any] = {
         "benchmark": "pinocchio_dynamics",
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()},
         "versions": {"pinocchio": pin.__version__, "mujoco": mujoco.__version__},
-        "model": model_parity(),
-        "inverse_dynamics": inverse_dynamics(_retarget("35_01"), args.repeats),
-        "ballistic": ballistic(_retarget("09_01"), args.refine_seeds),
-        "payload": payload(args.seed, args.duration, not args.no_diagnose),
     }
+    sections = {
+        "model": model_parity,
+        "inverse_dynamics": lambda: inverse_dynamics(_retarget("35_01"), args.repeats),
+        "ballistic": lambda: ballistic(_retarget("09_01"), args.refine_seeds),
+        "payload": lambda: payload(args.seed, args.duration, not args.no_diagnose),
+    }
+    for name in args.only or list(sections):
+        out[name] = sections[name]()
     out["seconds"] = time.perf_counter() - t0
     print(json.dumps(out, indent=2))
 

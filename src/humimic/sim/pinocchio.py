@@ -38,6 +38,19 @@ def _se3(pos: np.ndarray, quat_wxyz: np.ndarray) -> SE3:
     return pin.SE3(rot.matrix(), np.asarray(pos, dtype=np.float64).copy())
 
 
+def _rotations(quat_wxyz: np.ndarray) -> np.ndarray:
+    """Rotation matrices of unit wxyz quaternions. Shape: (..., 4) -> (..., 3, 3)."""
+    w, x, y, z = np.moveaxis(quat_wxyz, -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
 def _translation(p: np.ndarray) -> SE3:
     return pin.SE3(np.eye(3), np.asarray(p, dtype=np.float64).copy())
 
@@ -174,23 +187,23 @@ class PinocchioRobot:
     def to_pinocchio(
         self, qpos: np.ndarray, qvel: np.ndarray, qacc: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One state in MuJoCo's coordinates -> Pinocchio's.
+        """States in MuJoCo's coordinates -> Pinocchio's.
 
         The free base: MuJoCo's ``qpos`` has a wxyz quaternion, Pinocchio's xyzw; MuJoCo's
         linear velocity is in the world frame, Pinocchio's in the base frame
         (``v_b = R^T v_w``), and so ``a_b = R^T a_w - w_b x v_b``. Hinge and slide joints
         are the same in both.
 
-        Shapes: (nq,), (nv,), (nv,) in and out.
+        Shapes: (..., nq), (..., nv), (..., nv) in and out.
         """
         if not self.free_base:
             return qpos, qvel, qacc
-        q = qpos.copy()
-        q[3:7] = qpos[[4, 5, 6, 3]]
-        rot = pin.Quaternion(*map(float, qpos[3:7])).matrix()
-        v, a = qvel.copy(), qacc.copy()
-        v[:3] = rot.T @ qvel[:3]
-        a[:3] = rot.T @ qacc[:3] - np.cross(qvel[3:6], v[:3])
+        q, v, a = qpos.copy(), qvel.copy(), qacc.copy()
+        q[..., 3:7] = qpos[..., [4, 5, 6, 3]]
+        rot = _rotations(qpos[..., 3:7])
+        v[..., :3] = np.einsum("...ji,...j->...i", rot, qvel[..., :3])
+        a[..., :3] = np.einsum("...ji,...j->...i", rot, qacc[..., :3])
+        a[..., :3] -= np.cross(qvel[..., 3:6], v[..., :3])
         return q, v, a
 
     def inverse_dynamics(self, qpos: np.ndarray, qvel: np.ndarray, qacc: np.ndarray) -> np.ndarray:
@@ -205,13 +218,12 @@ class PinocchioRobot:
         Returns:
             Shape: (T, nv).
         """
-        out = np.zeros(qvel.shape)
-        for t in range(qpos.shape[0]):
-            q, v, a = self.to_pinocchio(qpos[t], qvel[t], qacc[t])
-            tau = pin.rnea(self.model, self.data, q, v, a)
-            if self.free_base:  # The force on the base: base frame -> world frame.
-                tau[:3] = pin.Quaternion(*map(float, qpos[t, 3:7])).matrix() @ tau[:3]
-            out[t] = tau
+        q, v, a = self.to_pinocchio(qpos, qvel, qacc)
+        out = np.empty(qvel.shape)
+        for t in range(q.shape[0]):
+            out[t] = pin.rnea(self.model, self.data, q[t], v[t], a[t])
+        if self.free_base:  # The force on the base: base frame -> world frame.
+            out[:, :3] = np.einsum("tij,tj->ti", _rotations(qpos[:, 3:7]), out[:, :3])
         return out
 
     def _joint(self, body: str) -> int:
@@ -246,7 +258,8 @@ class PayloadFit:
             origin so that only its mass moment ``dm c`` shows, gets thousands of kg. Where
             the torques cannot feel the unknowns at all, ``mass`` is NaN and this infinite.
         com: Where the added mass sits, in the body's frame [m]; the body's own centre of
-            mass when fitted with ``fit_com=False``. Shape: (3,).
+            mass when fitted with ``fit_com=False``; NaN when fitted but the mass is within
+            three standard errors of zero. Shape: (3,).
         residual_rms: RMS of the torque residual after the fit, over the rows used [N m].
         rows: Torque rows used (samples x joints that feel the body, after the masks).
         seconds: Wall time of the fit.
@@ -314,8 +327,8 @@ def identify_payload(
     joint). A point mass ``dm`` at ``c`` (joint frame) adds ``d_pi = [dm, dm c, dm (|c|^2 I -
     c c^T)]``. ``fit_com=False``: one unknown ``dm`` at the body's own centre of mass (as
     ``humimic sysid``'s ``payload_mass`` effect adds it). ``fit_com=True``: four unknowns
-    ``dm, dm c`` on the first four columns; the point mass's second moments are then moved
-    to the known side and the four refitted (twice).
+    ``dm, dm c`` on the first four columns; when ``dm`` is clear of zero, the point mass's
+    second moments are then moved to the known side and the four refitted (twice).
 
     Accelerations differentiated from noisy velocities put the same noise into the regressor
     and into ``r`` (through ``-M qdd``), which biases least squares (4% low on a 0.8 kg
@@ -390,25 +403,37 @@ def identify_payload(
         A, W = (Y @ unit)[:, None], ((Z @ unit[:4]) if instrument else (Y @ unit))[:, None]
     WA = W.T @ A
     if not np.linalg.cond(WA) < 1e12:  # The joints' torques do not feel these unknowns.
-        return PayloadFit(body=body, mass=float("nan"), mass_std=float("inf"),
-                          com=np.full(3, np.nan), residual_rms=float(np.sqrt(np.mean(r**2))),
-                          rows=len(r), seconds=time.perf_counter() - start)  # fmt: skip
-    mass, com_j, sol = 0.0, com_body, np.zeros(A.shape[1])
-    for _ in range(3 if fit_com else 1):
-        sol = np.linalg.lstsq(WA, W.T @ (r - known), rcond=None)[0]
-        mass = float(sol[0])
-        if fit_com and mass != 0:
-            com_j = sol[1:] / mass
-            known = Y[:, 4:] @ point_mass_parameters(mass, com_j)[4:]
-    res = r - known - A @ sol
-    sigma2 = float(res @ res) / max(len(r) - A.shape[1], 1)
-    # Covariance of (W^T A)^-1 W^T r for white residuals.
+        return PayloadFit(
+            body=body,
+            mass=float("nan"),
+            mass_std=float("inf"),
+            com=np.full(3, np.nan),
+            residual_rms=float(np.sqrt(np.mean(r**2))),
+            rows=len(r),
+            seconds=time.perf_counter() - start,
+        )
     WA_inv = np.linalg.pinv(WA)
-    cov = sigma2 * WA_inv @ (W.T @ W) @ WA_inv.T
+    sol = WA_inv @ (W.T @ r)
+    mass, com_j = float(sol[0]), com_body
+    # Covariance of (W^T A)^-1 W^T r for white residuals.
+    res = r - A @ sol
+    cov = float(res @ res) / max(len(r) - A.shape[1], 1) * WA_inv @ (W.T @ W) @ WA_inv.T
+    mass_std = float(np.sqrt(max(cov[0, 0], 0.0)))
+    if fit_com:
+        if abs(mass) > 3.0 * mass_std:  # A centre of no (significant) mass means nothing.
+            for _ in range(2):  # The point mass's second moments to the known side.
+                com_j = sol[1:] / mass
+                known = Y[:, 4:] @ point_mass_parameters(mass, com_j)[4:]
+                sol = WA_inv @ (W.T @ (r - known))
+                mass = float(sol[0])
+            com_j = sol[1:] / mass
+            res = r - known - A @ sol
+        else:
+            com_j = np.full(3, np.nan)
     return PayloadFit(
         body=body,
         mass=mass,
-        mass_std=float(np.sqrt(max(cov[0, 0], 0.0))),
+        mass_std=mass_std,
         com=np.asarray(robot.body_placement[body].actInv(com_j)),
         residual_rms=float(np.sqrt(np.mean(res**2))),
         rows=len(r),
