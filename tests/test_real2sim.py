@@ -165,3 +165,25 @@ def test_cli_diagnose_bad_log(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert main(["sysid", "diagnose", str(bad), "--out-dir", str(tmp_path / "d")]) == 2
     assert "bad.mcap" in capsys.readouterr().err
     assert not (tmp_path / "d" / "report.json").exists()
+
+
+def test_cli_diagnose_checks_a_claimed_payload_with_the_torque_regressor(tmp_path: Path) -> None:
+    """A claimed payload comes with a second, search-free estimate (Pinocchio's regressor);
+    both find the hidden mass, and the report says so."""
+    log = tmp_path / "log.mcap"
+    assert main(["sysid", "simulate", "--duration", "12", "--seed", "3", "--out", str(log),
+                 "--inject", "payload_mass:right_wrist_yaw_link=0.8"]) == 0  # fmt: skip
+    out = tmp_path / "diag"
+    assert main(["sysid", "diagnose", str(log), "--out-dir", str(out)]) == 0
+    r = json.loads((out / "report.json").read_text())
+    claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
+    assert [(e["effect"], e.get("body")) for e in claimed] == [
+        ("payload_mass", "right_wrist_yaw_link")
+    ]
+    reg = claimed[0]["regression"]
+    assert reg["torques"] == "logged effort" and reg["rows"] > 1000
+    assert reg["mass"] == pytest.approx(0.8, abs=max(0.05, 3 * reg["mass_std"]))
+    assert reg["mass"] == pytest.approx(claimed[0]["params"]["value"], abs=0.08)
+    unclaimed = [e for e in r["effects"] if e["confidence"] < 0.5]
+    assert all("regression" not in e for e in unclaimed)
+    assert "torque regressor" in (out / "report.md").read_text()

@@ -77,6 +77,34 @@ def _effect_entry(f: Finding) -> dict:
     }
 
 
+def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
+    """A payload on ``body`` sized by linear least squares on Pinocchio's torque regressor over
+    the fit part of the log (:func:`humimic.sim.pinocchio.identify_payload`): a second method,
+    with no search and no simulation, beside the diagnosis's k-step fit. The torques are the
+    logged efforts, or the drives' PD law from the held commands when the log has none.
+
+    Returns:
+        ``mass`` and ``mass_std`` [kg], ``rows`` used and ``seconds``.
+    """
+    from humimic.robots import nominal_model
+    from humimic.sim.pinocchio import PinocchioRobot, accelerations, identify_payload
+
+    t0 = time.perf_counter()
+    pr = PinocchioRobot.from_mujoco(nominal_model(robot), base_pose=log.base_pose)
+    qdd, valid = accelerations(log.t, log.qd, log.t_cmd)
+    fit = valid & (log.t < log.t[0] + FIT_END * (log.t[-1] - log.t[0]))
+    if log.effort is not None:
+        tau, source = log.effort, "logged effort"
+    else:
+        i = log.command_index(log.t)
+        tau = log.kp[i] * (log.cmd_q[i] - log.q) + log.kd[i] * (log.cmd_qd[i] - log.qd)
+        tau, source = tau + log.cmd_tau[i], "PD law of the commands"
+    f = identify_payload(pr, log.q, log.qd, qdd, tau, body, samples=fit)
+    return {"method": "torque regressor (Pinocchio), instrumental variables", "torques": source,
+            "mass": f.mass, "mass_std": f.mass_std, "rows": f.rows,
+            "seconds": time.perf_counter() - t0}  # fmt: skip
+
+
 def _unexplained(before: KStepError, after: KStepError) -> tuple[float, np.ndarray]:
     """Share of the error above the noise floor (twice the median joint: most joints lack
     nothing) left after the correction, and the joints that still stand out."""
@@ -149,12 +177,16 @@ def run_diagnosis(
     ]
     export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
     plots = _plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
+    effects = [_effect_entry(f) for f in diagnosis.findings]
+    for f, entry in zip(diagnosis.findings, effects, strict=True):
+        if f.effect == "payload_mass" and f.confidence >= CLAIM:
+            entry["regression"] = payload_regression(robot, log, f.target)
     report = {
         "robot": robot.name,
         "log": str(log_path),
         "error_before": before.as_report(names),
         "error_after": after.as_report(names),
-        "effects": [_effect_entry(f) for f in diagnosis.findings],
+        "effects": effects,
         "unexplained": unexplained,
         "unexplained_share": share,
         "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
@@ -234,6 +266,13 @@ def _markdown(
         f"Searched: {', '.join(SEARCHED)}. Not searched: {', '.join(NOT_SEARCHED)}. "
         f"Claimed: confidence >= {CLAIM}.",
         "",
+        *[
+            f"Claimed payload on {e['body']}: the torque regressor (no search, "
+            f"{e['regression']['torques']}) gives {e['regression']['mass']:.4g} +- "
+            f"{e['regression']['mass_std']:.2g} kg.\n"
+            for e in report["effects"]
+            if "regression" in e
+        ],
         "Per-joint held-out error (mrad), before -> after:",
         "",
         *[
