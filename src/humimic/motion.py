@@ -1,14 +1,7 @@
-"""The robot motion file: a versioned ``.npz`` of named arrays (no pickle).
-
-Keys read by mjlab/BeyondMimic trackers: ``fps, joint_pos, joint_vel, body_pos_w, body_quat_w,
-body_lin_vel_w, body_ang_vel_w``; plus ``joint_names``, ``body_names``, ``schema_version``,
-``robot``, ``root_pos_w``/``root_quat_w`` (= body 0), and ``qpos`` (MuJoCo generalized
-positions, for exact replay). Quaternions are wxyz. Body kinematics come from MuJoCo forward
-kinematics of ``qpos``; velocities are central finite differences (one-sided at the ends).
-
-Every motion that is read or written passes one check, :func:`validate_motion`; archives are
-read by :func:`humimic.npyio.read_npz_members` (sizes checked before anything is allocated, never
-a pickle).
+"""The robot motion file: a versioned ``.npz`` of named arrays (no pickle). :class:`Motion`
+is its content, :func:`motion_from_qpos` computes one, :func:`save_motion` and
+:func:`load_motion` write and read it; every motion read or written passes
+:func:`validate_motion`.
 """
 
 from __future__ import annotations
@@ -58,6 +51,12 @@ _QUAT_TOLERANCE = 1e-3  # |norm - 1| accepted for a stored unit quaternion.
 @dataclass(frozen=True, kw_only=True)
 class Motion:
     """A robot motion. Shapes: T frames, J actuated joints, B bodies (world excluded).
+
+    The file's keys are those read by mjlab/BeyondMimic trackers: ``fps, joint_pos,
+    joint_vel, body_pos_w, body_quat_w, body_lin_vel_w, body_ang_vel_w``; plus
+    ``joint_names``, ``body_names``, ``schema_version``, ``robot``,
+    ``root_pos_w``/``root_quat_w`` (= body 0), and ``qpos`` (MuJoCo generalized positions, for
+    exact replay). Quaternions are wxyz.
 
     Attributes:
         robot: Registry name of the robot.
@@ -136,7 +135,11 @@ def motion_from_qpos(
     extras: dict[str, np.ndarray] | None = None,
     info: dict[str, Any] | None = None,
 ) -> Motion:
-    """Compute every field of a :class:`Motion` from generalized positions by MuJoCo FK."""
+    """Compute every field of a :class:`Motion` from generalized positions by MuJoCo FK.
+
+    Body kinematics come from MuJoCo forward kinematics of ``qpos``; velocities are central
+    finite differences (one-sided at the ends).
+    """
     T = qpos.shape[0]
     data = mujoco.MjData(model)
     robot_bodies = [b for b in range(1, model.nbody) if model.body_weldid[b] != 0]
@@ -236,7 +239,8 @@ def validate_motion(
     labels: dict[str, str] | None = None,
 ) -> None:
     """Check that a motion is whole and consistent: the one check that every reader
-    (:func:`load_motion`, :func:`humimic.formats.mcap.read_motion_mcap`) and :func:`save_motion` run.
+    (:func:`load_motion`, :func:`humimic.formats.mcap.read_motion_mcap`) and
+    :func:`save_motion` run.
 
     Checks: a robot name; a finite frame rate in :data:`FPS_RANGE`; unique joint and body
     names; every array of frames real-valued, finite, below :data:`MAX_ABS_VALUE`, with
@@ -491,6 +495,9 @@ def save_motion(motion: Motion, path: str | os.PathLike[str]) -> Path:
 
 def load_motion(path: str | os.PathLike[str]) -> Motion:
     """Read and validate a motion file (:func:`validate_motion`).
+
+    The archive is read by :func:`humimic.npyio.read_npz_members` (sizes checked before
+    anything is allocated, never a pickle).
 
     Raises:
         InputError: No such file.

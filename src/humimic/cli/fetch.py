@@ -20,5 +20,5 @@ def run_fetch(cmd: FetchCommand) -> None:
     """Run ``humimic fetch``."""
     from humimic.datasets import fetch_holosoma_climb
 
-    del cmd  # One data set so far.
+    del cmd  # There is one data set: nothing to choose.
     print(fetch_holosoma_climb())

@@ -196,18 +196,17 @@ class InteractionConfig:
             (holosoma's notion of foot sticking): the robot's toe target keeps the horizontal
             position it had when the human's toe stopped (until the human's toe drifts farther
             than the IK's ``plant_radius``: :func:`~humimic.retarget.targets.hold_still_points`),
-            and the front of the robot's sole moves at most ``still_travel`` times as fast (a hard limit,
-            made soft where it conflicts with the non-penetration limits, and dropped where the
-            frame's warm start has moved that toe more than ``still_reach``). The held targets
-            are also the kinematic warm start's. 0 turns both off (the warm start is then
-            exactly ``--method kinematic``). Keep ``still_travel * still_speed / fps`` well
+            and the front of the robot's sole moves at most ``still_travel`` times as fast (a
+            hard limit, made soft where it conflicts with the non-penetration limits, and
+            dropped where the frame's warm start has moved that toe more than
+            ``still_reach``). The held targets are also the kinematic warm start's. 0 turns
+            both off (the warm start is then exactly ``--method kinematic``). Keep ``still_travel * still_speed / fps`` well
             under 1 cm (holosoma's sliding threshold per frame): the cap bounds the front
             contact points, and a point ahead of them (a toe tip) moves up to 1.2 times as far
             while the foot turns. Planted points are held in all three axes whatever this is.
         still_travel: The share of ``still_speed`` the front of a sole may move while the
-            human's toe is still (the cap above). Chosen on the climbing clips, where the
-            result was sensitive to it before the changes of 2026-11-24 (0.5-0.75 now give the
-            same there: BENCHMARKS.md).
+            human's toe is still (the cap above). Chosen on the climbing clips, where any
+            value from 0.5 to 0.75 gives the same result (BENCHMARKS.md).
         still_reach: The toe travel limit of ``still_speed`` holds a toe only where the frame's
             warm start puts it within this horizontal distance [m] of where it was: farther,
             the targets have moved on and holding the toe back drags the body after it.

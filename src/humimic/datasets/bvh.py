@@ -1,18 +1,5 @@
-"""BVH (Biovision Hierarchy) motion files to :class:`~humimic.datasets.clip.HumanClip`.
-
-Reads any BVH: arbitrary channel orders per joint, position channels on any joint, joints with
-no channels, ``End Site`` blocks (kept as zero-channel joints named ``<Parent>_End``), CRLF, LF
-or mixed line endings, tabs or spaces.
-
-Conventions:
-
-* Rotation channels are intrinsic Euler angles in degrees, applied in the order they are listed:
-  channels ``Zrotation Xrotation Yrotation`` give ``R_local = Rz @ Rx @ Ry``.
-* A joint's local translation is its position channels when it has them (the BVH root), else
-  its ``OFFSET``; an axis without a position channel keeps its ``OFFSET`` component.
-* Global pose: ``R_w = R_parent_w @ R_local`` and ``p_w = p_parent_w + R_parent_w @ t_local``.
-* Output is z up and in metres. A y-up file is turned with the proper rotation
-  :data:`humimic.transforms.Y_UP_TO_Z_UP` (never a reflection): ``p_z = C p_y``, ``R_z = C R_y``.
+"""BVH (Biovision Hierarchy) motion files to :class:`~humimic.datasets.clip.HumanClip`:
+:func:`load_bvh`.
 """
 
 from __future__ import annotations
@@ -106,6 +93,20 @@ def load_bvh(
     skeleton: str | None = None,
 ) -> HumanClip:
     """Load a BVH file as a clip of global joint positions and orientations.
+
+    Reads any BVH: arbitrary channel orders per joint, position channels on any joint, joints
+    with no channels, ``End Site`` blocks (kept as zero-channel joints named
+    ``<Parent>_End``), CRLF, LF or mixed line endings, tabs or spaces. Conventions:
+
+    * Rotation channels are intrinsic Euler angles in degrees, applied in the order they are
+      listed: channels ``Zrotation Xrotation Yrotation`` give ``R_local = Rz @ Rx @ Ry``.
+    * A joint's local translation is its position channels when it has them (the BVH root),
+      else its ``OFFSET``; an axis without a position channel keeps its ``OFFSET`` component.
+    * Global pose: ``R_w = R_parent_w @ R_local`` and ``p_w = p_parent_w + R_parent_w @
+      t_local``.
+    * Output is z up and in metres. A y-up file is turned with the proper rotation
+      :data:`humimic.transforms.Y_UP_TO_Z_UP` (never a reflection): ``p_z = C p_y``,
+      ``R_z = C R_y``.
 
     Args:
         path: The ``.bvh`` file.

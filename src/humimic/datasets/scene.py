@@ -1,33 +1,6 @@
-"""Scenes a human interacts with (boxes, terrain, objects): what scene files hold.
-
-A :class:`Scene` is a set of rigid objects, each a triangle mesh in its own frame with a pose
-per frame (or one pose: static). Scenes are in the clip's world frame: metres, z up, the same
-frame as the human clip's joint positions. :meth:`Scene.to_robot` maps a scene by the
-similarity (heading, origin, scale, height calibration) the retargeter maps the human by.
-``humimic retarget --scene`` and ``humimic view --scene`` both read scenes here.
-
-Inputs (:func:`load_scene`):
-
-- a scene file (``.yaml``), schema version 1::
-
-      schema_version: 1
-      fps: 120                    # only needed when an object has a trajectory
-      objects:
-        - name: step
-          box: [1.0, 0.8, 0.18]   # full extents x, y, z [m], centred on the pose
-          pos: [0.6, 0.0, 0.09]
-          quat: [1, 0, 0, 0]      # wxyz
-        - name: crate
-          mesh: crate.obj         # OBJ or STL, relative to the scene file
-          scale: 1.0
-          trajectory: crate.npy   # optional: (T, 7) poses, pos + wxyz quat, at `fps`
-
-- a folder in the layout of holosoma's climbing demo (``box_models/*.obj`` at human scale, in
-  the world frame): the folder of a clip of ``../shared/data/holosoma_climb`` loads as-is;
-- a single ``.obj`` / ``.stl`` file: one static object, in the world frame.
-
-Scenes are bounded (object sizes and poses, triangles, sampled points: the ``MAX_*``
-constants), checked on loading and, for the sampled points, counted before they are made.
+"""Scenes a human interacts with (boxes, terrain, objects): :class:`Scene` and
+:func:`load_scene`, which ``humimic retarget --scene`` and ``humimic view --scene`` both read
+scenes with.
 """
 
 from __future__ import annotations
@@ -102,6 +75,11 @@ class SceneObject:
 @dataclass(frozen=True, kw_only=True)
 class Scene:
     """Rigid objects in the clip's world frame.
+
+    Each object is a triangle mesh in its own frame with a pose per frame (or one pose:
+    static). Scenes are in the clip's world frame: metres, z up, the same frame as the human
+    clip's joint positions. :meth:`to_robot` maps a scene by the similarity (heading, origin,
+    scale, height calibration) the retargeter maps the human by.
 
     Attributes:
         objects: The objects.
@@ -354,7 +332,32 @@ def _check_scene(source: Path, objects: list[SceneObject]) -> None:
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Load a scene file, a holosoma-style folder or one mesh file (see the module doc).
+    """Load a scene file, a holosoma-style folder or one mesh file.
+
+    Inputs:
+
+    - a scene file (``.yaml``), schema version 1::
+
+          schema_version: 1
+          fps: 120                    # only needed when an object has a trajectory
+          objects:
+            - name: step
+              box: [1.0, 0.8, 0.18]   # full extents x, y, z [m], centred on the pose
+              pos: [0.6, 0.0, 0.09]
+              quat: [1, 0, 0, 0]      # wxyz
+            - name: crate
+              mesh: crate.obj         # OBJ or STL, relative to the scene file
+              scale: 1.0
+              trajectory: crate.npy   # optional: (T, 7) poses, pos + wxyz quat, at `fps`
+
+    - a folder in the layout of holosoma's climbing demo (``box_models/*.obj`` at human
+      scale, in the world frame): the folder of a clip of ``../shared/data/holosoma_climb``
+      loads as-is;
+    - a single ``.obj`` / ``.stl`` file: one static object, in the world frame.
+
+    Scenes are bounded (object sizes and poses, triangles, sampled points: the ``MAX_*``
+    constants), checked on loading and, for the sampled points, counted before they are made
+    (:meth:`Scene.surface_points`).
 
     Raises:
         InputError: Missing or unreadable files, bad fields, or a scene too large or too

@@ -1,24 +1,7 @@
 """``humimic loop``: deploy on the "real" robot, find what the simulator lacks, fine-tune, redeploy.
 
-The "real" robot is a physics file (:mod:`humimic.sim.physics`). Only the deploy stage
-(:func:`deploy`, :func:`gantry_session`) reads it; the stages after it see what a team would
-have from a real robot: logs.
-
-1. **Deploy** the run's policy on the real robot: closed-loop metrics against the open loop
-   (``before/eval.json``, ``before/eval.mcap``) and the first episode as a robot log in the
-   real2sim format (``before/robot_log.mcap``, floating base).
-2. **Gantry session** on the real robot: the robot hangs in a gantry and follows multi-sine PD
-   targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes). ``humimic sysid
-   diagnose`` identifies joint-level effects from fixed-base logs; a walking robot's log has
-   no ground truth for the base and the contacts, so the identification runs on the gantry
-   log, as it would on a real robot.
-3. **Sysid**: ``humimic sysid diagnose gantry.mcap`` (``sysid/``); its claimed effects become a
-   physics file, ``corrected.yaml``.
-4. **Fine-tune** the policy in the corrected model, under the run's DR (``finetune/``); with
-   ``--control``, also in the nominal model for the same iterations (``finetune_nominal/``),
-   to tell the correction's gain from that of more training.
-5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and after
-   (``loop.json``, ``loop.md``).
+:func:`loop` runs the stages; :func:`deploy` and :func:`gantry_session` are the two that read
+the "real" robot.
 """
 
 from __future__ import annotations
@@ -136,7 +119,28 @@ def _summary(r: dict) -> dict:
 
 
 def loop(settings: LoopSettings) -> dict:
-    """Run the loop (see the module docstring); returns ``loop.json``'s content."""
+    """Run the loop; returns ``loop.json``'s content.
+
+    The "real" robot is a physics file (:mod:`humimic.sim.physics`). Only the deploy stage
+    (:func:`deploy`, :func:`gantry_session`) reads it; the stages after it see what a team
+    would have from a real robot: logs.
+
+    1. **Deploy** the run's policy on the real robot: closed-loop metrics against the open
+       loop (``before/eval.json``, ``before/eval.mcap``) and the first episode as a robot log
+       in the real2sim format (``before/robot_log.mcap``, floating base).
+    2. **Gantry session** on the real robot: the robot hangs in a gantry and follows
+       multi-sine PD targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes).
+       ``humimic sysid diagnose`` identifies joint-level effects from fixed-base logs; a
+       walking robot's log has no ground truth for the base and the contacts, so the
+       identification runs on the gantry log, as it would on a real robot.
+    3. **Sysid**: ``humimic sysid diagnose gantry.mcap`` (``sysid/``); its claimed effects
+       become a physics file, ``corrected.yaml``.
+    4. **Fine-tune** the policy in the corrected model, under the run's DR (``finetune/``);
+       with ``--control``, also in the nominal model for the same iterations
+       (``finetune_nominal/``), to tell the correction's gain from that of more training.
+    5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and
+       after (``loop.json``, ``loop.md``).
+    """
     from humimic.real2sim.report import physics_from_sysid, run_diagnosis
     from humimic.sim.physics import write_physics
 

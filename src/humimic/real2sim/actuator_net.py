@@ -1,14 +1,5 @@
-"""A learned residual for what no known effect explains: a residual actuator network.
-
-After the diagnosis has added the effects it can name, the torque the corrected model still
-misses is measured by inverse dynamics on the fit part of the log (measured positions,
-Savitzky-Golay smoothed velocities and accelerations, ``mj_inverse``, minus the modelled drive
-torque). A small MLP, shared by all joints (a one-hot joint code tells them apart), learns it
-from the joint's recent history of position errors (command in force minus measured position)
-and velocities, as in Hwangbo et al. 2019's actuator network, and of positions (for what depends
-on where the joint is, such as a cable pulling on it). At prediction time it runs at the state
-rate, closed loop, adding its torque to the corrected model (see
-:meth:`~humimic.real2sim.residual.Predictor.run_with_torque`).
+"""A learned residual for what no known effect explains: a residual actuator network
+(:class:`ResidualActuatorNet`, trained by :func:`fit_residual_net`).
 """
 
 from __future__ import annotations
@@ -50,7 +41,20 @@ class NetConfig:
 
 
 class ResidualActuatorNet(torch.nn.Module):
-    """Joint history -> residual joint torque [N m], for every joint at once."""
+    """Joint history -> residual joint torque [N m], for every joint at once.
+
+    After the diagnosis has added the effects it can name, the torque the corrected model
+    still misses is measured by inverse dynamics on the fit part of the log
+    (:func:`residual_torque`: measured positions, Savitzky-Golay smoothed velocities and
+    accelerations, ``mj_inverse``, minus the modelled drive torque). A small MLP, shared by all
+    joints (a one-hot joint code tells them apart), learns it from the joint's recent history
+    of position errors (command in force minus measured position) and velocities, as in the
+    actuator network of Hwangbo et al. ("Learning agile and dynamic motor skills for legged
+    robots", Science Robotics 2019), and of positions (for what depends on where the joint is,
+    such as a cable pulling on it). At prediction time it runs at the state rate, closed loop,
+    adding its torque to the corrected model (see
+    :meth:`~humimic.real2sim.residual.Predictor.run_with_torque`).
+    """
 
     in_shift: torch.Tensor
     in_scale: torch.Tensor

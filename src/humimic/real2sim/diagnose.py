@@ -1,34 +1,7 @@
 """Diagnose a robot log: which effects does the simulator lack, where, and how large are they.
 
-Cross-validated output-error search. The first 70% of the log is for fitting, its k-step
-windows alternating between A (fit) and B (score); the last 30% (H) is held out for the
-report. Each round:
-
-1. The joints whose k-step prediction error on A stands out (more than twice the median joint:
-   most joints lack nothing, so the median is the noise floor) are the candidates.
-2. Each candidate joint is paired with every effect that can act on it: the joint effects of
-   :data:`SEARCHED`, and ``payload_mass`` on the body the joint moves and on the end of its
-   limb. Every pair's parameter is fitted on A by a bounded secant (Gauss-Newton) search on
-   the residual of the joints the effect can reach; all pairs of a round are evaluated
-   together, as one batched rollout per iteration.
-3. Each pair's fit is scored on B: the share of the error of its joints that it removes
-   (``error_reduction``), and the error it removes from the whole robot. The pair removing the
-   most is kept if it removes at least :data:`MIN_REDUCTION` of its joints' error; its
-   confidence grows with that share and with the evidence against the best rival explanation
-   of the same joints (the log-likelihood ratio of the two on B under the noise floor): two
-   effects that explain a joint equally well are both left unclaimed. A claimed effect joins
-   the correction and the next round starts.
-
-Encoder offsets are searched only on joints where an offset would show in the log: a hanging
-robot tracks its (offset) encoder, so an offset moves the joint only through the change in
-gravity torque. Where a large offset changes the predictions less than the noise does, the
-diagnosis says the offset is not identifiable from this log, and does not guess.
-
-Backlash changes the model's structure (a second hinge per joint: the link side, free within
-the play), so its candidates run on their own model (given by ``backlash_model``), with the
-play joint starting each window at the end the drive pushes against. Torque limits and
-backlash are fitted by a grid and a golden-section search (their error is flat, then kinked),
-the rest by secant search; effects that share joints are refitted together (Gauss-Newton).
+:func:`diagnose_log` runs a cross-validated output-error search over the effect vocabulary
+(:data:`SEARCHED`) and returns a :class:`Diagnosis`; docs/real2sim.md describes it for users.
 """
 
 from __future__ import annotations
@@ -489,11 +462,43 @@ def diagnose_log(
     candidates_per_round: int = 3,
     backlash_model: Callable[[tuple[str, ...]], mujoco.MjModel] | None = None,
 ) -> Diagnosis:
-    """Find and size the effects the model lacks.
+    """Find and size the effects the model lacks, by a cross-validated output-error search.
+
+    The first :data:`FIT_END` (70%) of the log is for fitting, its k-step windows alternating
+    between A (fit) and B (score) (:func:`fit_predictors`); the last 30% (H) is held out for
+    the report. Each round:
+
+    1. The joints whose k-step prediction error on A stands out (more than twice the median
+       joint: most joints lack nothing, so the median is the noise floor) are the candidates.
+    2. Each candidate joint is paired with every effect that can act on it: the joint effects
+       of :data:`SEARCHED`, and ``payload_mass`` on the body the joint moves and on the end of
+       its limb. Every pair's parameter is fitted on A by a bounded secant (Gauss-Newton)
+       search on the residual of the joints the effect can reach (:func:`_fit`); all pairs of
+       a round are evaluated together, as one batched rollout per iteration.
+    3. Each pair's fit is scored on B: the share of the error of its joints that it removes
+       (``error_reduction``), and the error it removes from the whole robot. The pair removing
+       the most is kept if it removes at least :data:`MIN_REDUCTION` of its joints' error; its
+       confidence grows with that share and with the evidence against the best rival
+       explanation of the same joints (the log-likelihood ratio of the two on B under the
+       noise floor): two effects that explain a joint equally well are both left unclaimed. A
+       claimed effect joins the correction and the next round starts.
+
+    Encoder offsets are searched only on joints where an offset would show in the log
+    (:func:`offset_reach`): a hanging robot tracks its (offset) encoder, so an offset moves the
+    joint only through the change in gravity torque. Where a large offset changes the
+    predictions less than the noise does, the diagnosis says the offset is not identifiable
+    from this log (:attr:`Diagnosis.not_identifiable`), and does not guess.
+
+    Backlash changes the model's structure (a second hinge per joint: the link side, free
+    within the play), so its candidates run on their own model (given by ``backlash_model``),
+    with the play joint starting each window at the end the drive pushes against. Torque limits
+    and backlash are fitted by a grid and a golden-section search (their error is flat, then
+    kinked: :func:`_grid_fit`), the rest by secant search; effects that share joints are
+    refitted together (Gauss-Newton, :func:`_refit`).
 
     Args:
         correction: The nominal fixed-base prediction model (see
-            :func:`~humimic.real2sim.residual.prediction_spec`); it is not changed.
+            :func:`~humimic.sim.models.prediction_spec`); it is not changed.
         log: The log (its joints in the model's order).
         horizon: k-step window [s].
         max_effects: Most effects claimed.

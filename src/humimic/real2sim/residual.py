@@ -1,15 +1,5 @@
-"""Where the simulator disagrees with a log: k-step open-loop prediction error.
-
-Windows start from logged states and are driven, open loop, by the logged commands (held
-between command messages, as the drives do); the prediction is compared with the logged joint
-positions over the window. All windows of a span, and several candidate models at once, run as
-one threaded rollout call (:func:`humimic.sim.rollout.batched`): the diagnosis evaluates hundreds of
-candidate corrections per round this way.
-
-A :class:`Correction` is what a prediction adds to the nominal model: the compiled model's own
-parameters (friction, damping, armature, force limits, actuator filter time constants, body
-masses) plus three effects that act around it: a transport delay of the commands, an encoder
-offset (the drive and the log see ``q + offset``) and a gain scale (applied / commanded kp, kd).
+"""Where the simulator disagrees with a log: k-step open-loop prediction error
+(:class:`Predictor`, :func:`kstep_error`) of a :class:`~humimic.sim.effects.Correction`.
 """
 
 from __future__ import annotations
@@ -65,6 +55,12 @@ class KStepError:
 
 class Predictor:
     """k-step open-loop predictions over the windows of one span of a log.
+
+    Windows start from logged states and are driven, open loop, by the logged commands (held
+    between command messages, as the drives do); the prediction is compared with the logged
+    joint positions over the window. All windows of a span, and several candidate models at
+    once, run as one threaded rollout call (:func:`humimic.sim.rollout.batched`): the diagnosis
+    evaluates hundreds of candidate corrections per round this way.
 
     Args:
         model: Any compiled model with the log's joints (used for sizes and checks).

@@ -1,11 +1,5 @@
-"""Robot logs: joint states and drive commands over time, read from and written to MCAP.
-
-The schema is fixed by issue 4 (see docs/viewer.md for the topics): a metadata record
-``robot`` (``name``, ``base`` = ``fixed`` or ``floating``, ``base_pose`` for a fixed base),
-``/joint_states`` (position, velocity, optional effort) and ``/joint_commands`` (position,
-velocity, effort, kp, kd), each stamped; MCAP log time is the time base. Joints are matched to
-the model by name. Reading refuses what would mislead the numbers downstream: non-finite
-values, negative gains, and log times or header stamps that do not increase.
+"""Robot logs: joint states and drive commands over time, read from and written to MCAP
+(:class:`RobotLog`, :func:`read_robot_log`, :func:`write_robot_log`).
 """
 
 from __future__ import annotations
@@ -22,6 +16,11 @@ from humimic.formats.mcap import McapFormatError, McapWriter, read_mcap, stamp
 @dataclass(frozen=True, kw_only=True)
 class RobotLog:
     """A robot log in the model's joint order. Times in seconds from the first message.
+
+    The file's schema (docs/viewer.md lists the topics): a metadata record ``robot``
+    (``name``, ``base`` = ``fixed`` or ``floating``, ``base_pose`` for a fixed base),
+    ``/joint_states`` (position, velocity, optional effort) and ``/joint_commands`` (position,
+    velocity, effort, kp, kd), each stamped; MCAP log time is the time base.
 
     Attributes:
         robot: Registry name. base: ``fixed`` or ``floating``.
@@ -196,6 +195,10 @@ def parse_base_pose(meta: dict[str, str], log_path: Path) -> np.ndarray:
 
 def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -> RobotLog:
     """Read a robot log, in the order of ``joint_names`` (the model's).
+
+    Joints are matched to the model by name. Reading refuses what would mislead the numbers
+    downstream: non-finite values, negative gains, and log times or header stamps that do not
+    increase.
 
     Raises:
         InputError / McapFormatError: Missing file, topics, metadata or joints, a non-finite

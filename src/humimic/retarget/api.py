@@ -78,7 +78,7 @@ class Retargeter:
         self.setup_seconds = time.perf_counter() - t0
 
     def validate(self, clip: HumanClip) -> None:
-        """Check that the map fits this clip's joints (raises :class:`MapError`)."""
+        """Check that the map fits this clip's joints (raises :class:`~humimic.errors.MapError`)."""
         self.map.validate(
             clip.names, {self.ik.model.body(b).name for b in range(self.ik.model.nbody)}
         )

@@ -1,25 +1,7 @@
 """Interaction-mesh retargeting: keep the body's spatial relations to boxes, terrain, objects.
 
-After OmniRetarget (Yang et al., "OmniRetarget: Interaction-Preserving Data Generation for
-Humanoid Whole-Body Loco-Manipulation and Scene Interaction", 2025), which builds on the
-interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
-
-1. The kinematic result (:class:`~humimic.retarget.kinematic.KinematicRetargeter`, on the
-   same targets, whose toe targets ``still_speed`` holds where the human's toes are still:
-   :func:`~humimic.retarget.targets.hold_still_points`) is the warm start: a frame's QPs
-   start from the previous output moved as the warm start moves.
-2. The frame's interaction mesh is the Delaunay tetrahedralization of the scaled human's key
-   points and the scene points near them (the scene is mapped into the robot's frame with the
-   human's heading, origin, scale and height calibration); its Laplacian coordinates are the
-   target (:mod:`humimic.retarget.interaction_mesh`).
-3. A few QPs, each solved directly with daqp: minimize the mesh's deformation, weak key-point
-   anchors, the body orientations, posture and smoothness to the previous frame, and hold a
-   foot point still while the human's is in contact (at the warm start's height); subject to
-   joint ranges and speeds, a
-   trust region, the floor under the feet, self-collision, no penetration of the robot's
-   collision geoms into the scene (MuJoCo distance queries, linearized with the contact
-   normal's Jacobian) and, with ``still_speed``, a cap on how far the front of a sole travels
-   while the human's toe is still (:class:`~humimic.retarget.limits.PointTravelLimit`).
+:class:`InteractionMeshRetargeter` retargets a clip in a scene; :class:`InteractionResult` is
+what it returns.
 """
 
 from __future__ import annotations
@@ -73,7 +55,7 @@ class InteractionResult:
         mesh_scene_points: Scene points in each frame's mesh. Shape: (T,).
         scene_spacings: The spacing each object's surface was sampled with [m]: the
             requested ``scene_spacing``, or more for an object too large to sample that
-            finely (:meth:`~humimic.retarget.scene.Scene.sampling_spacings`).
+            finely (:meth:`~humimic.datasets.scene.Scene.sampling_spacings`).
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
     """
@@ -127,8 +109,9 @@ def contact_bodies(m: RetargetMap) -> list[list[str]]:
 
 def feet_planted(m: RetargetMap, floor: np.ndarray, scene: np.ndarray) -> np.ndarray:
     """Frames where the human's foot rests, per foot of ``m.feet``: a floor contact of its
-    ankle or toe (``floor``: :attr:`Targets.contacts`, (T, feet, 2)), or either touches an
-    object (``scene``: the object per key point, -1 for none, (T, K)). Shape: (T, feet)."""
+    ankle or toe (``floor``: :attr:`~humimic.retarget.targets.Targets.contacts`,
+    (T, feet, 2)), or either touches an object (``scene``: the object per key point, -1 for
+    none, (T, K)). Shape: (T, feet)."""
     names = list(m.keypoints)
     on_object = [
         (scene[:, [names.index(f.ankle), names.index(f.toe)]] >= 0).any(axis=1)
@@ -174,7 +157,29 @@ TOE_DEPTH = 0.01
 
 
 class InteractionMeshRetargeter:
-    """Retarget clips with a scene to one robot with one map (see the module doc)."""
+    """Retarget clips with a scene to one robot with one map.
+
+    After OmniRetarget (Yang et al., "OmniRetarget: Interaction-Preserving Data Generation for
+    Humanoid Whole-Body Loco-Manipulation and Scene Interaction", 2025), which builds on the
+    interaction mesh of Ho, Komura and Tai (SIGGRAPH 2010). For every output frame:
+
+    1. The kinematic result (:class:`~humimic.retarget.kinematic.KinematicRetargeter`, on the
+       same targets, whose toe targets ``still_speed`` holds where the human's toes are still:
+       :func:`~humimic.retarget.targets.hold_still_points`) is the warm start: a frame's QPs
+       start from the previous output moved as the warm start moves.
+    2. The frame's interaction mesh is the Delaunay tetrahedralization of the scaled human's
+       key points and the scene points near them (the scene is mapped into the robot's frame
+       with the human's heading, origin, scale and height calibration: :meth:`robot_scene`);
+       its Laplacian coordinates are the target (:mod:`humimic.retarget.interaction_mesh`).
+    3. A few QPs, each solved directly with daqp: minimize the mesh's deformation, weak
+       key-point anchors, the body orientations, posture and smoothness to the previous frame,
+       and hold a foot point still while the human's is in contact (at the warm start's
+       height); subject to joint ranges and speeds, a trust region, the floor under the feet,
+       self-collision, no penetration of the robot's collision geoms into the scene (MuJoCo
+       distance queries, linearized with the contact normal's Jacobian) and, with
+       ``still_speed``, a cap on how far the front of a sole travels while the human's toe is
+       still (:class:`~humimic.retarget.limits.PointTravelLimit`).
+    """
 
     def __init__(
         self,

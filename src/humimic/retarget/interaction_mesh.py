@@ -1,30 +1,6 @@
-"""Interaction meshes and their Laplacian coordinates (pure math: numpy and scipy only).
-
-An interaction mesh (Ho, Komura and Tai, "Spatial Relationship Preserving Character Motion
-Adaptation", SIGGRAPH 2010; used for humanoid retargeting by OmniRetarget, Yang et al. 2025)
-is a volumetric mesh over the body's key points and points on the objects and terrain the
-body interacts with. Each vertex's Laplacian coordinate is its offset from a weighted mean of
-its mesh neighbours:
-
-    delta_i = p_i - sum_j w_ij p_j,   sum_j w_ij = 1,
-
-so ``delta = L P`` with ``L = I - W`` linear in the points. Retargeting keeps the robot's
-Laplacian coordinates close to the human's: a hand that touches a box top keeps its offset
-from the surrounding box points, whatever the change of body size.
-
-Mesh: the Delaunay tetrahedralization of the points of one frame (scipy, Qhull; ``QJ`` joggles
-degenerate inputs such as coplanar surface samples); neighbours are the vertices sharing a
-tetrahedron edge.
-
-Weights (documented choice, :func:`laplacian_operator`):
-
-- ``"uniform"``: ``w_ij = 1 / |N(i)|`` (OmniRetarget's choice);
-- ``"inverse_distance"``: ``w_ij`` proportional to ``1 / |p_i - p_j|`` over the neighbours,
-  measured on the points the operator is built from (the human's): near neighbours count more.
-
-The operator is built once per frame from the source (human and scene) points and then held
-fixed, so the deformation energy ``sum_i c_i |L_i P(q) - delta*_i|^2`` is a linear
-least-squares term in the robot's point positions.
+"""Interaction meshes and their Laplacian coordinates (pure math: numpy and scipy only):
+:func:`build_mesh` makes one frame's :class:`InteractionMesh`; :func:`point_triangle_distance`
+measures points against scene triangles.
 """
 
 from __future__ import annotations
@@ -45,6 +21,10 @@ whose memory grows with them."""
 
 def tetra_neighbors(points: np.ndarray) -> list[np.ndarray]:
     """Neighbours of every point in the Delaunay tetrahedralization of ``points``.
+
+    The mesh is the Delaunay tetrahedralization of the points of one frame (scipy, Qhull;
+    ``QJ`` joggles degenerate inputs such as coplanar surface samples); neighbours are the
+    vertices sharing a tetrahedron edge.
 
     Args:
         points: Shape: (N, 3), N >= 5.
@@ -79,7 +59,14 @@ def tetra_neighbors(points: np.ndarray) -> list[np.ndarray]:
 def laplacian_operator(
     points: np.ndarray, neighbors: list[np.ndarray], weighting: str = "uniform"
 ) -> sp.csr_matrix:
-    """``L = I - W`` of the mesh (see the module doc for the weights).
+    """``L = I - W`` of the mesh, so that ``delta = L P`` (:class:`InteractionMesh`).
+
+    Weights (a documented choice):
+
+    - ``"uniform"``: ``w_ij = 1 / |N(i)|`` (OmniRetarget's choice);
+    - ``"inverse_distance"``: ``w_ij`` proportional to ``1 / |p_i - p_j|`` over the
+      neighbours, measured on the points the operator is built from (the human's): near
+      neighbours count more.
 
     Args:
         points: The points the weights are measured on. Shape: (N, 3).
@@ -117,6 +104,22 @@ def laplacian_coordinates(op: sp.csr_matrix, points: np.ndarray) -> np.ndarray:
 class InteractionMesh:
     """One frame's mesh over ``K`` body key points (the first rows) and ``S`` scene points.
 
+    An interaction mesh (Ho, Komura and Tai, "Spatial Relationship Preserving Character Motion
+    Adaptation", SIGGRAPH 2010; used for humanoid retargeting by OmniRetarget, Yang et al.
+    2025) is a volumetric mesh (:func:`tetra_neighbors`) over the body's key points and points
+    on the objects and terrain the body interacts with. Each vertex's Laplacian coordinate is
+    its offset from a weighted mean of its mesh neighbours (:func:`laplacian_operator`)::
+
+        delta_i = p_i - sum_j w_ij p_j,   sum_j w_ij = 1,
+
+    so ``delta = L P`` with ``L = I - W`` linear in the points. Retargeting keeps the robot's
+    Laplacian coordinates close to the human's: a hand that touches a box top keeps its offset
+    from the surrounding box points, whatever the change of body size.
+
+    The operator is built once per frame from the source (human and scene) points and then
+    held fixed, so the deformation energy ``sum_i c_i |L_i P(q) - delta*_i|^2`` is a linear
+    least-squares term in the robot's point positions.
+
     Attributes:
         op: ``L``, Shape: (K + S, K + S).
         target: The source's Laplacian coordinates ``delta*``. Shape: (K + S, 3).
@@ -135,7 +138,8 @@ class InteractionMesh:
         return self.op[:, : self.num_keypoints]
 
     def residual(self, keypoints: np.ndarray) -> np.ndarray:
-        """``L [P_k; P_s] - delta*`` for robot key points ``keypoints`` (K, 3). Shape: (K + S, 3)."""
+        """``L [P_k; P_s] - delta*`` for robot key points ``keypoints`` (K, 3).
+        Shape: (K + S, 3)."""
         pts = np.concatenate([np.asarray(keypoints, dtype=np.float64), self.scene_points])
         return laplacian_coordinates(self.op, pts) - self.target
 

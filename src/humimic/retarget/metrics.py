@@ -217,7 +217,7 @@ def evaluate_scene(
     feet_planted: np.ndarray,
     contact_distance: float = 0.02,
 ) -> tuple[SceneReport, dict[str, np.ndarray]]:
-    """Measure a motion against its scene (a :class:`~humimic.retarget.scene.Scene` in the
+    """Measure a motion against its scene (a :class:`~humimic.datasets.scene.Scene` in the
     robot's frame, whose objects are the mocap bodies of ``model``, see
     :func:`~humimic.retarget.kinematic.ik_model`).
 

@@ -1,21 +1,5 @@
-"""Turn a human clip into robot-sized IK targets. Pure numpy: no simulator imports.
-
-Steps (all documented in docs/retargeting.md):
-
-1. Key points and derived frames are read from the human clip.
-2. Heading: the clip is turned about z so that the first frame's pelvis faces +x, and shifted
-   so that the first frame's pelvis is above the origin.
-3. Heights are measured from the data, never a hard-coded offset: the body is shifted so that
-   the planted toes stand at the robot's standing toe height, and each foot point's height is
-   the robot's standing height plus the scaled height of the human point above its planted
-   height (the 2nd percentile over the clip).
-4. Scale per segment: the root moves by the ratio of robot to human leg length; every other
-   key point hangs from its parent along the human bone direction with the robot's own bone
-   length, or, for points rigid on a body (hips on the pelvis, shoulders on the chest), at the
-   robot's offset rotated by the human's derived frame.
-5. Feet: contacts are detected on the human; a planted heel or toe keeps the position where
-   it landed for the whole contact, at the robot's standing height; a foot flat on the ground gets a
-   flat orientation target.
+"""Turn a human clip into robot-sized IK targets (:func:`build_targets`). Pure numpy: no
+simulator imports.
 """
 
 from __future__ import annotations
@@ -112,7 +96,25 @@ def _derived_frames(p: np.ndarray, m: RetargetMap, names: list[str]) -> np.ndarr
 def build_targets(
     clip: HumanClip, m: RetargetMap, robot: RobotGeometry, cfg: RetargetConfig
 ) -> Targets:
-    """Build robot IK targets from a human clip (already at the output frame rate)."""
+    """Build robot IK targets from a human clip (already at the output frame rate).
+
+    Steps (all documented in docs/retargeting.md):
+
+    1. Key points and derived frames are read from the human clip.
+    2. Heading: the clip is turned about z so that the first frame's pelvis faces +x, and
+       shifted so that the first frame's pelvis is above the origin.
+    3. Heights are measured from the data, never a hard-coded offset: the body is shifted so
+       that the planted toes stand at the robot's standing toe height, and each foot point's
+       height is the robot's standing height plus the scaled height of the human point above
+       its planted height (the 2nd percentile over the clip).
+    4. Scale per segment: the root moves by the ratio of robot to human leg length; every
+       other key point hangs from its parent along the human bone direction with the robot's
+       own bone length, or, for points rigid on a body (hips on the pelvis, shoulders on the
+       chest), at the robot's offset rotated by the human's derived frame.
+    5. Feet: contacts are detected on the human; a planted heel or toe keeps the position
+       where it landed for the whole contact, at the robot's standing height; a foot flat on
+       the ground gets a flat orientation target.
+    """
     names = list(m.keypoints)
     idx = {n: i for i, n in enumerate(names)}
     kps = list(m.keypoints.values())

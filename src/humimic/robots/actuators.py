@@ -1,14 +1,6 @@
-"""Actuator models: PD position servos with explicit gains, effort limits and armature.
-
-The recipe (after BeyondMimic and mjlab) derives the gains from the reflected rotor inertia
-(armature) ``I`` of each motor so that every joint servo behaves like a second-order system with
-the same natural frequency ``wn`` and damping ratio ``zeta`` about its own rotor:
-
-    kp = I * wn**2
-    kd = 2 * zeta * I * wn
-
-Two motors driving one joint through a linkage (the G1's ankles and waist roll/pitch) double the
-armature and the effort limit. Pure data: no simulator imports.
+"""Actuator models: PD position servos with explicit gains, effort limits and armature
+(:class:`ActuatorRecipe`, and the recipes of the registered robots). Pure data: no simulator
+imports.
 """
 
 from __future__ import annotations
@@ -50,6 +42,17 @@ class JointActuator:
 @dataclass(frozen=True, kw_only=True)
 class ActuatorRecipe:
     """Rotor-inertia gain recipe.
+
+    The recipe (after BeyondMimic and mjlab) derives the gains from the reflected rotor
+    inertia (armature) ``I`` of each motor so that every joint servo behaves like a
+    second-order system with the same natural frequency ``wn`` and damping ratio ``zeta``
+    about its own rotor::
+
+        kp = I * wn**2
+        kd = 2 * zeta * I * wn
+
+    Two motors driving one joint through a linkage (the G1's ankles and waist roll/pitch)
+    double the armature and the effort limit (``G1_MOTOR_2X5020``).
 
     Attributes:
         motors: Joint-name regular expression -> motor. Every actuated joint must match

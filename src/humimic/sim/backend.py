@@ -1,11 +1,7 @@
-"""Batched physics backends behind one :class:`PhysicsBackend` protocol.
-
-A caller sets joint targets, steps and reads batched arrays; it never touches MuJoCo itself.
-:class:`MujocoCpuBackend` runs ``num_envs`` MuJoCo CPU simulations through ``mujoco.rollout``
-(C++ thread pool) or a Python thread pool over ``mj_step``;
-:class:`~humimic.sim.warp_backend.MujocoWarpBackend` implements the same protocol with MuJoCo
-Warp (GPU). Body kinematics and contacts come from the sensors :func:`~humimic.sim.models.training_model`
-compiles in, so every backend returns them from ``sensordata``.
+"""Batched physics backends behind one :class:`PhysicsBackend` protocol: a caller sets joint
+targets, steps and reads batched arrays; it never touches MuJoCo itself.
+:class:`MujocoCpuBackend` is the CPU one; :class:`~humimic.sim.warp_backend.MujocoWarpBackend`
+implements the same protocol with MuJoCo Warp (GPU).
 """
 
 from __future__ import annotations
@@ -58,7 +54,9 @@ class PhysicsReadout:
 class PhysicsBackend(Protocol):
     """What callers need from a batched simulator. Arrays are float64 numpy.
 
-    ``body_names`` (kinematics read), ``contact_body_names`` (contact counts) and
+    Body kinematics and contacts come from the sensors
+    :func:`~humimic.sim.models.training_model` compiles in, so every backend returns them from
+    ``sensordata``. ``body_names`` (kinematics read), ``contact_body_names`` (contact counts) and
     ``foot_body_names`` (contact forces) fix the layout of :class:`PhysicsReadout`;
     ``joint_names`` fixes the actuator/joint order (MuJoCo order of the actuated joints).
     """
@@ -83,7 +81,8 @@ class PhysicsBackend(Protocol):
     joint_range: np.ndarray
     """Joint position limits of the actuated joints. Shape: (J, 2)."""
     default_joint_pos: np.ndarray
-    """The robot's home pose (first keyframe, else ``qpos0``) of the actuated joints. Shape: (J,)."""
+    """The robot's home pose (first keyframe, else ``qpos0``) of the actuated joints.
+    Shape: (J,)."""
     kp: np.ndarray
     """Nominal PD stiffness of each actuator. Shape: (J,)."""
     effort_limit: np.ndarray
@@ -229,10 +228,12 @@ class LayoutBackend:
 
 
 class MujocoCpuBackend(LayoutBackend):
-    """``num_envs`` MuJoCo CPU simulations of one training model.
+    """``num_envs`` MuJoCo CPU simulations of one training model, stepped through
+    ``mujoco.rollout`` (C++ thread pool) or a Python thread pool over ``mj_step``.
 
     Args:
-        model: A model from :func:`training_model` (its sensors define the read-out).
+        model: A model from :func:`~humimic.sim.models.training_model` (its sensors define
+            the read-out).
         num_envs: Number of envs.
         body_names: The ``body_names`` the model was built with (same order).
         contact_body_names: The ``contact_body_names`` the model was built with.

@@ -167,10 +167,11 @@ def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
     for a, b in sorted(pairs):
         spec.add_exclude(bodyname1=a, bodyname2=b)
     spec.option.timestep = PHYSICS_DT
-    # A hanging robot's excitation is chosen free of self-contact (see :func:`excitation`);
-    # what remains are neighbouring links' convex hulls grazing each other, an artefact of the
-    # collision geometry. The fixed-base robot ignores contact, so logs and predictions agree on
-    # that (the excitation check switches it back on).
+    # A hanging robot's excitation is chosen free of self-contact
+    # (:func:`humimic.real2sim.simulate.excitation`); what remains are neighbouring links'
+    # convex hulls grazing each other, an artefact of the collision geometry. The fixed-base
+    # robot ignores contact, so logs and predictions agree on that (the excitation check
+    # switches it back on).
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     # Semi-implicit Euler at 1 kHz is stable with these servos (kd / armature ~ 250 1/s) and
     # keeps inverse dynamics (mj_inverse) exactly consistent with the forward simulation.

@@ -106,11 +106,13 @@ class ModelLayout:
         foot_body_names: Sequence[str] = (),
         com_body: str | None = None,
     ) -> ModelLayout:
-        """The layout of a model from :func:`training_model` built with these names.
+        """The layout of a model from :func:`~humimic.sim.models.training_model` built with
+        these names.
 
         Raises:
             InputError: If the actuators do not drive the joints after the free joint in qpos
-                order, or the sensors are not those of :func:`training_model`.
+                order, or the sensors are not those of
+                :func:`~humimic.sim.models.training_model`.
             UnknownNameError: If ``com_body`` is not in the model.
         """
         joints = [int(model.actuator_trnid[a, 0]) for a in range(model.nu)]

@@ -1,26 +1,7 @@
 """Physics files: one fixed robot, as changes to the nominal model (YAML).
 
-A physics file describes a robot whose physics differ from the nominal model in known ways:
-the "real" robot of ``humimic eval --physics`` and ``humimic loop --real`` (values training
-never sampled), or a model corrected by ``humimic sysid diagnose`` (``humimic train
---physics``). Every value is fixed for the whole run; domain randomization, where asked for,
-acts on top of it.
-
-Example::
-
-    description: A backpack and a slow bus.
-    robot: g1                       # optional; checked against the run's robot
-    floor_friction: 0.35            # sliding friction of the floor and the robot's colliders
-    mass_scale: 1.05                # every link, or a mapping {body: scale}
-    com_offset: {torso_link: [-0.06, 0.0, 0.05]}   # CoM moved [m], body frame
-    kp_scale: {left_knee_joint: 0.8}               # number (every joint) or mapping
-    kd_scale: 1.0
-    armature_scale: 1.0
-    effects:                        # the real2sim vocabulary (docs/real2sim.md), as in
-      - payload_mass:torso_link=4.0 # ``humimic sysid simulate --inject``
-      - delay:left_knee_joint,right_knee_joint=0.03
-
-Shipped files (``--physics NAME``): see :data:`SHIPPED`.
+:class:`Physics` is the file's content; :func:`load_physics` reads a file or a shipped one
+(:data:`SHIPPED`), :func:`write_physics` writes one.
 """
 
 from __future__ import annotations
@@ -62,6 +43,24 @@ _ALL = "*"
 @dataclass(frozen=True, kw_only=True)
 class Physics:
     """A fixed robot: changes to the nominal model.
+
+    A physics file describes a robot whose physics differ from the nominal model in known
+    ways: the "real" robot of ``humimic eval --physics`` and ``humimic loop --real`` (values
+    training never sampled), or a model corrected by ``humimic sysid diagnose`` (``humimic
+    train --physics``). Every value is fixed for the whole run; domain randomization, where
+    asked for, acts on top of it. Example::
+
+        description: A backpack and a slow bus.
+        robot: g1                       # optional; checked against the run's robot
+        floor_friction: 0.35            # sliding friction of the floor and the robot's colliders
+        mass_scale: 1.05                # every link, or a mapping {body: scale}
+        com_offset: {torso_link: [-0.06, 0.0, 0.05]}   # CoM moved [m], body frame
+        kp_scale: {left_knee_joint: 0.8}               # number (every joint) or mapping
+        kd_scale: 1.0
+        armature_scale: 1.0
+        effects:                        # the real2sim vocabulary (docs/real2sim.md), as in
+          - payload_mass:torso_link=4.0 # ``humimic sysid simulate --inject``
+          - delay:left_knee_joint,right_knee_joint=0.03
 
     Attributes:
         name: The file's stem (or a shipped name).

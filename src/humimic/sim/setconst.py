@@ -1,24 +1,5 @@
-"""``mj_setConst``'s inertial constants of many randomized models at once, in torch.
-
-Domain randomization changes masses, inertias, centres of mass and armatures; MuJoCo derives
-from them constants the solver reads: ``body_subtreemass``, ``dof_invweight0`` and
-``body_invweight0`` (the regularization of contacts and joint limits) and ``actuator_acc0``.
-The CPU backend recomputes them with ``mj_setConst``, per model. On a GPU, where many envs
-reset at every step, that per-env host work limits the env's throughput, and
-``mujoco_warp.set_const`` launches kernels per dof and per body row of every call.
-
-At ``qpos0`` the kinematics do not depend on these fields, so the body Jacobians are computed
-once, and each model's constants are a few batched tensor operations::
-
-    M = sum_b  m_b Jp_b' Jp_b + Jr_b' R_b I_b R_b' Jr_b  + diag(armature)
-    A = M^-1
-    dof_invweight0  = diag(A)             (averaged over the 3 + 3 dofs of a free joint)
-    body_invweight0 = mean diag(Jp A Jp'), mean diag(Jr A Jr')   (of each body's centre of mass)
-    actuator_acc0   = |A moment|
-
-where ``Jp_b`` is the translational Jacobian at the body's centre of mass (it moves with
-``body_ipos``: ``Jp(xipos) = Jp(xpos) - [xmat ipos]x Jr``). The results match ``mj_setConst``
-to float64 round-off (``tests/test_tracking_env.py``).
+"""``mj_setConst``'s inertial constants of many randomized models at once, in torch:
+:class:`InertiaConstants`.
 """
 
 from __future__ import annotations
@@ -46,6 +27,27 @@ class InertiaConstants:
     """The constants of ``mj_setConst`` that depend on the inertial fields, for batches of
     models that differ from ``model`` in ``body_mass``, ``body_inertia``, ``body_ipos`` and
     ``dof_armature`` only.
+
+    Domain randomization changes masses, inertias, centres of mass and armatures; MuJoCo
+    derives from them constants the solver reads: ``body_subtreemass``, ``dof_invweight0`` and
+    ``body_invweight0`` (the regularization of contacts and joint limits) and
+    ``actuator_acc0``. The CPU backend recomputes them with ``mj_setConst``, per model. On a
+    GPU, where many envs reset at every step, that per-env host work limits the env's
+    throughput, and ``mujoco_warp.set_const`` launches kernels per dof and per body row of
+    every call.
+
+    At ``qpos0`` the kinematics do not depend on these fields, so the body Jacobians are
+    computed once, and each model's constants are a few batched tensor operations::
+
+        M = sum_b  m_b Jp_b' Jp_b + Jr_b' R_b I_b R_b' Jr_b  + diag(armature)
+        A = M^-1
+        dof_invweight0  = diag(A)             (averaged over the 3 + 3 dofs of a free joint)
+        body_invweight0 = mean diag(Jp A Jp'), mean diag(Jr A Jr')   (of each body's CoM)
+        actuator_acc0   = |A moment|
+
+    where ``Jp_b`` is the translational Jacobian at the body's centre of mass (it moves with
+    ``body_ipos``: ``Jp(xipos) = Jp(xpos) - [xmat ipos]x Jr``). The results match
+    ``mj_setConst`` to float64 round-off (``tests/test_tracking_env.py``).
 
     Args:
         model: The nominal model.

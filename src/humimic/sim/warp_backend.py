@@ -1,43 +1,7 @@
-"""The MuJoCo Warp backend: ``num_envs`` worlds of one training model stepped by MJWarp on a
-GPU (or, slowly, on the CPU), behind the same :class:`~humimic.sim.backend.PhysicsBackend`
-interface as :class:`~humimic.sim.backend.MujocoCpuBackend`.
-
-It needs the optional extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``warp-lang``).
-
-* **Same model, same read-out.** It simulates the model of
-  :func:`~humimic.sim.models.training_model` and reads the same sensors, so the env's
-  rewards, observations, terminations and domain randomization are the CPU backend's (the parity
-  test, ``tests/test_warp_backend.py``, steps both from the same states).
-* **Zero copies.** Every array the env touches (``qpos``, ``qvel``, ``ctrl``, ``sensordata`` and
-  the randomized model fields) is a torch view of the warp array (``wp.to_torch``): the env
-  writes PD targets into ``ctrl`` and reads the state with tensor ops on the device
-  (:meth:`MujocoWarpBackend.set_ctrl_tensor`, :meth:`MujocoWarpBackend.read_into`).
-* **CUDA graphs.** On a GPU the physics steps of one env step are captured once as a CUDA graph
-  and replayed (one launch instead of hundreds of kernel launches per physics step); likewise
-  the forward pass after resets.
-* **Domain randomization.** The randomized fields (:data:`~humimic.sim.params.DR_FIELDS`)
-  and the constants derived from them (subtree masses, inverse weights, actuator
-  accelerations) are batched per world (``put_model``'s ``batch_sizes``). The constants of the
-  envs being reset are computed in a few batched tensor operations on the device
-  (:class:`~humimic.sim.setconst.InertiaConstants`, equal to ``mj_setConst``'s to
-  float64 round-off): ``mj_setConst`` per env on the host (its cost grows with the resets
-  per step) and ``mujoco_warp.set_const`` (a kernel launch per dof and per body row) were
-  both slower (BENCHMARKS.md).
-* **Resets** write the state of the reset worlds with tensor ops, and one forward pass
-  (captured) recomputes their sensors when the state is next read, whatever number of resets
-  and pushes came before.
-* **Capacity.** MJWarp allocates contacts and constraint rows up front. The defaults are bounds
-  that cannot overflow for a model whose robot touches only the floor: every collider's
-  largest number of contacts with a plane, 4 rows per contact (pyramidal cone, condim 3) and one
-  row per joint limit. An overflow (a larger ``condim``, a user's smaller setting) raises
-  :class:`~humimic.errors.HumimicError` naming the setting rather than dropping contacts
-  silently.
-
-It also serves the dynamics retargeter (:meth:`MujocoWarpBackend.rollout`, the CPU backend's
-open-loop rollouts from given states).
-
-Not supported yet: actuators with a command history (the transport delay of a physics file);
-the backend refuses such a model with a clear error.
+"""The MuJoCo Warp backend: :class:`MujocoWarpBackend`, ``num_envs`` worlds of one training
+model stepped by MJWarp on a GPU (or, slowly, on the CPU), behind the same
+:class:`~humimic.sim.backend.PhysicsBackend` interface as the CPU backend. It needs the optional
+extra ``humimic[gpu]`` (``mujoco-warp``, which brings ``warp-lang``): :func:`warp_available`.
 """
 
 from __future__ import annotations
@@ -89,7 +53,13 @@ def _import_warp() -> tuple[Any, Any]:
 
 def capacity(model: mujoco.MjModel) -> tuple[int, int]:
     """Contacts and constraint rows per world that no state of a robot touching only the floor
-    can exceed: (nconmax, njmax)."""
+    can exceed: (nconmax, njmax).
+
+    The bounds are every collider's largest number of contacts with a plane, 4 rows per contact
+    (pyramidal cone, condim 3) and one row per joint limit. An overflow (a larger ``condim``, a
+    user's smaller setting) raises :class:`~humimic.errors.HumimicError` naming the setting
+    (:meth:`MujocoWarpBackend.check_overflow`) rather than dropping contacts silently.
+    """
     col = np.flatnonzero((model.geom_contype | model.geom_conaffinity) != 0)
     plane = mujoco.mjtGeom.mjGEOM_PLANE
     robot = [g for g in col if model.geom_type[g] != plane]
@@ -99,7 +69,30 @@ def capacity(model: mujoco.MjModel) -> tuple[int, int]:
 
 
 class MujocoWarpBackend(LayoutBackend):
-    """``num_envs`` MJWarp worlds of one training model (see the module docstring).
+    """``num_envs`` MJWarp worlds of one training model.
+
+    * **Same model, same read-out.** It simulates the model of
+      :func:`~humimic.sim.models.training_model` and reads the same sensors as
+      :class:`~humimic.sim.backend.MujocoCpuBackend`, so the env's rewards, observations,
+      terminations and domain randomization are the CPU backend's (the parity test,
+      ``tests/test_warp_backend.py``, steps both from the same states).
+    * **Zero copies.** Every array the env touches (``qpos``, ``qvel``, ``ctrl``,
+      ``sensordata`` and the randomized model fields) is a torch view of the warp array
+      (``wp.to_torch``): the env writes PD targets into ``ctrl`` and reads the state with
+      tensor ops on the device (:meth:`set_ctrl_tensor`, :meth:`read_into`).
+    * **CUDA graphs.** On a GPU the physics steps of one env step are captured once as a CUDA
+      graph and replayed (one launch instead of hundreds of kernel launches per physics
+      step); likewise the forward pass after resets.
+    * **Domain randomization** batches the randomized fields per world (:meth:`set_params`).
+    * **Resets** write the state of the reset worlds with tensor ops, and one forward pass
+      (captured) recomputes their sensors when the state is next read, whatever number of
+      resets and pushes came before.
+    * **Capacity.** MJWarp allocates contacts and constraint rows up front; the defaults
+      (:func:`capacity`) cannot overflow for a robot that touches only the floor, and an
+      overflow raises rather than dropping contacts silently (:meth:`check_overflow`).
+
+    It also serves the dynamics retargeter (:meth:`rollout`, the CPU backend's open-loop
+    rollouts from given states).
 
     Args:
         model: A model from :func:`~humimic.sim.models.training_model`.
@@ -117,7 +110,9 @@ class MujocoWarpBackend(LayoutBackend):
 
     Raises:
         MissingDependencyError: Without ``mujoco_warp``.
-        InputError: On bad sizes, or a model MJWarp cannot simulate.
+        InputError: On bad sizes, or a model MJWarp cannot simulate, or actuators with a
+            command history (the transport delay of a physics file), which this backend does
+            not simulate.
     """
 
     def __init__(
@@ -398,6 +393,20 @@ class MujocoWarpBackend(LayoutBackend):
     # ------------------------------------------------------------------------ parameters
 
     def set_params(self, env_ids: np.ndarray, params: PhysicsParams) -> None:
+        """Set the physics of the worlds ``env_ids`` (needs ``per_env_models``).
+
+        The randomized fields (:data:`~humimic.sim.params.DR_FIELDS`) and the constants derived
+        from them (subtree masses, inverse weights, actuator accelerations) are batched per
+        world (``put_model``'s ``batch_sizes``). The constants of the envs being reset are
+        computed in a few batched tensor operations on the device
+        (:class:`~humimic.sim.setconst.InertiaConstants`, equal to ``mj_setConst``'s to float64
+        round-off): ``mj_setConst`` per env on the host (its cost grows with the resets per
+        step) and ``mujoco_warp.set_const`` (a kernel launch per dof and per body row) were both
+        slower (BENCHMARKS.md).
+
+        Raises:
+            InputError: Without per-env models.
+        """
         if self._constants is None:
             raise InputError(
                 "set_params needs per-env models: build the backend with per_env_models=True"

@@ -2,7 +2,7 @@
 
 ``g1_tracking()`` is the G1 task with mjlab's tracking defaults. Domain randomization comes in
 named profiles (``none``, ``default``; :func:`dr_profile`) or from a YAML file
-(:func:`load_dr_profile`).
+(:func:`~humimic.sim.randomization.load_dr_profile`).
 """
 
 from __future__ import annotations
@@ -212,7 +212,27 @@ class TrackingConfig:
 
 
 def default_rewards() -> dict[str, TermConfig]:
-    """BeyondMimic's reward terms with mjlab's stds and weights (see :mod:`.rewards`)."""
+    """BeyondMimic's reward terms with mjlab's stds and weights (see :mod:`.rewards`).
+
+    Tracking terms are ``exp(-err / std**2)`` with the errors of BeyondMimic (Liao et al.,
+    "BeyondMimic: From Motion Tracking to Versatile Humanoid Control via Guided Diffusion",
+    2025); the default stds and weights are mjlab's (``mjlab/tasks/tracking/tracking_env_cfg.py``),
+    except for ``undesired_contacts`` (see :func:`~humimic.tracking.rewards.undesired_contacts`):
+
+    ========================  ======  ======
+    term                      std     weight
+    ========================  ======  ======
+    anchor position           0.3     0.5
+    anchor orientation        0.4     0.5
+    body positions (rel.)     0.3     1.0
+    body orientations (rel.)  0.4     1.0
+    body linear velocities    1.0     1.0
+    body angular velocities   3.14    1.0
+    action rate L2            --      -0.1
+    joint limits              --      -10.0
+    undesired contacts        --      -0.1
+    ========================  ======  ======
+    """
     return {
         "anchor_pos": TermConfig(func=rew.anchor_pos_error_exp, weight=0.5, params={"std": 0.3}),
         "anchor_ori": TermConfig(func=rew.anchor_ori_error_exp, weight=0.5, params={"std": 0.4}),

@@ -1,19 +1,6 @@
 """``humimic distill``: a privileged teacher distilled into a proprioceptive student.
 
-DAgger-style, with rsl_rl's ``Distillation`` algorithm: the student acts in the environment,
-the teacher labels every state the student visits with its own (deterministic) action, and
-the student regresses onto those labels. The student observes only deployable groups:
-
-* ``mlp-history``: an MLP on ``policy`` and ``proprio_history``;
-* ``gru``: a GRU on ``policy``.
-
-rsl_rl 5.x pitfalls handled here: the student needs a ``distribution_cfg`` (it acts
-stochastically during rollouts; a small fixed std), and the teacher's model config must be the
-trained actor's exactly (it is copied from the teacher run, with the actor's observation groups
-as the ``teacher`` set). The teacher's ``actor_state_dict`` is loaded into the teacher model.
-
-The student's run folder is a run like any other: ``humimic eval`` and ``humimic export``
-(``mlp-history``) take it.
+:func:`distill` runs it; :func:`distill_cfg` builds rsl_rl's ``Distillation`` config.
 """
 
 from __future__ import annotations
@@ -34,7 +21,11 @@ STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),
     "gru": ("policy",),
 }
-"""Observation groups of each student kind."""
+"""Observation groups of each student kind: only deployable groups.
+
+* ``mlp-history``: an MLP on ``policy`` and ``proprio_history``;
+* ``gru``: a GRU on ``policy``.
+"""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -66,7 +57,11 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
     """The rsl_rl ``train_cfg`` of a distillation run from the teacher run's PPO ``train_cfg``.
 
     The gradient length is the rollout length: each epoch backpropagates once through the
-    whole rollout (rsl_rl needs epochs x steps divisible by it).
+    whole rollout (rsl_rl needs epochs x steps divisible by it). Two requirements of rsl_rl 5.x
+    are met here: the student needs a ``distribution_cfg`` (it acts stochastically during
+    rollouts; a small fixed std), and the teacher's model config must be the trained actor's
+    exactly (it is copied from the teacher run, with the actor's observation groups as the
+    ``teacher`` set).
     """
     if student not in STUDENT_OBS:
         raise InputError(f"--student {student!r}: expected one of {', '.join(STUDENT_OBS)}")
@@ -111,7 +106,17 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
 
 def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     """Distill (or resume distilling) a teacher run into a student. Returns the last progress
-    row (``loss_behavior`` is the student's imitation loss)."""
+    row (``loss_behavior`` is the student's imitation loss).
+
+    DAgger-style, with rsl_rl's ``Distillation`` algorithm: the student acts in the
+    environment, the teacher labels every state the student visits with its own
+    (deterministic) action, and the student regresses onto those labels. The student observes
+    only deployable groups (:data:`STUDENT_OBS`). The teacher's ``actor_state_dict`` is loaded
+    into the teacher model.
+
+    The student's run folder is a run like any other: ``humimic eval`` and ``humimic export``
+    (``mlp-history``) take it.
+    """
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (

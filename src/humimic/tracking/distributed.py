@@ -1,11 +1,6 @@
 """Several processes training one policy: ``torchrun --nproc-per-node N humimic train ...``.
-
-Each process (rank) simulates its own ``--num-envs`` envs on its own device (``cuda:<local
-rank>`` for ``--device cuda``, the CPU for ``--device cpu``) with its own seed (``seed +
-rank``), and rsl_rl averages the gradients over the ranks (``torch.distributed``: NCCL on GPUs,
-gloo on the CPU) after broadcasting rank 0's initial weights. Rank 0 alone writes the run
-folder (config, progress, checkpoints) and shows progress; stop decisions (time budget,
-divergence) are agreed by all ranks so none is left waiting in a collective.
+:class:`Ranks` says where a process stands, :func:`start` / :func:`stop` join and leave the
+process group, :func:`agree` takes decisions all ranks share.
 """
 
 from __future__ import annotations
@@ -22,6 +17,14 @@ from humimic.errors import InputError
 @dataclass(frozen=True)
 class Ranks:
     """Where this process stands among the processes of a run (torchrun's variables).
+
+    Each process (rank) simulates its own ``--num-envs`` envs on its own device (``cuda:<local
+    rank>`` for ``--device cuda``, the CPU for ``--device cpu``) with its own seed (``seed +
+    rank``), and rsl_rl averages the gradients over the ranks (``torch.distributed``: NCCL on
+    GPUs, gloo on the CPU) after broadcasting rank 0's initial weights. Rank 0 alone
+    (:attr:`main`) writes the run folder (config, progress, checkpoints) and shows progress;
+    stop decisions (time budget, divergence) are agreed by all ranks (:func:`agree`) so none is
+    left waiting in a collective.
 
     Attributes:
         rank: Global rank (``RANK``). local_rank: Rank on this machine (``LOCAL_RANK``).

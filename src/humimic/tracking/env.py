@@ -1,29 +1,5 @@
-"""The whole-body motion-tracking environment (BeyondMimic on MuJoCo), an rsl_rl ``VecEnv``.
-
-A policy at 50 Hz sets PD position targets ``default + offset + scale * action`` of every joint
-of a floating-base humanoid simulated at 200 Hz, and is rewarded for following a reference
-motion (Liao et al., "BeyondMimic: From Motion Tracking to Versatile Humanoid Control via
-Guided Diffusion", 2025). Episodes start at a reference frame (reference state
-initialization, with noise) chosen by BeyondMimic's adaptive sampling, and end on a tracking
-failure (see :mod:`.terminations`), at the episode length, or at the end of the clip
-(time-outs).
-
-Observation groups (all float32, Shape: (num_envs, D)):
-
-* ``policy`` (deployable, noisy when the DR profile says so): reference joint positions and
-  velocities of the current frame, the reference anchor pose in the robot anchor frame
-  (position, 6D rotation), projected gravity and angular velocity of the base (base frame),
-  joint positions (relative to the default) and velocities, the last action.
-* ``critic``: the policy content without noise, the normalized physics parameters ``e``
-  (:mod:`.dr`), the base linear velocity (base frame), the tracked bodies' positions and 6D
-  orientations in the robot anchor frame, and the feet's floor contact forces.
-* ``proprio_history``: the last ``history_length`` policy observations, oldest first.
-* ``physics``: the normalized physics parameters ``e`` alone (what a privileged teacher's
-  actor adds to ``policy``).
-
-All reward, termination and observation math is torch on batched tensors (the state lives in
-:class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
-:class:`~humimic.sim.backend.PhysicsBackend`.
+"""The whole-body motion-tracking environment (BeyondMimic on MuJoCo): :class:`TrackingEnv`,
+an rsl_rl ``VecEnv``, and :func:`build_backend` / :func:`tracking_model`, the simulator it runs on.
 """
 
 from __future__ import annotations
@@ -87,7 +63,33 @@ def tracking_model(
 
 
 class TrackingEnv(VecEnv):
-    """Whole-body motion tracking, implementing rsl_rl's ``VecEnv`` (see the module docstring).
+    """Whole-body motion tracking, implementing rsl_rl's ``VecEnv``.
+
+    A policy at 50 Hz sets PD position targets ``default + offset + scale * action`` of every
+    joint of a floating-base humanoid simulated at 200 Hz, and is rewarded for following a
+    reference motion (Liao et al., "BeyondMimic: From Motion Tracking to Versatile Humanoid
+    Control via Guided Diffusion", 2025). Episodes start at a reference frame (reference state
+    initialization, with noise) chosen by BeyondMimic's adaptive sampling, and end on a
+    tracking failure (see :mod:`.terminations`), at the episode length, or at the end of the
+    clip (time-outs).
+
+    Observation groups (all float32, Shape: (num_envs, D)):
+
+    * ``policy`` (deployable, noisy when the DR profile says so): reference joint positions and
+      velocities of the current frame, the reference anchor pose in the robot anchor frame
+      (position, 6D rotation), projected gravity and angular velocity of the base (base
+      frame), joint positions (relative to the default) and velocities, the last action.
+    * ``critic``: the policy content without noise, the normalized physics parameters ``e``
+      (:func:`humimic.sim.randomization.normalize`), the base linear velocity (base frame),
+      the tracked bodies' positions and 6D orientations in the robot anchor frame, and the
+      feet's floor contact forces.
+    * ``proprio_history``: the last ``history_length`` policy observations, oldest first.
+    * ``physics``: the normalized physics parameters ``e`` alone (what a privileged teacher's
+      actor adds to ``policy``).
+
+    All reward, termination and observation math is torch on batched tensors (the state lives
+    in :class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
+    :class:`~humimic.sim.backend.PhysicsBackend`.
 
     Args:
         cfg: The task.
@@ -462,9 +464,9 @@ class TrackingEnv(VecEnv):
         """Compile :meth:`_after_physics` and :meth:`_observe` (whole graphs, fixed shapes)
         and run them once, so that a failure shows here and the first step does not stall.
         An eager run first fills the caches they read (tracked-body indices, rotation forms);
-        the buffers the runs write are restored afterwards. They always run under ``torch.inference_mode``
-        (as rsl_rl collects rollouts), which keeps one compiled graph each: a change of grad
-        mode would compile them again."""
+        the buffers the runs write are restored afterwards. They always run under
+        ``torch.inference_mode`` (as rsl_rl collects rollouts), which keeps one compiled graph
+        each: a change of grad mode would compile them again."""
         written = (self._bin_failed, self._weights, self._fresh, self._history)
         kept = [t.clone() for t in written]
         with torch.inference_mode():

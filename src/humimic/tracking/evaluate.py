@@ -1,26 +1,7 @@
 """``humimic eval``: closed-loop evaluation of a tracking policy, and the open-loop baseline.
 
-Every episode plays the whole clip from its first frame, without reset noise, under the
-physics of the chosen DR profile (``none``: the nominal robot). An episode succeeds if no
-tracking failure (a termination other than the clip's end) happens. Errors are averaged over
-the steps each episode lived:
-
-* global MPJPE: tracked bodies' world positions against the reference [mm];
-* root-relative MPJPE: the same after subtracting each side's root position [mm];
-* joint error: mean absolute joint position error [rad];
-* per-body global errors [mm].
-
-``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.sim.physics`):
-a "real" robot that training never saw.
-
-The open-loop baseline replays the reference's joint positions as PD targets (no policy): how
-far the raw reference gets on this robot and these physics.
-
-The first episode of both is written as MCAP with the reference (``--mcap``): the reference
-topics of :func:`humimic.formats.mcap.write_motion_topics`, the policy's rollout on ``/qpos``,
-``/joint_states``, ``/joint_commands`` (PD targets) and ``/reward_terms`` (the step's total
-reward), the open-loop rollout on ``/open_loop/qpos``, and the metrics as metadata ``eval``.
-``humimic view EVAL.mcap`` plays the rollout against the reference.
+:func:`evaluate` runs the command (:func:`run_evaluation` measures, :func:`write_eval_mcap`
+writes the rollouts for ``humimic view``).
 """
 
 from __future__ import annotations
@@ -57,7 +38,16 @@ class _Trace:
 
 
 def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) -> dict:
-    """Run one episode per env; returns the metrics. ``trace`` records env 0."""
+    """Run one episode per env; returns the metrics. ``trace`` records env 0.
+
+    An episode succeeds if no tracking failure (a termination other than the clip's end)
+    happens. Errors are averaged over the steps each episode lived:
+
+    * global MPJPE: tracked bodies' world positions against the reference [mm];
+    * root-relative MPJPE: the same after subtracting each side's root position [mm];
+    * joint error: mean absolute joint position error [rad];
+    * per-body global errors [mm].
+    """
     s, dev = env.state, env.device
     n = env.num_envs
     alive = torch.ones(n, dtype=torch.bool, device=dev)
@@ -137,6 +127,10 @@ def eval_inputs(s: EvalSettings) -> dict[str, Any]:
 def evaluate(settings: EvalSettings) -> dict:
     """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked.
 
+    ``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.sim.physics`):
+    a "real" robot that training never saw. The first episode of both is written as MCAP with
+    the reference (``--mcap``, :func:`write_eval_mcap`).
+
     Raises:
         InputError: Bad settings, or an output that would overwrite an input (the run's
             files, the motion, a checkpoint) or the other output; nothing is written.
@@ -167,7 +161,14 @@ def evaluate(settings: EvalSettings) -> dict:
 
 
 def run_evaluation(settings: EvalSettings) -> Evaluation:
-    """Run the policy and the open loop (writes nothing)."""
+    """Run the policy and the open loop (writes nothing).
+
+    Every episode plays the whole clip from its first frame, without reset noise, under the
+    physics of the chosen DR profile (``none``: the nominal robot) and the physics file, if
+    any; the metrics are those of :func:`_episodes`. The open-loop baseline replays the
+    reference's joint positions as PD targets (no policy; a refined motion's stored controls,
+    :func:`_stored_targets`): how far the raw reference gets on this robot and these physics.
+    """
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
@@ -273,7 +274,14 @@ def write_eval_mcap(
     open_loop: _Trace,
     results: dict,
 ) -> None:
-    """Write the reference and the first episode's rollouts (see the module docstring)."""
+    """Write the reference and the first episode's rollouts as MCAP.
+
+    The file holds the reference topics of :func:`humimic.formats.mcap.write_motion_topics`,
+    the policy's rollout on ``/qpos``, ``/joint_states``, ``/joint_commands`` (PD targets) and
+    ``/reward_terms`` (the step's total reward), the open-loop rollout on ``/open_loop/qpos``,
+    and the metrics as metadata ``eval``. ``humimic view EVAL.mcap`` plays the rollout against
+    the reference.
+    """
     from humimic.formats.mcap import McapWriter, stamp, write_motion_topics
 
     names = list(joint_names)

@@ -1,15 +1,4 @@
-"""``humimic export``: the trained policy as ONNX for deployment.
-
-The exported graph is the actor's deterministic path, observation normalization included:
-input ``obs`` (the actor's observation groups concatenated in the order of the run's
-``obs_groups``, e.g. ``policy`` then ``proprio_history`` for the ``asymmetric`` variant; Shape:
-(batch, D)), output ``actions``
-(Shape: (batch, num_joints); PD targets are ``default + scale * actions``, see
-docs/tracking.md). A recurrent student (``humimic distill --student gru``) also takes its GRU
-state ``h_in`` (Shape: (layers, batch, hidden); zeros at the start of an episode) and returns
-the next one as ``h_out``: feed it back at every policy step. The file is self-contained (the
-weights inside it, no external-data side file) and written atomically.
-"""
+"""``humimic export``: the trained policy as ONNX for deployment (:func:`export`)."""
 
 from __future__ import annotations
 
@@ -97,6 +86,16 @@ def onnx_bytes(model: Any) -> bytes:
 
 def export(settings: ExportSettings) -> Path:
     """Write the policy; returns the file.
+
+    The exported graph is the actor's deterministic path, observation normalization included:
+    input ``obs`` (the actor's observation groups concatenated in the order of the run's
+    ``obs_groups``, e.g. ``policy`` then ``proprio_history`` for the ``asymmetric`` variant;
+    Shape: (batch, D)), output ``actions`` (Shape: (batch, num_joints); PD targets are
+    ``default + scale * actions``, see docs/tracking.md). A recurrent student (``humimic
+    distill --student gru``) also takes its GRU state ``h_in`` (Shape: (layers, batch,
+    hidden); zeros at the start of an episode) and returns the next one as ``h_out``: feed it
+    back at every policy step. The file is self-contained (the weights inside it, no
+    external-data side file: :func:`onnx_bytes`) and written atomically.
 
     Raises:
         InputError: Bad settings, a teacher run, an output that would overwrite one of the

@@ -1,24 +1,8 @@
-"""Reward terms of whole-body motion tracking (BeyondMimic).
-
-Each term is a free function ``f(env, **params) -> Tensor`` of Shape: (num_envs,), reading
-``env.state`` (a :class:`~humimic.tracking.state.TrackingState`). The environment multiplies it
-by the term's weight (and by the policy step, as mjlab does). Tracking terms are
-``exp(-err / std**2)`` with the errors of BeyondMimic (Liao et al., "BeyondMimic: From Motion
-Tracking to Versatile Humanoid Control via Guided Diffusion", 2025); the default stds and
-weights are mjlab's (``mjlab/tasks/tracking/tracking_env_cfg.py``):
-
-========================  ======  ======
-term                      std     weight
-========================  ======  ======
-anchor position           0.3     0.5
-anchor orientation        0.4     0.5
-body positions (rel.)     0.3     1.0
-body orientations (rel.)  0.4     1.0
-body linear velocities    1.0     1.0
-body angular velocities   3.14    1.0
-action rate L2            --      -0.1
-joint limits              --      -10.0
-========================  ======  ======
+"""Reward terms of whole-body motion tracking (BeyondMimic): free functions
+``f(env, **params) -> Tensor`` of Shape: (num_envs,), reading ``env.state`` (a
+:class:`~humimic.tracking.state.TrackingState`). The environment multiplies each by its term's
+weight (and by the policy step, as mjlab does); the default terms, stds and weights are
+:func:`humimic.tracking.config.default_rewards`.
 """
 
 from __future__ import annotations

@@ -486,7 +486,7 @@ class DynamicsRetargeter:
     ) -> tuple[np.ndarray, float]:
         """``cfg.polish_iterations`` of iLQR on a window's plan (Shape: (H, nu), a control
         per control step) from ``state``/``warm`` at frame ``f0``
-        (:func:`humimic.retarget.ilqr.ilqr`, on the nominal model's derivatives and the
+        (:func:`humimic.retarget.dynamics.ilqr.ilqr`, on the nominal model's derivatives and the
         members' exact cost). Returns the polished plan and its cost."""
         H = u.shape[0]
 
