@@ -36,12 +36,13 @@ import numpy as np
 from humimic.configs import DynamicsConfig, RetargetConfig
 from humimic.datasets import load_clip
 from humimic.motion import Motion, motion_from_qpos
-from humimic.real2sim import LogSettings, parse_injection, simulate_log, write_robot_log
+from humimic.real2sim import LogSettings, simulate_log, write_robot_log
 from humimic.real2sim.report import load_fixed_base_log, run_diagnosis
 from humimic.retarget import Retargeter
 from humimic.retarget.dynamics import FLIGHT_CLEARANCE, reference_flight, refine
 from humimic.robots import get_robot
 from humimic.robots.model import nominal_model, robot_xml_path
+from humimic.sim.effects import parse_injection
 from humimic.sim.pinocchio import PinocchioRobot, accelerations, identify_payload, pin
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"

@@ -11,15 +11,10 @@ import numpy as np
 import pytest
 
 from humimic.errors import InputError, UnknownNameError
-from humimic.real2sim import (
-    LogSettings,
-    parse_injection,
-    read_robot_log,
-    simulate_log,
-    write_robot_log,
-)
+from humimic.real2sim import LogSettings, read_robot_log, simulate_log, write_robot_log
 from humimic.robots import get_robot
 from humimic.robots.model import nominal_model, nominal_spec
+from humimic.sim.effects import parse_injection
 from humimic.sim.pinocchio import PayloadFit, PinocchioRobot, accelerations, identify_payload, pin
 
 # Two hinges on one body (the second's axis turned by the first), an unaligned hinge, a
