@@ -14,7 +14,7 @@ echo "== ruff"
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/ruff format --check src tests benchmarks
 echo "== pyright"
-.venv/bin/pyright
+.venv/bin/pyright --project pyproject.toml  # this project's settings, whatever config a parent folder holds
 echo "== pytest"
 # Two workers (pytest-xdist): 12% faster on the 2-core machine (7:57 -> 6:58), where MuJoCo
 # and torch already use both cores part of the time.
