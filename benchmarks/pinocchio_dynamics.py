@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import importlib
 import json
 import os
 import platform
@@ -288,8 +289,8 @@ def ballistic(motion: Motion, refine_seeds: list[int], smooth: float = 1.0) -> d
     t0 = time.perf_counter()
     dp = kkt()
     out["seconds"] = {"numpy_kkt": time.perf_counter() - t0}
-    try:
-        import casadi as ca
+    try:  # Not a dependency of humimic (BENCHMARKS.md says why): measured where installed.
+        ca: Any = importlib.import_module("casadi")
     except ImportError:
         out["casadi"] = "not installed"
     else:
