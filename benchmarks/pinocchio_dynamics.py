@@ -41,6 +41,7 @@ from humimic.real2sim import LogSettings, simulate_log, write_robot_log
 from humimic.real2sim.report import load_fixed_base_log, run_diagnosis
 from humimic.retarget import Retargeter
 from humimic.retarget.dynamics import FLIGHT_CLEARANCE, reference_flight, refine
+from humimic.retarget.dynamics.inverse import com_and_feet
 from humimic.robots import get_robot
 from humimic.robots.model import nominal_model, robot_xml_path
 from humimic.sim.effects import parse_injection
@@ -263,15 +264,8 @@ def ballistic(motion: Motion, refine_seeds: list[int], smooth: float = 1.0) -> d
     references are refined (``humimic refine`` defaults) with each seed."""
     cfg = get_robot(motion.robot)
     mj = nominal_model(cfg)
-    data = mujoco.MjData(mj)
-    feet = [mj.body(b).id for b in cfg.feet.values()]
     T, dt = motion.num_frames, 1.0 / motion.fps
-    com, foot_z = np.zeros((T, 3)), np.zeros((T, len(feet)))
-    for t in range(T):
-        data.qpos[:] = motion.qpos[t]
-        mujoco.mj_kinematics(mj, data)
-        mujoco.mj_comPos(mj, data)
-        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
+    com, foot_z = com_and_feet(mj, motion)
     air = (foot_z > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
     flight = [t for t in range(1, T - 1) if air[t]]
     D2 = np.zeros((T - 2, T))

@@ -5,6 +5,8 @@ Names load on first use, so that reading the registry does not import MuJoCo.
 
 from typing import TYPE_CHECKING
 
+from humimic.lazy import lazy_attributes
+
 if TYPE_CHECKING:
     from humimic.robots.actuators import ActuatorRecipe, JointActuator, MotorSpec
     from humimic.robots.model import export_nominal, nominal_model, nominal_spec
@@ -25,13 +27,7 @@ _WHERE = {
 """Name -> the module that defines it."""
 
 
-def __getattr__(name: str) -> object:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'humimic.robots' has no attribute {name!r}")
-    import importlib
-
-    return getattr(importlib.import_module(_WHERE[name]), name)
-
+__getattr__ = lazy_attributes(__name__, _WHERE)
 
 __all__ = [
     "ROBOTS",

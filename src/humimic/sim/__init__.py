@@ -8,6 +8,8 @@ so that reading a profile or a physics file does not import torch.
 
 from typing import TYPE_CHECKING
 
+from humimic.lazy import lazy_attributes
+
 if TYPE_CHECKING:
     from humimic.sim.backend import MujocoCpuBackend, PhysicsBackend, PhysicsReadout, TensorBackend
     from humimic.sim.effects import EFFECTS, Correction, Effect, Injection, parse_injection
@@ -70,13 +72,7 @@ _WHERE = {
 """Name -> the module that defines it."""
 
 
-def __getattr__(name: str) -> object:
-    if name not in _WHERE:
-        raise AttributeError(f"module 'humimic.sim' has no attribute {name!r}")
-    import importlib
-
-    return getattr(importlib.import_module(_WHERE[name]), name)
-
+__getattr__ = lazy_attributes(__name__, _WHERE)
 
 __all__ = [
     "DEFAULT_SIM_DT",

@@ -87,6 +87,24 @@ FLIGHT_CLEARANCE = 0.05
 """Both feet this far [m] above their lowest in the clip: a flight frame."""
 
 
+def com_and_feet(model: mujoco.MjModel, motion: Motion) -> tuple[np.ndarray, np.ndarray]:
+    """The robot's centre of mass and its feet's heights in every frame of a motion.
+
+    Returns:
+        ``com`` [m], Shape: (T, 3), and the foot bodies' heights [m], Shape: (T, feet).
+    """
+    data = mujoco.MjData(model)
+    feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
+    T = motion.num_frames
+    com, foot_z = np.zeros((T, 3)), np.zeros((T, len(feet)))
+    for t in range(T):
+        data.qpos[:] = motion.qpos[t]
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)
+        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
+    return com, foot_z
+
+
 def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float | int]:
     """How ballistic a reference's flight phases are: the frames where both feet are
     :data:`FLIGHT_CLEARANCE` above their lowest, and the mean vertical acceleration of the
@@ -103,15 +121,7 @@ def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float |
         ``gravity_z`` [m/s^2], ``ballistic_gap_mm`` (NaN without a flight phase of 3
         frames).
     """
-    data = mujoco.MjData(model)
-    feet = [model.body(b).id for b in get_robot(motion.robot).feet.values()]
-    T = motion.num_frames
-    com, foot_z = np.zeros((T, 3)), np.zeros((T, len(feet)))
-    for t in range(T):
-        data.qpos[:] = motion.qpos[t]
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        com[t], foot_z[t] = data.subtree_com[1], data.xpos[feet, 2]
+    com, foot_z = com_and_feet(model, motion)
     acc_z = (com[2:, 2] - 2 * com[1:-1, 2] + com[:-2, 2]) * motion.fps**2
     airborne = (foot_z > foot_z.min(axis=0) + FLIGHT_CLEARANCE).all(axis=1)
     flight = airborne[1:-1]
@@ -127,7 +137,7 @@ def reference_flight(motion: Motion, model: mujoco.MjModel) -> dict[str, float |
     gap = np.concatenate(gaps) if gaps else np.zeros(0)
     return {
         "flight_frames": int(flight.sum()),
-        "frames": T,
+        "frames": motion.num_frames,
         "com_z_acc_in_flight": float(acc_z[flight].mean()) if flight.any() else float("nan"),
         "gravity_z": gz,
         "ballistic_gap_mm": 1000.0 * float(np.sqrt(np.mean(gap**2))) if gap.size else float("nan"),
