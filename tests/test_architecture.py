@@ -27,7 +27,7 @@ ALLOWED: dict[str, set[str]] = {
     "cli": INPUTS | {"sim", "configs", "viewer", "pipeline"} | PARTS,
 }
 """Layer -> the layers it may import (its own always). ``core`` is the top-level modules
-(errors, io, transforms, motion, npyio)."""
+(errors, io, transforms, motion, npyio, lazy)."""
 
 
 def layer(module: str) -> str:
