@@ -84,7 +84,8 @@ def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
     logged efforts, or the drives' PD law from the held commands when the log has none.
 
     Returns:
-        ``mass`` and ``mass_std`` [kg], ``rows`` used and ``seconds``.
+        ``mass`` and ``mass_std`` [kg], ``rows`` used and ``seconds``; or ``error``, why the
+        log cannot size it (no sample moves the joints that carry the body).
     """
     from humimic.robots import nominal_model
     from humimic.sim.pinocchio import PinocchioRobot, accelerations, identify_payload
@@ -99,7 +100,10 @@ def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
         i = log.command_index(log.t)
         tau = log.kp[i] * (log.cmd_q[i] - log.q) + log.kd[i] * (log.cmd_qd[i] - log.qd)
         tau, source = tau + log.cmd_tau[i], "PD law of the commands"
-    f = identify_payload(pr, log.q, log.qd, qdd, tau, body, samples=fit)
+    try:
+        f = identify_payload(pr, log.q, log.qd, qdd, tau, body, samples=fit)
+    except InputError as e:
+        return {"method": "torque regressor (Pinocchio)", "error": str(e)}
     return {"method": "torque regressor (Pinocchio), instrumental variables", "torques": source,
             "mass": f.mass, "mass_std": f.mass_std, "rows": f.rows,
             "seconds": time.perf_counter() - t0}  # fmt: skip
@@ -151,6 +155,11 @@ def run_diagnosis(
                              backlash_model=backlash_models(robot, log.base_pose))  # fmt: skip
     corrected = diagnosis.correction or nominal
     after = held.error(corrected)
+    # The second estimate of each claimed payload, before anything is written.
+    effects = [_effect_entry(f) for f in diagnosis.findings]
+    for f, entry in zip(diagnosis.findings, effects, strict=True):
+        if f.effect == "payload_mass" and f.confidence >= CLAIM:
+            entry["regression"] = payload_regression(robot, log, f.target)
     names = log.joint_names
     share, standout = _unexplained(before, after)
     # Unexplained: much of the excess error is left, and some joint still stands out (a clean
@@ -177,10 +186,6 @@ def run_diagnosis(
     ]
     export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
     plots = _plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
-    effects = [_effect_entry(f) for f in diagnosis.findings]
-    for f, entry in zip(diagnosis.findings, effects, strict=True):
-        if f.effect == "payload_mass" and f.confidence >= CLAIM:
-            entry["regression"] = payload_regression(robot, log, f.target)
     report = {
         "robot": robot.name,
         "log": str(log_path),
@@ -271,7 +276,7 @@ def _markdown(
             f"{e['regression']['torques']}) gives {e['regression']['mass']:.4g} +- "
             f"{e['regression']['mass_std']:.2g} kg.\n"
             for e in report["effects"]
-            if "regression" in e
+            if "mass" in e.get("regression", {})
         ],
         "Per-joint held-out error (mrad), before -> after:",
         "",
