@@ -121,9 +121,9 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
         first_line,
-        read_run_settings,
         resolve_checkpoint,
         resolved_source,
+        run_config,
         run_files,
         run_rsl_cfg,
         yaml_ready,
@@ -133,8 +133,9 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     s = settings
     has_run = check_run_settings(s)
     _check_outputs(s)
-    teacher = read_run_settings(s.teacher)
-    teacher_cfg = run_rsl_cfg(s.teacher)
+    recorded = run_config(s.teacher)
+    teacher = recorded[1]
+    teacher_cfg = run_rsl_cfg(s.teacher, recorded)
     if teacher_cfg["algorithm"]["class_name"] != "PPO":
         raise InputError(f"--teacher {s.teacher}: not a PPO run (a student cannot teach)")
     inputs: dict[str, Any] = {**run_files(s.teacher), "the teacher's motion": teacher.motion}

@@ -173,15 +173,16 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
         load_weights,
-        read_run_settings,
         resolve_checkpoint,
+        run_config,
         run_rsl_cfg,
     )
     from humimic.tracking.train import load_reference, task_config
 
     s = settings
     s.validate()
-    run = read_run_settings(s.run)
+    recorded = run_config(s.run)
+    run = recorded[1]
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
     motion_path = s.motion if s.motion is not None else run.motion
@@ -210,7 +211,7 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
     torch.manual_seed(s.seed)
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
-        runner = make_runner(env, run_rsl_cfg(s.run), log_dir=None, device=s.device)
+        runner = make_runner(env, run_rsl_cfg(s.run, recorded), log_dir=None, device=s.device)
         load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
         policy = runner.get_inference_policy(device=s.device)
         policy_trace = _Trace()

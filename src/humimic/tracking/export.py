@@ -28,13 +28,14 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
         load_weights,
-        read_run_settings,
         resolve_checkpoint,
+        run_config,
         run_rsl_cfg,
     )
     from humimic.tracking.train import load_reference, task_config
 
-    settings = read_run_settings(run)
+    recorded = run_config(run)
+    settings = recorded[1]
     path, blob = resolve_checkpoint(run, checkpoint)
     if not settings.motion.is_file():  # The env needs it for the observation sizes.
         raise InputError(f"{run}: the run's motion {settings.motion} is missing (moved?)")
@@ -42,7 +43,7 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
     motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)
     try:
-        runner = make_runner(env, run_rsl_cfg(run), log_dir=None, device=device)
+        runner = make_runner(env, run_rsl_cfg(run, recorded), log_dir=None, device=device)
         load_weights(runner, blob, path, "--checkpoint" if checkpoint else "checkpoint")
     except BaseException:
         env.close()
@@ -102,16 +103,17 @@ def export(settings: ExportSettings) -> Path:
             run's files, the motion or the checkpoint, or a checkpoint that does not load;
             nothing is written.
     """
-    from humimic.tracking.runs import read_run_settings, run_files, run_rsl_cfg
+    from humimic.tracking.runs import run_config, run_files, run_rsl_cfg
 
     settings.validate()
     out = settings.out or settings.run / "policy.onnx"
-    run = read_run_settings(settings.run)
+    recorded = run_config(settings.run)
+    run = recorded[1]
     inputs = {**run_files(settings.run), "the motion": run.motion,
               "--checkpoint": settings.checkpoint}  # fmt: skip
     check_not_input(out, inputs, "--out")
     check_writable(out)
-    cfg = run_rsl_cfg(settings.run)
+    cfg = run_rsl_cfg(settings.run, recorded)
     if "physics" in cfg["obs_groups"].get("actor", ()):
         raise InputError(
             f"{settings.run}: a teacher's actor reads the simulator's physics parameters, which "

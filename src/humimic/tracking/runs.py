@@ -257,10 +257,13 @@ def read_run_settings(run: Path) -> TrainSettings:
     return run_config(run)[1]
 
 
-def run_rsl_cfg(run: Path) -> dict[str, Any]:
+def run_rsl_cfg(
+    run: Path, recorded: tuple[dict[str, Any], TrainSettings] | None = None
+) -> dict[str, Any]:
     """The rsl_rl ``train_cfg`` of a run: a PPO run's from its settings, a student's
-    (``humimic distill``) as stored in its config.yaml."""
-    config, settings = run_config(run)
+    (``humimic distill``) as stored in its config.yaml (``recorded``: what
+    :func:`run_config` already read of it)."""
+    config, settings = recorded or run_config(run)
     if config.get("kind") != "student":
         return train_cfg(ppo_for(settings))
     if "rsl" not in config:
