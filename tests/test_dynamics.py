@@ -132,20 +132,20 @@ def test_eval_open_loop_targets_of_a_refined_motion() -> None:
     control step; a section that does not fit the task is refused, not reinterpreted."""
     from types import SimpleNamespace
 
+    from humimic.tracking.actions import stored_targets
     from humimic.tracking.config import g1_tracking
-    from humimic.tracking.evaluate import _stored_targets
 
     task = g1_tracking("none")
     d, frames = task.decimation, 5
     per_frame = np.arange(4 * 29, dtype=float).reshape(4, 29)
     dyn = {"ctrl": per_frame.repeat(d, axis=0), "physics_dt": np.float64(task.sim_dt)}
     refined = SimpleNamespace(dynamics=dyn, num_frames=frames)
-    np.testing.assert_array_equal(_stored_targets(refined, task), per_frame)
-    assert _stored_targets(SimpleNamespace(dynamics=None, num_frames=frames), task) is None
+    np.testing.assert_array_equal(stored_targets(refined, task.sim_dt, d), per_frame)
+    assert stored_targets(SimpleNamespace(dynamics=None, num_frames=frames), task.sim_dt, d) is None
     varying = dict(dyn, ctrl=np.arange(16 * 29, dtype=float).reshape(16, 29))
     for bad in (dict(dyn, physics_dt=np.float64(0.002)), varying):
         with pytest.raises(InputError, match="refine the motion again"):
-            _stored_targets(SimpleNamespace(dynamics=bad, num_frames=frames), task)
+            stored_targets(SimpleNamespace(dynamics=bad, num_frames=frames), task.sim_dt, d)
 
 
 @pytest.mark.parametrize("g", [9.81, 3.0])
@@ -301,3 +301,70 @@ def test_polish_models_the_samplers_cost() -> None:
         modelled += r @ r + weight * dyn.cfg.effort_weight * np.mean((tau / dyn.effort) ** 2)
     assert exact > 0.01
     assert modelled == pytest.approx(exact, rel=0.15), (modelled, exact)
+
+
+def test_feedforward_base_at_zero_residual_replays_the_stored_controls(shared_data: Path) -> None:
+    """With the ``feedforward`` action base a zero action sends exactly the PD targets
+    ``humimic refine`` stored, and an episode from the first frame (no noise, nominal
+    physics) retraces the refined trajectory: the env resets to the stored simulated state."""
+    import torch
+
+    from humimic.tracking.config import AdaptiveSampling, ResetNoise, g1_tracking
+    from humimic.tracking.env import TrackingEnv
+
+    motion, _ = _refined(shared_data)
+    assert motion.dynamics is not None
+    task = replace(
+        g1_tracking("none"), action_base="feedforward", start_frame=0,
+        reset=ResetNoise(pose=((0.0, 0.0),) * 6, velocity=((0.0, 0.0),) * 6,  # type: ignore[arg-type]
+                         joint_pos=(0.0, 0.0)),
+        adaptive=AdaptiveSampling(enabled=False), episode_length_s=10.0,
+    )  # fmt: skip
+    env = TrackingEnv(task, motion, 2)
+    try:
+        ctrl, d = motion.dynamics["ctrl"], task.decimation
+        states = motion.dynamics["qpos"]
+        worst = 0.0
+        for f in range(motion.num_frames - 2):
+            env.step(torch.zeros(2, env.num_actions))
+            np.testing.assert_allclose(env.joint_targets[0].numpy(), ctrl[f * d], atol=1e-6)
+            qpos = env.backend.read().qpos[0]
+            worst = max(worst, float(np.abs(qpos - states[(f + 1) * d - 1]).max()))
+        assert worst < 2e-3, worst  # float32 targets: the same trajectory, not bit for bit.
+    finally:
+        env.close()
+
+
+def test_feedback_base_corrects_a_perturbed_start(shared_data: Path) -> None:
+    """From a start pushed sideways and tilted (the reset's velocity offsets, fixed), the
+    ``feedback`` base's LQR brings the posture back to the refined trajectory; the stored
+    controls alone (``feedforward``) do not. Measured at the clip's end: the body positions
+    relative to the root (the posture) and in the world."""
+    import torch
+
+    from humimic.tracking.config import AdaptiveSampling, ResetNoise, g1_tracking
+    from humimic.tracking.env import TrackingEnv
+
+    motion, _ = _refined(shared_data)
+    kick = ((0.0, 0.0), (0.3, 0.3), (0.0, 0.0), (0.5, 0.5), (0.0, 0.0), (0.0, 0.0))
+    posture, world = {}, {}
+    for base in ("feedforward", "feedback"):
+        task = replace(
+            g1_tracking("none"), action_base=base, start_frame=0, episode_length_s=10.0,
+            reset=ResetNoise(pose=((0.0, 0.0),) * 6, velocity=kick, joint_pos=(0.0, 0.0)),  # type: ignore[arg-type]
+            adaptive=AdaptiveSampling(enabled=False),
+        )  # fmt: skip
+        env = TrackingEnv(task, motion, 1)
+        try:
+            for _ in range(motion.num_frames - 2):
+                _, _, done, _ = env.step(torch.zeros(1, env.num_actions))
+                assert not bool(done[0]), base  # Neither falls within the clip.
+            s = env.state
+            err = s.body_pos_w - s.ref_body_pos_w
+            world[base] = float(err.norm(dim=-1).mean())
+            r = s.root_index
+            posture[base] = float((err - err[:, r : r + 1]).norm(dim=-1).mean())
+        finally:
+            env.close()
+    assert posture["feedback"] < 0.5 * posture["feedforward"], posture
+    assert world["feedback"] < world["feedforward"], world

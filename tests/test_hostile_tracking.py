@@ -45,7 +45,8 @@ def _write_motion(path: Path) -> Path:
 def _train_args(motion: Path | str, out: Path | str, iterations: int, *extra: str) -> list[str]:
     return ["train", "--motion", str(motion), "--out", str(out), "--num-envs", "2",
             "--max-iterations", str(iterations), "--num-steps-per-env", "4", "--dr", "none",
-            "--checkpoint-every", "1", "--quiet", *extra]  # fmt: skip
+            "--checkpoint-every", "1", "--task.action-base", "default", "--quiet",
+            *extra]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

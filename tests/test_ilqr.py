@@ -5,7 +5,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from humimic.retarget.dynamics.ilqr import control_step_jacobians, ilqr
+from humimic.retarget.dynamics.ilqr import ilqr
+from humimic.sim.lqr import control_step_jacobians
 
 ARM = """
 <mujoco>
@@ -157,3 +158,35 @@ def test_polish_lowers_a_nonlinear_cost_within_bounds() -> None:
         assert abs(cost(u) - out.cost) < 1e-12
     assert np.all(u >= lo) and np.all(u <= hi)
     assert costs[-1] < 0.05 * costs[0], costs
+
+
+def test_riccati_gains_equal_the_batch_least_squares_optimum() -> None:
+    """The Riccati recursion's first gain is the finite-horizon LQR optimum found another
+    way: the whole problem as one least-squares solve over every control, from each unit
+    initial state."""
+    from humimic.sim.lqr import riccati
+
+    rng = np.random.default_rng(2)
+    nx, nu, H = 4, 2, 6
+    A = np.stack([np.eye(nx) + 0.2 * rng.normal(size=(nx, nx)) for _ in range(H)])
+    B = rng.normal(size=(H, nx, nu))
+    qd, r = np.array([1.0, 2.0, 0.5, 3.0]), 0.7
+    lxx = np.broadcast_to(np.diag(qd), (H + 1, nx, nx)).copy()
+    luu = np.broadcast_to(r * np.eye(nu), (H, nu, nu)).copy()
+    out = riccati(np.zeros((H + 1, nx)), lxx, np.zeros((H, nu)), luu, A, B, 0.0)
+    assert out is not None
+    K0 = out[1][0]
+    # x_t = S_t x0 + sum_k G_tk u_k; cost sum_t x_t' Q x_t / 2 + r |u|^2 / 2 (x_0 included).
+    S, G = [np.eye(nx)], [np.zeros((nx, H * nu))]
+    for t in range(H):
+        S.append(A[t] @ S[-1])
+        g = A[t] @ G[-1]
+        g[:, t * nu : (t + 1) * nu] += B[t]
+        G.append(g)
+    w = np.sqrt(qd)[:, None]
+    M = np.vstack([w * g for g in G] + [np.sqrt(r) * np.eye(H * nu)])
+    for i in range(nx):
+        x0 = np.eye(nx)[i]
+        rhs = -np.concatenate([w[:, 0] * (s @ x0) for s in S] + [np.zeros(H * nu)])
+        u = np.linalg.lstsq(M, rhs, rcond=None)[0]
+        np.testing.assert_allclose(K0 @ x0, u[:nu], atol=1e-9)

@@ -26,7 +26,8 @@ def base_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     save_motion(motion_from_qpos(m, q, 30.0, "g1"), folder / "stand.npz")
     run = folder / "base"
     args = ["train", "--motion", str(folder / "stand.npz"), "--out", str(run), "--num-envs", "8",
-            "--max-iterations", "2", "--num-steps-per-env", "8", "--dr", "none", "--quiet"]  # fmt: skip
+            "--max-iterations", "2", "--num-steps-per-env", "8", "--dr", "none",
+            "--task.action-base", "default", "--quiet"]  # fmt: skip
     assert main(args) == 0
     return run
 

@@ -54,7 +54,7 @@ def motion(model: mujoco.MjModel) -> Motion:
 def make_env(
     model: mujoco.MjModel, motion: Motion, n: int = 4, dr: str = "default", **kw
 ) -> TrackingEnv:
-    cfg = replace(g1_tracking(dr), **kw)
+    cfg = replace(g1_tracking(dr), **{"action_base": "default", **kw})  # A kinematic clip.
     return TrackingEnv(cfg, motion, n, model=model)
 
 
@@ -65,7 +65,7 @@ def make_env(
 def test_every_registered_task_steps_without_nan(robot: str) -> None:
     """Each registered task builds its model and env, resets, and takes steps under DR with
     strong random actions: every observation group and reward stays finite."""
-    cfg = tracking_task(robot, "default")
+    cfg = replace(tracking_task(robot, "default"), action_base="default")
     task_model = tracking_model(cfg)
     T = 50
     q = np.tile(task_model.key_qpos[0], (T, 1))
@@ -322,7 +322,7 @@ def test_yaml_profile(tmp_path: Path) -> None:
 
 
 def test_adaptive_sampling_favours_failing_bins(model: mujoco.MjModel, motion: Motion) -> None:
-    cfg = replace(g1_tracking("none"), adaptive=AdaptiveSampling(alpha=0.5))
+    cfg = replace(g1_tracking("none"), adaptive=AdaptiveSampling(alpha=0.5), action_base="default")
     env = TrackingEnv(cfg, motion, 2, model=model)
     before = env.sampling_weights.clone()
     assert torch.allclose(before, torch.full_like(before, 1 / len(before)))
@@ -475,3 +475,67 @@ def test_batched_set_const_equals_mujocos(model: mujoco.MjModel) -> None:
                                        err_msg=name)  # fmt: skip
     # The fields do differ between the models (the test is not of one model five times).
     assert np.ptp(out["dof_invweight0"].numpy()[:, 10]) > 1e-3
+
+
+# ---------------------------------------------------------------------------- action bases
+
+
+@pytest.mark.parametrize("base", ["default", "reference"])
+def test_action_base_sets_the_pd_targets(model: mujoco.MjModel, motion: Motion, base: str) -> None:
+    """PD target = base(frame) + scale * action: the default pose, or the reference's next
+    frame (``reference``), whatever frame each env is at; a base-relative action of the
+    targets (``action_for_targets``) gives them back."""
+    env = make_env(model, motion, n=3, dr="none", action_base=base)
+    try:
+        env.state.frame[:] = torch.tensor([0, 10, 73])
+        gen = torch.Generator().manual_seed(3)
+        a = torch.randn(3, env.num_actions, generator=gen)
+        frames = env.state.frame.clone()
+        expected_base = (
+            env.default_joint_pos.expand(3, -1)
+            if base == "default"
+            else env.reference_joint_pos[(frames + 1).clamp(max=env.num_frames - 1)]
+        )
+        np.testing.assert_allclose(
+            env.action_for_targets(expected_base + 0.1).numpy(),
+            (0.1 / env.action_scale).expand(3, -1).numpy(),
+            rtol=1e-5,
+        )
+        env.step(a)
+        np.testing.assert_allclose(
+            env.joint_targets.numpy(), (expected_base + env.action_scale * a).numpy(), atol=1e-6
+        )
+        # The frames differ, so the reference base differs between envs (the default not).
+        spread = float((env.joint_targets - env.action_scale * a).std(dim=0).max())
+        assert (spread > 1e-3) == (base == "reference")
+    finally:
+        env.close()
+
+
+def test_feedforward_base_needs_stored_controls(model: mujoco.MjModel, motion: Motion) -> None:
+    with pytest.raises(InputError, match=r"feedforward.*humimic refine"):
+        make_env(model, motion, n=2, dr="none", action_base="feedforward")
+    with pytest.raises(InputError, match="action_base"):
+        make_env(model, motion, n=2, dr="none", action_base="residual")
+
+
+def test_actor_output_gain_starts_the_policy_at_its_base(
+    model: mujoco.MjModel, motion: Motion
+) -> None:
+    """A zero gain makes the initial actor's mean output zero (the action base itself) for any
+    observation; gain 1 leaves PyTorch's initialization alone."""
+    from humimic.tracking.rsl import make_runner, scale_actor_output
+
+    env = make_env(model, motion, n=4, dr="default")
+    try:
+        cfg = PpoConfig(actor_hidden_dims=(16,), critic_hidden_dims=(16,), num_steps_per_env=2)
+        runner = make_runner(env, train_cfg(cfg), log_dir=None, device="cpu")
+        obs = env.get_observations()
+        policy = runner.get_inference_policy(device="cpu")
+        before = policy(obs).clone()
+        scale_actor_output(runner, 1.0)
+        assert torch.equal(policy(obs), before) and float(before.abs().max()) > 1e-3
+        scale_actor_output(runner, 0.0)
+        assert float(policy(obs).abs().max()) == 0.0
+    finally:
+        env.close()

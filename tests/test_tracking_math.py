@@ -97,3 +97,24 @@ def test_matrix_forms_match_quaternion_math(quats: tuple[np.ndarray, ...]) -> No
     np.testing.assert_allclose(turned, tf.quat_mul(yaw, b), atol=1e-12)
     rotated = np.einsum("...ij,...j->...i", tm.yaw_rotation_matrix(h).numpy(), v)
     np.testing.assert_allclose(rotated, np.einsum("...ij,...j->...i", tf.quat_to_matrix(yaw), v))
+
+
+def test_quat_log_matches_mujocos_quaternion_difference() -> None:
+    """``quat_log(conj(a) * b)`` is MuJoCo's ``mju_subQuat(b, a)`` (the tangent that the
+    ``feedback`` action base feeds its gains), on both sides of a half turn."""
+    import mujoco
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(50, 4))
+    b = rng.normal(size=(50, 4))
+    b[:5] = -a[:5] + 0.01 * rng.normal(size=(5, 4))  # Nearly the same rotation, sign flipped.
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    ta, tb = torch.as_tensor(a), torch.as_tensor(b)
+    got = tm.quat_log(tm.quat_conj_mul(ta, tb)).numpy()
+    want = np.zeros((50, 3))
+    for i in range(50):
+        mujoco.mju_subQuat(want[i], b[i], a[i])
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    assert np.linalg.norm(got[:5], axis=1).max() < 0.1  # The short way round.
+    assert tm.quat_log(torch.tensor([1.0, 0.0, 0.0, 0.0])).abs().max() == 0.0

@@ -41,7 +41,8 @@ def motion_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _train_args(motion: Path, out: Path, iterations: int, *extra: str) -> list[str]:
     return ["train", "--motion", str(motion), "--out", str(out), "--num-envs", "8",
             "--max-iterations", str(iterations), "--num-steps-per-env", "8", "--dr", "none",
-            "--checkpoint-every", "2", "--quiet", *extra]  # fmt: skip
+            "--checkpoint-every", "2", "--task.action-base", "default", "--quiet",
+            *extra]  # fmt: skip
 
 
 def test_reference_is_resampled_to_the_policy_rate(motion_file: Path) -> None:

@@ -140,7 +140,8 @@ def test_the_env_reads_the_same_through_either_backend(model: mujoco.MjModel, de
     # devices); no torch random numbers, whose streams differ between CPU and CUDA: a fixed
     # start frame, no observation noise, no pushes.
     base = g1_tracking("default")
-    cfg = replace(base, start_frame=0, dr=replace(base.dr, obs_noise=None, push_interval_s=None))
+    cfg = replace(base, start_frame=0, dr=replace(base.dr, obs_noise=None, push_interval_s=None),
+                  action_base="default")  # fmt: skip
     envs = [
         TrackingEnv(replace(cfg, step_method="threads", num_threads=1), motion, N, model=model),
         TrackingEnv(replace(cfg, backend="warp"), motion, N, model=model, device=device),

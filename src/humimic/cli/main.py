@@ -14,6 +14,7 @@ from humimic.configs.runs import (
     DistillSettings,
     EvalSettings,
     ExportSettings,
+    ImitateSettings,
     LoopSettings,
     TrainSettings,
 )
@@ -37,6 +38,7 @@ RUNNERS: dict[type, Callable[[Any], int | None]] = {
     EvalSettings: track.run_eval,
     ExportSettings: track.run_export,
     LoopSettings: track.run_loop,
+    ImitateSettings: track.run_imitate,
 }
 """Command type -> its runner, which returns the exit code (None: 0)."""
 
@@ -60,6 +62,7 @@ def commands(argv: list[str]) -> Any:
         | Annotated[EvalSettings, tyro.conf.subcommand("eval")]
         | Annotated[ExportSettings, tyro.conf.subcommand("export")]
         | Annotated[LoopSettings, tyro.conf.subcommand("loop")]
+        | Annotated[ImitateSettings, tyro.conf.subcommand("imitate")]
     )  # fmt: skip
 
 

@@ -3,22 +3,32 @@ settings are :mod:`humimic.configs.runs`)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from humimic.configs.runs import (
     DistillSettings,
     EvalSettings,
     ExportSettings,
+    ImitateSettings,
     LoopSettings,
     TrainSettings,
 )
 
 
 def run_train(cmd: TrainSettings) -> None:
-    """Run ``humimic train``."""
+    """Run ``humimic train`` (refining its motion first when the run needs a refined one:
+    :func:`~humimic.pipeline.reference.prepare_reference`, inside ``--max-minutes``)."""
+    import time
+
+    from humimic.pipeline.reference import prepare_reference
     from humimic.tracking.distributed import Ranks
     from humimic.tracking.train import train
 
-    last = train(cmd)
-    if last and Ranks.from_env().main:  # Under torchrun, rank 0 speaks for the run.
+    started = time.perf_counter()
+    ranks = Ranks.from_env()
+    settings = prepare_reference(cmd, quiet=cmd.quiet, may_refine=not ranks.distributed)
+    last = train(settings, started=started)
+    if last and ranks.main:  # Under torchrun, rank 0 speaks for the run.
         print(f"{cmd.out}: {int(last['iteration'])} iterations, mean reward "
               f"{last.get('mean_reward', float('nan')):.4g}, mean episode length "
               f"{last.get('mean_episode_length', float('nan')):.1f} steps")  # fmt: skip
@@ -58,6 +68,21 @@ def run_export(cmd: ExportSettings) -> None:
     from humimic.tracking.export import export
 
     print(f"wrote {export(cmd)}")
+
+
+def run_imitate(cmd: ImitateSettings) -> None:
+    """Run ``humimic imitate``; the rollout's screenshot comes from ``humimic view``."""
+    from humimic.pipeline.imitate import imitate
+
+    def screenshot(motion: Path, rollout: Path, png: Path) -> None:
+        from humimic.cli.view import ViewCommand, run_view
+
+        run_view(ViewCommand(motion=motion, rollout=rollout, screenshot=png, port=0))
+
+    r = imitate(cmd, screenshot=screenshot if cmd.screenshot else None)
+    dr = r["eval"]["dr_default"]["policy"]
+    print(f"DR default: success {100 * dr['success_rate']:.0f}%, global MPJPE "
+          f"{dr['mpjpe_global_mm']:.0f} mm, root-relative {dr['mpjpe_root_mm']:.0f} mm")  # fmt: skip
 
 
 def run_loop(cmd: LoopSettings) -> None:

@@ -19,6 +19,9 @@ def shipped_physics() -> tuple[str, ...]:
     )
 
 
+ActionBaseName = Literal["default", "reference", "feedforward", "feedback"]
+"""What a tracking policy's action is added to (:mod:`humimic.tracking.actions`)."""
+
 if TYPE_CHECKING:
     RobotName = str
     RetargetPreset = str
@@ -35,4 +38,11 @@ else:
     """A domain-randomization profile (:data:`humimic.sim.randomization.DR_PROFILES`), or the
     path of a profile file."""
 
-__all__ = ["DrChoice", "PhysicsChoice", "RetargetPreset", "RobotName", "shipped_physics"]
+__all__ = [
+    "ActionBaseName",
+    "DrChoice",
+    "PhysicsChoice",
+    "RetargetPreset",
+    "RobotName",
+    "shipped_physics",
+]

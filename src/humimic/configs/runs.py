@@ -5,13 +5,13 @@ command calls before any work."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
 
-from humimic.configs.choices import DrChoice, PhysicsChoice, RobotName
+from humimic.configs.choices import ActionBaseName, DrChoice, PhysicsChoice, RobotName
 from humimic.errors import InputError
 
 MAX_SEED = 2**32 - 1
@@ -21,6 +21,26 @@ MAX_SEED = 2**32 - 1
 MAX_NUM_ENVS = 65_536
 """The most parallel environments (``--num-envs``, ``--episodes``) one process simulates:
 their states are allocated at once, and more than this exhausts a machine's memory."""
+
+GPU_NUM_ENVS = 4096
+"""``--num-envs`` by default on a GPU (BeyondMimic's)."""
+
+CPU_NUM_ENVS = 128
+"""``--num-envs`` by default on the CPU: enough samples per PPO iteration at the ~6k env steps/s
+of a 2-core machine that an iteration takes about a second (BENCHMARKS.md, issue 25)."""
+
+
+def default_num_envs(device: str) -> int:
+    """The default number of parallel envs on ``device`` (:data:`GPU_NUM_ENVS` on a GPU,
+    :data:`CPU_NUM_ENVS` on the CPU)."""
+    return CPU_NUM_ENVS if device.split(":")[0] == "cpu" else GPU_NUM_ENVS
+
+
+DEFAULT_ITERATIONS = 1000
+"""``--max-iterations`` by default without ``--max-minutes``."""
+
+TIMED_ITERATIONS = 10**9
+"""``--max-iterations`` by default with ``--max-minutes``: the time decides."""
 
 MAX_STEPS_PER_ENV = 1000
 """The longest ``--num-steps-per-env`` (the PPO rollout buffer holds every env's steps)."""
@@ -116,8 +136,14 @@ class TaskSettings:
 
     episode_length_s: Annotated[float | None, _TASKS] = None
     """Episode length [s]; the clip's end also ends an episode."""
+    action_base: Annotated[ActionBaseName | None, _TASKS] = None
+    """What the scaled action is added to: ``default`` (the default pose, BeyondMimic's),
+    ``reference`` (the next frame's reference joint positions), ``feedforward`` (the PD
+    targets ``humimic refine`` stores) or ``feedback`` (those plus time-varying LQR feedback
+    around the refined trajectory); for the last two train refines a kinematic motion
+    first."""
     action_scale: Annotated[float | None, _TASKS] = None
-    """PD target = default + action_scale * effort limit / kp * action, per joint
+    """PD target = base + action_scale * effort limit / kp * action, per joint
     (BeyondMimic's scaling)."""
     soft_limit_factor: Annotated[float | None, _TASKS] = None
     """Soft joint limits, as a fraction of each joint's range (centred; 0 to 1)."""
@@ -152,7 +178,9 @@ class TaskSettings:
 @dataclass(frozen=True, kw_only=True)
 class PpoConfig:
     """PPO and its actor-critic networks (``--ppo.*``): BeyondMimic's / mjlab's G1 tracking
-    values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``). Turned into rsl_rl's config dict by
+    values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``), except where a residual policy
+    starts (``init_std`` 0.3 instead of 1.0 and ``actor_output_gain`` 0.01: the policy
+    starts at its action base, BENCHMARKS.md, issue 25). Turned into rsl_rl's config dict by
     :func:`humimic.tracking.rsl.train_cfg`.
 
     Attributes:
@@ -161,6 +189,9 @@ class PpoConfig:
         activation: Activation of both MLPs.
         obs_normalization: Empirical observation normalization in both models.
         init_std: Initial action noise standard deviation (scalar parameterization).
+        actor_output_gain: The actor's last layer's initial weights times this, its bias
+            zero (1: PyTorch's initialization): a small gain starts a residual policy (action
+            base ``reference`` or ``feedforward``) at its base.
         learning_rate: Adam learning rate (adapted to ``desired_kl``).
         schedule: ``adaptive`` or ``fixed``.
         desired_kl: Target KL divergence of the adaptive schedule.
@@ -185,7 +216,8 @@ class PpoConfig:
     critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
     activation: tyro.conf.Suppress[str] = "elu"
     obs_normalization: bool = True
-    init_std: float = 1.0
+    init_std: float = 0.3
+    actor_output_gain: float = 0.01
     learning_rate: float = 1e-3
     schedule: Literal["adaptive", "fixed"] = "adaptive"
     desired_kl: float = 0.01
@@ -211,7 +243,9 @@ class PpoConfig:
         """Check the values; :class:`InputError` names the flag (``--ppo.<field>``)."""
         positive = ("init_std", "learning_rate", "desired_kl", "clip_param", "max_grad_norm")
         _check_reals(self, "ppo", positive, positive=True)
-        _check_reals(self, "ppo", ("entropy_coef", "value_loss_coef"), positive=False)
+        _check_reals(
+            self, "ppo", ("entropy_coef", "value_loss_coef", "actor_output_gain"), positive=False
+        )
         for name in ("gamma", "lam"):
             v = getattr(self, name)
             if not 0 < v <= 1:  # NaN fails too.
@@ -240,10 +274,12 @@ class TrainSettings:
     """Run folder (config.yaml, progress.csv, checkpoints/, tensorboard/)."""
     robot: RobotName = "g1"
     """Registry name; must match the motion's."""
-    num_envs: int = 4096
-    """Parallel environments (under torchrun: each process's)."""
-    max_iterations: int = 1000
-    """Total PPO iterations of the run (a resumed run continues up to it)."""
+    num_envs: int | None = None
+    """Parallel environments (under torchrun: each process's); default: 128 on the CPU, 4096
+    on a GPU."""
+    max_iterations: int | None = None
+    """Total PPO iterations of the run (a resumed run continues up to it); default: 1000, or
+    with ``--max-minutes`` as many as the time allows."""
     device: str = "cpu"
     """Torch device of the learner (``cpu``, ``cuda`` or ``cuda:N``). Under torchrun each
     process takes the GPU of its local rank."""
@@ -284,6 +320,15 @@ class TrainSettings:
     ppo: PpoConfig = field(default_factory=PpoConfig)
     """PPO's settings."""
 
+    def sized(self) -> TrainSettings:
+        """The settings with the defaults that depend on others filled in: ``num_envs`` for
+        the device, ``max_iterations`` for the time budget."""
+        limit = self.max_iterations
+        if limit is None:
+            limit = DEFAULT_ITERATIONS if self.max_minutes is None else TIMED_ITERATIONS
+        envs = self.num_envs if self.num_envs is not None else default_num_envs(self.device)
+        return replace(self, num_envs=envs, max_iterations=limit)
+
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
         _at_least(self, ("num_envs", "max_iterations", "checkpoint_every", "num_steps_per_env"))
@@ -309,8 +354,8 @@ class DistillSettings:
     recurrent network on the policy observations)."""
     teacher_checkpoint: Path | None = None
     """The teacher's checkpoint (default: its newest)."""
-    num_envs: int = 4096
-    """Parallel environments."""
+    num_envs: int | None = None
+    """Parallel environments; default: 128 on the CPU, 4096 on a GPU."""
     max_iterations: int = 300
     """Total distillation iterations (a resumed run continues up to it)."""
     device: str = "cpu"
@@ -330,6 +375,14 @@ class DistillSettings:
     seconds at the start; cuts the env's own cost per step, BENCHMARKS.md)."""
     quiet: bool = False
     """No progress bar."""
+
+    def sized(self) -> DistillSettings:
+        """The settings with the device's default for ``num_envs`` when it is unset."""
+        return (
+            self
+            if self.num_envs is not None
+            else replace(self, num_envs=default_num_envs(self.device))
+        )
 
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
@@ -431,6 +484,46 @@ class LoopSettings:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ImitateSettings:
+    """The whole job on one clip: retarget it, train a tracking policy (refining the motion
+    first where the recipe needs it), evaluate it on nominal, randomized and unseen physics,
+    export it to ONNX, and write ``OUT/report.md``."""
+
+    clip: Annotated[Path, tyro.conf.Positional]
+    """The human clip (``.bvh``, ``.npy``, ``.npz`` joint positions), or a robot motion
+    (``.npz`` from ``humimic retarget``) to skip retargeting."""
+    robot: RobotName = "g1"
+    """Registry name."""
+    out: Path
+    """The job's folder (new or empty): motion.npz, run/, eval_*.json, policy.onnx, the
+    plots, report.md."""
+    minutes: float = 30.0
+    """Wall-time budget of training, refining included (the evaluations come after)."""
+    episodes: int = 32
+    """Evaluation episodes per physics."""
+    num_envs: int | None = None
+    """Training envs (default: 128 on the CPU, 4096 on a GPU)."""
+    device: str = "cpu"
+    """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
+    seed: int = 0
+    """Seed of training (evaluations use seed 1, as ``humimic eval``)."""
+    screenshot: bool = True
+    """Take a screenshot of the rollout in the viewer (needs Chromium; the report says so
+    when it is missing)."""
+    quiet: bool = False
+    """No progress bars."""
+
+    def validate(self) -> None:
+        """Check the numbers and the device; :class:`InputError` names the flag."""
+        if not (math.isfinite(self.minutes) and self.minutes > 0):
+            raise InputError(f"--minutes {self.minutes}: must be a positive number of minutes")
+        _at_least(self, ("episodes", "num_envs"))
+        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
+        _check_seed(self.seed)
+        check_device(self.device)
+
+
+@dataclass(frozen=True, kw_only=True)
 class ExportSettings:
     """Export a run's deterministic policy as one self-contained ONNX file for deployment."""
 
@@ -452,6 +545,8 @@ class ExportSettings:
 
 
 __all__ = [
+    "CPU_NUM_ENVS",
+    "GPU_NUM_ENVS",
     "MAX_HIDDEN",
     "MAX_HISTORY",
     "MAX_NUM_ENVS",
@@ -460,9 +555,11 @@ __all__ = [
     "DistillSettings",
     "EvalSettings",
     "ExportSettings",
+    "ImitateSettings",
     "LoopSettings",
     "PpoConfig",
     "TaskSettings",
     "TrainSettings",
     "check_device",
+    "default_num_envs",
 ]

@@ -16,6 +16,7 @@ import torch
 
 from humimic.errors import InputError, UnknownNameError
 from humimic.robots.registry import get_robot
+from humimic.sim.lqr import LqrWeights
 from humimic.sim.physics import Physics
 from humimic.sim.randomization import (
     DomainRandomization,
@@ -26,6 +27,7 @@ from humimic.sim.randomization import (
 from humimic.sim.setup import DEFAULT_SIM_DT, SimSetup, WarpOptions
 from humimic.tracking import rewards as rew
 from humimic.tracking import terminations as term
+from humimic.tracking.actions import ACTION_BASES, ActionBase
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -113,7 +115,13 @@ class TrackingConfig:
         body_names: Tracked bodies (must include the anchor and the robot's root).
         ee_body_names: Bodies of the end-effector height termination.
         undesired_contact_bodies: Bodies that should not touch the floor.
-        action_scale: PD target = default + ``action_scale * effort_limit / kp * action`` per
+        action_base: What the scaled action is added to (:mod:`.actions`): ``default`` (the
+            default pose, BeyondMimic's), ``reference`` (the next frame's reference joint
+            positions), ``feedforward`` (the PD targets stored by ``humimic refine``) or
+            ``feedback`` (those plus time-varying LQR feedback around the refined trajectory).
+        feedback: Costs of the ``feedback`` base's LQR.
+        feedback_limit: The ``feedback`` base's correction is clipped to this [rad] per joint.
+        action_scale: PD target = base + ``action_scale * effort_limit / kp * action`` per
             joint (BeyondMimic's scaling).
         soft_limit_factor: Soft joint limits are this fraction of the range, centred.
         rewards: Reward terms.
@@ -147,6 +155,9 @@ class TrackingConfig:
     body_names: tuple[str, ...]
     ee_body_names: tuple[str, ...]
     undesired_contact_bodies: tuple[str, ...] = ()
+    action_base: ActionBase = "default"
+    feedback: LqrWeights = field(default_factory=LqrWeights)
+    feedback_limit: float = 0.5
     action_scale: float = 0.25
     soft_limit_factor: float = 0.9
     rewards: dict[str, TermConfig]
@@ -187,7 +198,7 @@ class TrackingConfig:
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field."""
-        for name in ("sim_dt", "episode_length_s", "action_scale"):
+        for name in ("sim_dt", "episode_length_s", "action_scale", "feedback_limit"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"tracking.{name}: must be a positive number, got {v}")
@@ -200,6 +211,11 @@ class TrackingConfig:
         if not 0 < self.soft_limit_factor <= 1:
             raise InputError(
                 f"tracking.soft_limit_factor: must be in (0, 1], got {self.soft_limit_factor}"
+            )
+        if self.action_base not in ACTION_BASES:
+            raise InputError(
+                f"tracking.action_base: expected one of {', '.join(ACTION_BASES)}, got "
+                f"{self.action_base!r}"
             )
         if self.backend not in ("cpu", "warp"):
             raise InputError(f"tracking.backend: expected 'cpu' or 'warp', got {self.backend!r}")
@@ -295,10 +311,13 @@ def _task(
     robot: str, ee: tuple[str, ...], undesired: tuple[str, ...], dr: str | DomainRandomization
 ) -> TrackingConfig:
     """A tracking task of the robot's key bodies, anchored at its torso, with BeyondMimic's
-    reward and termination terms."""
+    reward and termination terms, and humimic's CPU recipe: actions are residuals around the
+    refined motion's controls with LQR feedback (the ``feedback`` base, BENCHMARKS.md, issue
+    25; ``action_base="default"`` is BeyondMimic's)."""
     r = get_robot(robot)
     return TrackingConfig(
         robot=robot,
+        action_base="feedback",
         anchor_body=r.torso_body,
         body_names=r.key_bodies,
         ee_body_names=ee,

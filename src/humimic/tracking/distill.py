@@ -130,7 +130,8 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     )
     from humimic.tracking.train import check_run_settings, fit, load_reference, run_env, task_config
 
-    s = settings
+    s = settings.sized()
+    assert s.num_envs is not None  # sized() set it.
     has_run = check_run_settings(s)
     _check_outputs(s)
     recorded = run_config(s.teacher)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -21,9 +22,12 @@ from humimic.sim import randomization as dr_mod
 from humimic.sim.backend import PhysicsBackend, TensorBackend
 from humimic.sim.setup import build_backend as sim_build_backend
 from humimic.sim.setup import build_model
+from humimic.tracking.actions import STORED_BASES, base_table, stored_states
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.math import (
     quat_apply_inverse,
+    quat_conj_mul,
+    quat_log,
     rot6d_from_quat,
     subtract_frame_transforms,
 )
@@ -65,8 +69,8 @@ def tracking_model(
 class TrackingEnv(VecEnv):
     """Whole-body motion tracking, implementing rsl_rl's ``VecEnv``.
 
-    A policy at 50 Hz sets PD position targets ``default + offset + scale * action`` of every
-    joint of a floating-base humanoid simulated at 200 Hz, and is rewarded for following a
+    A policy at 50 Hz sets PD position targets ``base + offset + scale * action`` of every
+    joint (the base: the default pose, the reference or stored feedforward, :mod:`.actions`) of a floating-base humanoid simulated at 200 Hz, and is rewarded for following a
     reference motion (Liao et al., "BeyondMimic: From Motion Tracking to Versatile Humanoid
     Control via Guided Diffusion", 2025). Episodes start at a reference frame (reference state
     initialization, with noise) chosen by BeyondMimic's adaptive sampling, and end on a
@@ -183,17 +187,13 @@ class TrackingEnv(VecEnv):
         )  # fmt: skip
         self._m_split = [len(jidx), len(jidx), 3 * Bt, 4 * Bt, 3 * Bt, 3 * Bt]
         self.num_frames = motion.num_frames
-        root_quat = motion.qpos[:, 3:7].astype(np.float64)
-        root_quat /= np.linalg.norm(root_quat, axis=-1, keepdims=True)
-        self._ref_np = {
-            "root_pos": motion.qpos[:, :3].astype(np.float64),
-            "root_quat": root_quat,
-            "root_rot": tf.quat_to_matrix(root_quat),
-            "root_lin_vel": motion.body_lin_vel_w[:, root_m].astype(np.float64),
-            "root_ang_vel": motion.body_ang_vel_w[:, root_m].astype(np.float64),
-            "joint_pos": np.ascontiguousarray(motion.joint_pos[:, jidx], dtype=np.float64),
-            "joint_vel": np.ascontiguousarray(motion.joint_vel[:, jidx], dtype=np.float64),
-        }
+        # What actions are added to (None: the default pose), indexed by the step's frame.
+        table = base_table(cfg.action_base, motion, jidx, cfg.sim_dt, cfg.decimation)
+        self._base = None if table is None else t(table)
+        self._ref_np = self._reset_reference(motion, jidx, root_m)
+        self._gains: torch.Tensor | None = None
+        if cfg.action_base == "feedback":
+            self._setup_feedback(motion, model)
 
         # Robot constants.
         self.default_joint_pos = t(be.default_joint_pos)
@@ -250,7 +250,7 @@ class TrackingEnv(VecEnv):
         )
         self._reset_noise = dr_mod.Blocks(self._draw_reset_noise)
         max_delay = int(cfg.dr.action_delay[1])
-        self._act_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
+        self._cmd_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
         self._delay = torch.zeros(num_envs, dtype=torch.long, device=dev)
         self._joint_offset = torch.zeros(num_envs, J, device=dev)
         self._params_dim = dr_mod.param_dim(be.num_bodies_total, J)
@@ -334,11 +334,12 @@ class TrackingEnv(VecEnv):
         a = actions.detach().to(self.device, torch.float32)
         s.last_action.copy_(s.action)
         s.action.copy_(a)
-        if self._act_hist.shape[1] > 1:
-            self._act_hist[:, 1:] = self._act_hist[:, :-1].clone()
-        self._act_hist[:, 0] = a
-        applied = self._act_hist[self._arange, self._delay]
-        targets = self.default_joint_pos + self._joint_offset + self.action_scale * applied
+        # DR's action delay holds back the whole command, the base included (a latency
+        # between the controller and the drives).
+        if self._cmd_hist.shape[1] > 1:
+            self._cmd_hist[:, 1:] = self._cmd_hist[:, :-1].clone()
+        self._cmd_hist[:, 0] = self._action_base() + self.action_scale * a
+        targets = self._cmd_hist[self._arange, self._delay] + self._joint_offset
         self._targets = targets
         if self._tensor_backend is not None:
             self._tensor_backend.set_ctrl_tensor(targets)
@@ -399,6 +400,54 @@ class TrackingEnv(VecEnv):
         padded = torch.cat([p, p[-1:].expand(ad.kernel_size - 1)])
         out = torch.nn.functional.conv1d(padded.view(1, 1, -1), self._kernel).view(n)
         return out / out.sum()
+
+    def action_for_targets(self, targets: torch.Tensor) -> torch.Tensor:
+        """The action whose PD targets are ``targets`` at every env's current frame (before
+        DR's joint offsets and delay): ``(targets - base) / scale``. Shape: (num_envs, J)."""
+        return (targets - self._action_base()) / self.action_scale
+
+    def _action_base(self) -> torch.Tensor:
+        """The action base (:mod:`.actions`) at every env's current frame."""
+        if self._base is None:
+            return self.default_joint_pos.expand(self.num_envs, -1)
+        f = self.state.frame
+        if self._gains is None:
+            return self._base[f]
+        r = self.backend.read()
+        qpos = torch.as_tensor(r.qpos, dtype=torch.float32, device=self.device)
+        qvel = torch.as_tensor(r.qvel, dtype=torch.float32, device=self.device)
+        ref_q, ref_v = self._fb_qpos[f], self._fb_qvel[f]
+        # The tangent state difference as mj_differentiatePos(ref, x) and the velocities.
+        dx = torch.cat([qpos[:, :3] - ref_q[:, :3],
+                        quat_log(quat_conj_mul(ref_q[:, 3:7], qpos[:, 3:7])),
+                        qpos[:, 7:] - ref_q[:, 7:], qvel - ref_v], dim=1)  # fmt: skip
+        fb = torch.einsum("nij,nj->ni", self._gains[f], dx)
+        lim = self.cfg.feedback_limit
+        return self._base[f] + fb.clamp(-lim, lim)
+
+    def _setup_feedback(self, motion: Motion, model: mujoco.MjModel | None) -> None:
+        """The ``feedback`` base's time-varying LQR gains around the refined trajectory, on
+        the robot's nominal model (the one ``humimic refine`` plans on): neither DR nor a
+        physics file changes the controller, so a policy meets an unseen robot with the base
+        it trained with."""
+        from humimic.sim.lqr import tvlqr_gains
+
+        states = stored_states(motion, self.cfg.decimation)
+        assert states is not None and self._base is not None  # base_table checked it.
+        qpos, qvel = states
+        nominal = self.cfg.physics is None
+        m = (
+            model
+            if model is not None and nominal
+            else tracking_model(replace(self.cfg, physics=None))
+        )
+        K = tvlqr_gains(m, qpos, qvel, self._base[:-1].double().cpu().numpy(),
+                        self.cfg.decimation, self.cfg.feedback)  # fmt: skip
+        K = np.concatenate([K, np.zeros_like(K[-1:])])  # The last frame: no control step.
+        dev = self.device
+        self._gains = torch.as_tensor(K, dtype=torch.float32, device=dev)
+        self._fb_qpos = torch.as_tensor(qpos, dtype=torch.float32, device=dev)
+        self._fb_qvel = torch.as_tensor(qvel, dtype=torch.float32, device=dev)
 
     def close(self) -> None:
         """Release the backend's threads."""
@@ -552,12 +601,47 @@ class TrackingEnv(VecEnv):
 
         s.action[ids] = 0.0
         s.last_action[ids] = 0.0
-        self._act_hist[ids] = 0.0
+        # Before the first command, the drives hold the start frame's base.
+        start = self.default_joint_pos.expand(n, -1) if self._base is None else self._base[frames]
+        self._cmd_hist[ids] = start.unsqueeze(1).expand(-1, self._cmd_hist.shape[1], -1)
         self.episode_length_buf[ids] = 0
         self._fresh[ids] = True
         if cfg.dr.push_interval_s is not None:
             lo, hi = cfg.dr.push_interval_s
             self._push_timer[ids] = self._rand(lo, hi, (n,))
+
+    def _reset_reference(
+        self, motion: Motion, jidx: list[int], root_m: int
+    ) -> dict[str, np.ndarray]:
+        """The reference states episodes start from (float64): the motion's frames and their
+        finite-difference velocities, or, with the ``feedforward`` base, the simulated states
+        the stored controls continue from (:func:`~humimic.tracking.actions.stored_states`)."""
+        if self.cfg.action_base in STORED_BASES:
+            states = stored_states(motion, self.cfg.decimation)
+            assert states is not None  # base_table has checked the dynamic section.
+            qpos, qvel = states
+            quat = qpos[:, 3:7] / np.linalg.norm(qpos[:, 3:7], axis=-1, keepdims=True)
+            rot = tf.quat_to_matrix(quat)
+            return {
+                "root_pos": qpos[:, :3].copy(),
+                "root_quat": quat,
+                "root_rot": rot,
+                "root_lin_vel": qvel[:, :3].copy(),
+                "root_ang_vel": np.einsum("nij,nj->ni", rot, qvel[:, 3:6]),
+                "joint_pos": np.ascontiguousarray(qpos[:, 7:]),
+                "joint_vel": np.ascontiguousarray(qvel[:, 6:]),
+            }
+        root_quat = motion.qpos[:, 3:7].astype(np.float64)
+        root_quat /= np.linalg.norm(root_quat, axis=-1, keepdims=True)
+        return {
+            "root_pos": motion.qpos[:, :3].astype(np.float64),
+            "root_quat": root_quat,
+            "root_rot": tf.quat_to_matrix(root_quat),
+            "root_lin_vel": motion.body_lin_vel_w[:, root_m].astype(np.float64),
+            "root_ang_vel": motion.body_ang_vel_w[:, root_m].astype(np.float64),
+            "joint_pos": np.ascontiguousarray(motion.joint_pos[:, jidx], dtype=np.float64),
+            "joint_vel": np.ascontiguousarray(motion.joint_vel[:, jidx], dtype=np.float64),
+        }
 
     def _draw_reset_noise(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``n`` draws of the reset noise: the uniform offsets (root pose, root velocity,

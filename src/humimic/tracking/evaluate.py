@@ -17,6 +17,7 @@ import torch
 from humimic.configs.runs import EvalSettings
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
+from humimic.tracking.actions import stored_targets
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
 
 
@@ -160,14 +161,14 @@ def evaluate(settings: EvalSettings) -> dict:
     return results
 
 
-def run_evaluation(settings: EvalSettings) -> Evaluation:
-    """Run the policy and the open loop (writes nothing).
+def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluation:
+    """Run the policy and, if ``open_loop``, the open loop (writes nothing).
 
     Every episode plays the whole clip from its first frame, without reset noise, under the
     physics of the chosen DR profile (``none``: the nominal robot) and the physics file, if
     any; the metrics are those of :func:`_episodes`. The open-loop baseline replays the
     reference's joint positions as PD targets (no policy; a refined motion's stored controls,
-    :func:`_stored_targets`): how far the raw reference gets on this robot and these physics.
+    :func:`~humimic.tracking.actions.stored_targets`): how far the raw reference gets on this robot and these physics.
     """
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
@@ -219,13 +220,16 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
         joint_names = env.joint_names
     finally:
         env.close()
+    open_trace = _Trace()
+    if not open_loop:
+        return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
         st = env.state
         # A refined motion (humimic refine) stores the PD targets that replay it: one per
         # control step, held over its physics steps. Those are its open loop; a kinematic
         # reference's open loop is its next frame's joint positions.
-        targets = _stored_targets(motion, task)
+        targets = stored_targets(motion, task.sim_dt, task.decimation)
         if targets is None:
             targets = env.reference_joint_pos[1:]
             results["open_loop_targets"] = "reference joint positions"
@@ -233,37 +237,15 @@ def run_evaluation(settings: EvalSettings) -> Evaluation:
             targets = torch.as_tensor(targets, dtype=torch.float32, device=env.device)
             results["open_loop_targets"] = "stored dynamic controls"
 
-        def open_loop(obs: Any) -> torch.Tensor:
+        def replay(obs: Any) -> torch.Tensor:
             del obs
             k = st.frame.clamp(max=len(targets) - 1)
-            return (targets[k] - env.default_joint_pos) / env.action_scale
+            return env.action_for_targets(targets[k])
 
-        open_trace = _Trace()
-        results["open_loop"] = _episodes(env, open_loop, s.episodes, open_trace)
+        results["open_loop"] = _episodes(env, replay, s.episodes, open_trace)
     finally:
         env.close()
     return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
-
-
-def _stored_targets(motion: Any, task: Any) -> np.ndarray | None:
-    """The PD targets of each control step of a refined motion's dynamic section (Shape:
-    (frames - 1, J)), or None without one. The section must be at the task's physics step and
-    hold each target over a control step's physics steps (as ``humimic refine`` writes it)."""
-    dyn = motion.dynamics
-    if not dyn or "ctrl" not in dyn:
-        return None
-    ctrl, d = np.asarray(dyn["ctrl"]), task.decimation
-    if (
-        abs(float(dyn.get("physics_dt", 0.0)) - task.sim_dt) > 1e-12
-        or ctrl.shape[0] != (motion.num_frames - 1) * d
-        or not np.array_equal(ctrl[::d].repeat(d, axis=0), ctrl)
-    ):
-        raise InputError(
-            "the motion's dynamic section does not match the task (physics step "
-            f"{task.sim_dt} s, {d} physics steps per frame, one target per frame): refine the "
-            "motion again at the policy rate"
-        )
-    return ctrl[::d]
 
 
 def write_eval_mcap(

@@ -91,8 +91,9 @@ def export(settings: ExportSettings) -> Path:
     The exported graph is the actor's deterministic path, observation normalization included:
     input ``obs`` (the actor's observation groups concatenated in the order of the run's
     ``obs_groups``, e.g. ``policy`` then ``proprio_history`` for the ``asymmetric`` variant;
-    Shape: (batch, D)), output ``actions`` (Shape: (batch, num_joints); PD targets are
-    ``default + scale * actions``, see docs/tracking.md). A recurrent student (``humimic
+    Shape: (batch, D)), output ``actions`` (Shape: (batch, num_joints); PD targets are the
+    run's action base plus ``scale * actions``: the default pose, the reference, or the
+    refined motion's stored targets with or without LQR feedback, docs/tracking.md). A recurrent student (``humimic
     distill --student gru``) also takes its GRU state ``h_in`` (Shape: (layers, batch,
     hidden); zeros at the start of an episode) and returns the next one as ``h_out``: feed it
     back at every policy step. The file is self-contained (the weights inside it, no

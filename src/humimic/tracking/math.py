@@ -37,6 +37,17 @@ def quat_conj_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.cat([w, v], dim=-1)
 
 
+def quat_log(q: torch.Tensor) -> torch.Tensor:
+    """The rotation vector of a unit quaternion, on the short path (angle in [0, pi]; as
+    ``mju_quat2Vel`` with a unit time). Shape: (..., 4) -> (..., 3)."""
+    q = torch.where(q[..., :1] < 0, -q, q)
+    v = q[..., 1:]
+    s = v.norm(dim=-1, keepdim=True)
+    angle = 2.0 * torch.atan2(s, q[..., :1])
+    scale = torch.where(s > 1e-8, angle / s.clamp(min=1e-8), torch.full_like(s, 2.0))
+    return v * scale
+
+
 def quat_apply(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """Rotate vectors ``v`` by unit quaternions ``q``. Shapes: (..., 4), (..., 3)."""
     w, xyz = q[..., :1], q[..., 1:]

@@ -89,6 +89,17 @@ def train_cfg(cfg: PpoConfig) -> dict[str, Any]:
     return copy.deepcopy(out)
 
 
+def scale_actor_output(runner: Any, gain: float) -> None:
+    """Multiply the initial weights of the actor's last linear layer by ``gain`` and zero its
+    bias (:attr:`PpoConfig.actor_output_gain`); a gain of 1 changes nothing."""
+    if gain == 1.0:
+        return
+    layers = [m for m in runner.alg.actor.mlp.modules() if isinstance(m, torch.nn.Linear)]
+    with torch.no_grad():
+        layers[-1].weight.mul_(gain)
+        layers[-1].bias.zero_()
+
+
 @contextlib.contextmanager
 def torch_threads(n: int) -> Iterator[None]:
     """Run torch's CPU operations on ``n`` threads inside the block.

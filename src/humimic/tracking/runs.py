@@ -154,8 +154,8 @@ def resolved_source(value: str | None, names: Any) -> str | None:
 
 
 def resolved_settings(s: TrainSettings) -> TrainSettings:
-    """The settings with every file path absolute and PPO's as the run uses them
-    (:func:`ppo_for`): what config.yaml records, so that ``eval``, ``export``, ``distill`` and
+    """The settings with every file path absolute, PPO's as the run uses them
+    (:func:`ppo_for`) and the action base resolved: what config.yaml records, so that ``eval``, ``export``, ``distill`` and
     ``--resume`` run from any folder find the files."""
     return replace(
         s,
@@ -165,7 +165,16 @@ def resolved_settings(s: TrainSettings) -> TrainSettings:
         dr=resolved_source(s.dr, DR_PROFILES) or s.dr,
         physics=resolved_source(s.physics, _physics_names()),
         ppo=ppo_for(s),
+        task=replace(s.task, action_base=s.task.action_base or _task_action_base(s.robot)),
     )
+
+
+def _task_action_base(robot: str) -> str:
+    """The action base of a robot's registered task (what an unset ``--task.action-base``
+    trains with)."""
+    from humimic.tracking.config import tracking_task
+
+    return tracking_task(robot, "none").action_base
 
 
 def settings_differences(old: Any, new: Any, names: tuple[str, ...], prefix: str = "") -> list[str]:
@@ -186,10 +195,12 @@ def settings_differences(old: Any, new: Any, names: tuple[str, ...], prefix: str
 
 def _settings_from(data: dict[str, Any]) -> TrainSettings:
     """Training settings from config.yaml's ``settings``: the nested configs from their
-    mappings (older run folders have no ``task`` and ``ppo``: the defaults), PPO's resolved
-    as :func:`resolved_settings` records it."""
-    if data.get("task") is not None:
-        data["task"] = TaskSettings(**data["task"])
+    mappings (older run folders have no ``task`` and ``ppo``: the defaults, and trained on
+    the ``default`` action base), PPO's resolved as :func:`resolved_settings` records it."""
+    task = dict(data.get("task") or {})
+    if task.get("action_base") is None:  # Recorded before action bases: the default pose.
+        task["action_base"] = "default"
+    data["task"] = TaskSettings(**task)
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])
         for key in ("actor_hidden_dims", "critic_hidden_dims"):

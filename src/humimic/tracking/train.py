@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from humimic.configs.runs import PpoConfig, TaskSettings, TrainSettings
+from humimic.configs.runs import TIMED_ITERATIONS, PpoConfig, TaskSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
 from humimic.io import check_not_input, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
@@ -25,7 +25,7 @@ from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_
 from humimic.tracking import distributed
 from humimic.tracking.config import TrackingConfig, tracking_task
 from humimic.tracking.distributed import Ranks, agree, parameter_spread
-from humimic.tracking.rsl import make_runner, train_cfg
+from humimic.tracking.rsl import make_runner, scale_actor_output, train_cfg
 from humimic.tracking.runs import (
     checkpoint_files,
     first_line,
@@ -87,7 +87,8 @@ def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> Trackin
     Raises:
         InputError: ``--task.reward-weights`` names a term the task does not have.
     """
-    names = ("episode_length_s", "action_scale", "soft_limit_factor", "history_length")
+    names = ("episode_length_s", "action_base", "action_scale", "soft_limit_factor",
+             "history_length")  # fmt: skip
     changes: dict[str, Any] = {n: getattr(settings, n) for n in names}
     changes = {n: v for n, v in changes.items() if v is not None}
     weights = settings.reward_weights
@@ -253,9 +254,12 @@ class _Progress:
             w.writerow(row)
         if self.bar is not None:
             self.bar.update(1)
-            self.bar.set_postfix(reward=f"{row['mean_reward']:.3g}",
-                                 ep_len=f"{row['mean_episode_length']:.0f}",
-                                 sps=f"{row['steps_per_second']:.0f}")  # fmt: skip
+            post = {"reward": f"{row['mean_reward']:.3g}",
+                    "ep_len": f"{row['mean_episode_length']:.0f}",
+                    "sps": f"{row['steps_per_second']:.0f}"}  # fmt: skip
+            if self.max_seconds is not None:
+                post["left"] = f"{max(0.0, self.max_seconds - elapsed) / 60:.1f} min"
+            self.bar.set_postfix(post)
         if done % self.every == 0 or done == self.total or time_up:
             path = self.run / "checkpoints" / f"model_{done:06d}.pt"
             self.runner.save_checkpoint(path, done)
@@ -263,8 +267,13 @@ class _Progress:
             raise _TimeUp
 
 
-def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
+def train(
+    settings: TrainSettings, ppo: PpoConfig | None = None, *, started: float | None = None
+) -> dict:
     """Train (or resume) a tracking policy. Returns the last progress row.
+
+    ``started`` (a ``time.perf_counter()`` value) is when ``--max-minutes`` began to count
+    (default: when training starts), so that work before it (refining the motion) counts.
 
     A crash, even ``kill -9``, never leaves a half checkpoint that looks whole; ``--resume``
     keeps what was learned up to the newest checkpoint that loads and redoes what came after
@@ -273,7 +282,8 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
     Under torchrun (``WORLD_SIZE`` > 1) every process trains data-parallel with the others
     (:mod:`humimic.tracking.distributed`); ``--num-envs`` is each process's.
     """
-    s = settings
+    s = settings.sized()
+    assert s.num_envs is not None and s.max_iterations is not None  # sized() set them.
     run = s.out
     ranks = Ranks.from_env()
     has_run = check_run_settings(s)
@@ -289,7 +299,8 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
             )
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
-    cfg = train_cfg(ppo or ppo_for(s))
+    ppo = ppo or ppo_for(s)
+    cfg = train_cfg(ppo)
     check_batch(cfg, s.num_envs)
     _check_train_outputs(s, has_run)
     seed = s.seed + ranks.rank  # Each rank collects its own experience.
@@ -329,12 +340,14 @@ def train(settings: TrainSettings, ppo: PpoConfig | None = None) -> dict:
                         f"{s.variant!r}, task of {s.robot!r}): {first_line(e)}"
                     ) from None
                 runner.current_learning_iteration = 0
+            else:
+                scale_actor_output(runner, ppo.actor_output_gain)  # A resume loads weights.
             if ranks.main:
                 (run / "checkpoints").mkdir(parents=True, exist_ok=True)
                 if not has_run:
                     write_run_config(run, s, task, cfg)
             steps = int(cfg["num_steps_per_env"])
-            return fit(runner, run, s, steps_per_env=steps, ranks=ranks)
+            return fit(runner, run, s, steps_per_env=steps, ranks=ranks, started=started)
         finally:
             env.close()
     finally:
@@ -413,7 +426,15 @@ def check_run_settings(s: Any) -> bool:
     return has_run
 
 
-def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | None = None) -> dict:
+def fit(
+    runner: Any,
+    run: Path,
+    s: Any,
+    *,
+    steps_per_env: int,
+    ranks: Ranks | None = None,
+    started: float | None = None,
+) -> dict:
     """Run a runner's learning loop for a run folder: resume from its newest checkpoint if
     ``s.resume``, progress bar, CSV, checks, periodic atomic checkpoints, time budget.
 
@@ -424,6 +445,7 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
             ``num_envs`` and ``max_minutes`` (:class:`TrainSettings`, ``DistillSettings``).
         steps_per_env: Rollout length per iteration.
         ranks: This process's place in a data-parallel run (default: a single process).
+        started: When ``max_minutes`` began to count (``time.perf_counter()``; default: now).
 
     Returns:
         The last progress row.
@@ -447,9 +469,13 @@ def fit(runner: Any, run: Path, s: Any, *, steps_per_env: int, ranks: Ranks | No
     if not s.quiet and ranks.main:
         from tqdm import tqdm
 
-        bar = tqdm(total=s.max_iterations, initial=start, unit="it", desc=run.name or "train")
+        # With a time budget and no iteration limit, the bar counts minutes.
+        timed = s.max_minutes is not None and s.max_iterations >= TIMED_ITERATIONS
+        bar = tqdm(total=None if timed else s.max_iterations, initial=start, unit="it",
+                   desc=run.name or "train")  # fmt: skip
     progress = _Progress(runner=runner, run=run, every=s.checkpoint_every,
-                         total=s.max_iterations, bar=bar, started=time.perf_counter(),
+                         total=s.max_iterations, bar=bar,
+                         started=time.perf_counter() if started is None else started,
                          num_envs=s.num_envs, steps_per_env=steps_per_env,
                          max_seconds=None if s.max_minutes is None else 60 * s.max_minutes,
                          ranks=ranks, seconds_before=offset, columns=columns)  # fmt: skip

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from humimic.sim.lqr import control_step_jacobians, riccati
+
 StageFn = Callable[
     [mujoco.MjData, int, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 ]
@@ -32,72 +34,6 @@ class IlqrResult:
     cost: float
     initial_cost: float
     steps: tuple[float, ...]
-
-
-def control_step_jacobians(
-    model: mujoco.MjModel, data: mujoco.MjData, ctrl: np.ndarray, decimation: int, eps: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """The Jacobians of one control step (``ctrl`` held over ``decimation`` physics steps)
-    at ``data``'s state, which the call advances by that step.
-
-    Returns:
-        ``A`` Shape: (2 nv, 2 nv) and ``B`` Shape: (2 nv, nu), in the tangent state.
-    """
-    nx = 2 * model.nv + model.na
-    a, b = np.zeros((nx, nx)), np.zeros((nx, model.nu))
-    A, B = np.eye(nx), np.zeros((nx, model.nu))
-    data.ctrl[:] = ctrl
-    for _ in range(decimation):
-        mujoco.mjd_transitionFD(model, data, eps, False, a, b, None, None)
-        A, B = a @ A, a @ B + b
-        mujoco.mj_step(model, data)
-    return A, B
-
-
-def riccati(
-    lx: np.ndarray,
-    lxx: np.ndarray,
-    lu: np.ndarray,
-    luu: np.ndarray,
-    A: np.ndarray,
-    B: np.ndarray,
-    mu: float,
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The backward pass: feedforward steps ``k`` and feedback gains ``K`` of the local LQR
-    problem, or None if a regularized ``Q_uu`` is not positive definite.
-
-    Args:
-        lx, lxx: Gradient and Hessian of the state cost at states 0..H. Shape: (H + 1, nx),
-            (H + 1, nx, nx).
-        lu, luu: Gradient and Hessian of the control cost of steps 0..H-1. Shape: (H, nu),
-            (H, nu, nu).
-        A, B: The control steps' Jacobians. Shape: (H, nx, nx), (H, nx, nu).
-        mu: Regularization added to ``Q_uu``'s diagonal.
-
-    Returns:
-        ``k`` Shape: (H, nu), ``K`` Shape: (H, nu, nx).
-    """
-    H, nu = lu.shape
-    vx, vxx = lx[H].copy(), lxx[H].copy()
-    k, K = np.zeros((H, nu)), np.zeros((H, nu, lx.shape[1]))
-    eye = mu * np.eye(nu)
-    for t in range(H - 1, -1, -1):
-        qx = lx[t] + A[t].T @ vx
-        qu = lu[t] + B[t].T @ vx
-        vxx_a, vxx_b = vxx @ A[t], vxx @ B[t]
-        qxx = lxx[t] + A[t].T @ vxx_a
-        quu = luu[t] + B[t].T @ vxx_b + eye
-        qux = B[t].T @ vxx_a
-        try:
-            chol = np.linalg.cholesky(quu)
-        except np.linalg.LinAlgError:
-            return None
-        sol = -np.linalg.solve(chol.T, np.linalg.solve(chol, np.column_stack([qu, qux])))
-        k[t], K[t] = sol[:, 0], sol[:, 1:]
-        vx = qx + K[t].T @ quu @ k[t] + K[t].T @ qu + qux.T @ k[t]
-        vxx = qxx + K[t].T @ quu @ K[t] + K[t].T @ qux + qux.T @ K[t]
-        vxx = 0.5 * (vxx + vxx.T)
-    return k, K
 
 
 def ilqr(

@@ -1,0 +1,118 @@
+"""Tracking recipes side by side at equal wall time: each trains with ``humimic train`` on the
+same kinematic motion for the same minutes, then its checkpoints are evaluated (the learning
+curve) and its last one on 32 episodes under nominal physics, DR ``default`` and the shipped
+unseen robots. Prints JSON (one object per recipe, then a summary).
+
+Usage (the runs take ``--minutes`` each, one after the other: nothing else should load the
+machine meanwhile):
+  .venv/bin/humimic retarget ../shared/data/cmu/35_01.bvh --out runs/walk.npz
+  .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \\
+      --minutes 30 --recipes default beyondmimic reference feedforward-std1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+RECIPES: dict[str, list[str]] = {
+    "default": [],
+    "beyondmimic": ["--task.action-base", "default", "--ppo.init-std", "1.0",
+                    "--ppo.actor-output-gain", "1.0"],
+    "reference": ["--task.action-base", "reference"],
+    "feedforward": ["--task.action-base", "feedforward"],
+    "feedforward-std1": ["--task.action-base", "feedforward", "--ppo.init-std", "1.0",
+                         "--ppo.actor-output-gain", "1.0"],
+    "feedforward-64envs": ["--task.action-base", "feedforward", "--num-envs", "64"],
+    "feedforward-256envs": ["--task.action-base", "feedforward", "--num-envs", "256"],
+}  # fmt: skip
+"""Recipe name -> the flags it adds to ``humimic train --motion M --out RUN --max-minutes X``
+(``default``: none, the command a user runs)."""
+
+PHYSICS = {"nominal": ["--dr", "none"], "dr_default": ["--dr", "default"],
+           "backpack": ["--dr", "none", "--physics", "backpack"],
+           "worn_knees": ["--dr", "none", "--physics", "worn_knees"]}  # fmt: skip
+"""Evaluation physics -> ``humimic eval`` flags."""
+
+METRICS = ("success_rate", "mean_steps", "mpjpe_global_mm", "mpjpe_root_mm", "joint_error_rad")
+
+
+def _humimic(*args: str) -> None:
+    cmd = [sys.executable, "-m", "humimic.cli.main", *args]
+    done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stdout[-3000:]}")
+
+
+def run_recipe(name: str, args: argparse.Namespace) -> dict:
+    """Train one recipe for the budget, evaluate its curve and its last checkpoint."""
+    from humimic.tracking.curve import (
+        curve_summary,
+        evaluation_curve,
+        plot_learning_curve,
+        progress_rows,
+    )
+
+    run = args.out / name
+    t0 = time.perf_counter()
+    if not (args.reuse and (run / "config.yaml").is_file()):
+        _humimic("train", "--motion", str(args.motion), "--out", str(run), "--max-minutes",
+                 str(args.minutes), "--seed", str(args.seed), "--quiet", *RECIPES[name])  # fmt: skip
+    train_wall = time.perf_counter() - t0
+    progress = progress_rows(run)
+    curve = evaluation_curve(run, episodes=args.curve_episodes, dr="default",
+                             points=args.curve_points)  # fmt: skip
+    plot_learning_curve(progress, curve, run / "learning_curve.png",
+                        f"{name}: {args.motion.name}, {args.minutes:g} min on "
+                        f"{os.cpu_count()} CPU cores")  # fmt: skip
+    result: dict = {"recipe": name, "flags": RECIPES[name], "train_wall_s": train_wall,
+                    "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
+                    "curve": curve, **curve_summary(curve, progress)}  # fmt: skip
+    for label, flags in PHYSICS.items():
+        out = run / f"eval_{label}.json"
+        _humimic("eval", str(run), "--episodes", str(args.episodes), "--out", str(out), *flags)
+        ev = json.loads(out.read_text())
+        result[label] = {k: {m: ev[k][m] for m in METRICS} for k in ("policy", "open_loop")}
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--motion", type=Path, required=True)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--minutes", type=float, default=30.0)
+    parser.add_argument("--recipes", nargs="+", default=["default", "beyondmimic"],
+                        choices=sorted(RECIPES))  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=32)
+    parser.add_argument("--curve-episodes", type=int, default=8)
+    parser.add_argument("--curve-points", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--reuse", action="store_true",
+                        help="evaluate a recipe's run folder that exists instead of training")  # fmt: skip
+    args = parser.parse_args()
+    machine = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()}
+    rows = []
+    for name in args.recipes:
+        row = run_recipe(name, args)
+        row["machine"] = machine
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    summary = {
+        r["recipe"]: {
+            "dr_default": r["dr_default"]["policy"],
+            "first_full_clip": r["first_full_clip"],
+        }
+        for r in rows
+    }
+    print(json.dumps({"benchmark": "tracking_recipes", "motion": str(args.motion),
+                      "minutes": args.minutes, "machine": machine, "summary": summary}))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,307 @@
+"""``humimic imitate``: a clip in, a policy that performs it out, with its report: retarget,
+train (refining first where the recipe needs it), evaluate, export, report."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections.abc import Callable
+from datetime import datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from humimic.configs.runs import EvalSettings, ExportSettings, ImitateSettings, TrainSettings
+from humimic.errors import InputError, MissingDependencyError, OutputPathError
+from humimic.io import atomic_write_text, json_ready
+
+PHYSICS: dict[str, dict[str, Any]] = {
+    "nominal": {"dr": "none", "physics": None},
+    "dr_default": {"dr": "default", "physics": None},
+    "backpack": {"dr": "none", "physics": "backpack"},
+    "worn_knees": {"dr": "none", "physics": "worn_knees"},
+}
+"""The evaluations of a job: label -> ``humimic eval`` settings (the last two are the shipped
+robots that no training step sees)."""
+
+EVAL_OVERHEAD_MIN = 3.0
+"""Minutes the evaluations, the learning curve and the export take after training, about (2
+cores, a 3 s clip): for the ETA."""
+
+Screenshot = Callable[[Path, Path, Path], None]
+"""``screenshot(motion, rollout_mcap, png)``: a picture of the rollout in the viewer."""
+
+
+def _stage(k: int, name: str, started: float, quiet: bool, note: str = "") -> None:
+    if not quiet:
+        mins = (time.perf_counter() - started) / 60
+        print(f"[{k}/5] {name} ({mins:.1f} min in){': ' + note if note else ''}", flush=True)
+
+
+def _check(s: ImitateSettings) -> None:
+    """Everything that can be refused before any work: settings, the clip, the folder."""
+    s.validate()
+    if not s.clip.is_file():
+        raise InputError(f"{s.clip}: no such clip file")
+    if s.out.exists() and (not s.out.is_dir() or any(s.out.iterdir())):
+        raise InputError(f"--out {s.out}: must be a new or empty folder")
+
+
+def imitate(s: ImitateSettings, *, screenshot: Screenshot | None = None) -> dict[str, Any]:
+    """Run the whole job into ``s.out``; returns the report's numbers (also ``report.json``).
+
+    Stages: (1) retarget the clip (``motion.npz`` and its report; a robot motion is used as
+    it is); (2) ``humimic train`` for ``s.minutes`` (``run/``; its refined reference is
+    ``run/reference.npz``); (3) evaluate the last checkpoint under nominal physics, DR
+    ``default`` and the shipped unseen robots (``eval_*.json``; ``eval_dr_default.mcap``
+    holds the first randomized episode), and the checkpoints along the way (the learning
+    curve); (4) export ``policy.onnx``; (5) the plots and ``report.md``.
+
+    Bad input (the clip, the settings, a folder that is not new or empty) is refused before
+    anything is written. Every file is written whole (atomically) when its stage ends.
+    """
+    from humimic.pipeline.batch import plan_retarget
+
+    _check(s)
+    started = time.perf_counter()
+    finish = datetime.now() + timedelta(minutes=s.minutes + EVAL_OVERHEAD_MIN)
+    if not s.quiet:
+        print(f"humimic imitate {s.clip.name} -> {s.out}: about {s.minutes + EVAL_OVERHEAD_MIN:.0f} "
+              f"min, done about {finish:%H:%M}")  # fmt: skip
+    out = s.out
+    motion_path = out / "motion.npz"
+    batch = None
+    if s.clip.suffix == ".npz" and _is_robot_motion(s.clip):
+        from humimic.motion import load_motion
+
+        if load_motion(s.clip).robot != s.robot:
+            raise InputError(f"{s.clip}: a motion of another robot than --robot {s.robot}")
+    else:
+        batch = plan_retarget((s.clip,), motion_path, report=out / "motion.json", robot=s.robot)
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputPathError(f"--out {out}: cannot create the folder: {e.strerror or e}") from None
+    try:
+        return _stages(s, batch, motion_path, started, screenshot)
+    except BaseException:
+        if created and not (out / "run" / "config.yaml").exists():  # Nothing trained yet.
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _stages(
+    s: ImitateSettings, batch: Any, motion_path: Path, started: float,
+    screenshot: Screenshot | None,
+) -> dict[str, Any]:  # fmt: skip
+    """The five stages of :func:`imitate` (its checks done, its folder made)."""
+    from humimic.pipeline.reference import prepare_reference
+    from humimic.tracking.train import train
+
+    out = s.out
+
+    _stage(1, "retarget", started, s.quiet, s.clip.name)
+    report: dict[str, Any] = {"clip": str(s.clip), "robot": s.robot, "minutes": s.minutes}
+    if batch is not None:
+        (result,) = list(batch.run(progress=_bars(s.quiet)))
+        report["retarget"] = {k: result.report.get(k) for k in _RETARGET_KEYS}
+    else:
+        motion_path = s.clip
+        report["retarget"] = None
+
+    _stage(2, "train", started, s.quiet, f"{s.minutes:g} min, refining first if needed")
+    run = out / "run"
+    settings = TrainSettings(motion=motion_path, out=run, robot=s.robot, num_envs=s.num_envs,
+                             device=s.device, seed=s.seed, max_minutes=s.minutes,
+                             quiet=s.quiet)  # fmt: skip
+    t_train = time.perf_counter()
+    settings = prepare_reference(settings, quiet=s.quiet)
+    last = train(settings, started=t_train)
+    report["train"] = {"iterations": int(last.get("iteration", 0)),
+                       "env_steps": int(last.get("env_steps", 0)),
+                       "seconds": float(last.get("seconds", 0.0)),
+                       "reference": str(settings.motion)}  # fmt: skip
+
+    _stage(3, "evaluate", started, s.quiet, f"{s.episodes} episodes x {len(PHYSICS)} physics")
+    report["eval"], trace = _evaluate(s, run)
+    curve = _curve(run, s)
+    report["curve"] = curve
+
+    _stage(4, "export", started, s.quiet)
+    from humimic.tracking.export import export
+
+    report["onnx"] = str(export(ExportSettings(run=run, out=out / "policy.onnx")))
+
+    _stage(5, "report", started, s.quiet)
+    _plots(run, curve, trace, out)
+    report["screenshot"] = _screenshot(screenshot, out)
+    report["wall_seconds"] = time.perf_counter() - started
+    atomic_write_text(out / "report.json", json.dumps(json_ready(report), indent=2) + "\n")
+    atomic_write_text(out / "report.md", render_report(report, s))
+    if not s.quiet:
+        print(f"wrote {out / 'report.md'} ({report['wall_seconds'] / 60:.1f} min)")
+    return report
+
+
+_RETARGET_KEYS = ("frames", "fps", "keypoint_error_mm_mean", "foot_skating_mm_per_s",
+                  "max_ground_penetration_mm", "joint_limit_violations")  # fmt: skip
+
+
+def _is_robot_motion(path: Path) -> bool:
+    """Whether an ``.npz`` is a humimic robot motion (else: joint positions of a human)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return "schema_version.npy" in z.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False  # The clip reader names what is wrong with it.
+
+
+def _bars(quiet: bool) -> Any:
+    from contextlib import contextmanager
+
+    from tqdm import tqdm
+
+    @contextmanager
+    def bar(description: str, total: int) -> Any:
+        with tqdm(total=total, desc=description, unit="frame", disable=quiet,
+                  leave=False) as b:  # fmt: skip
+            yield b.update
+
+    return bar
+
+
+def _evaluate(s: ImitateSettings, run: Path) -> tuple[dict[str, Any], Any]:
+    """The last checkpoint under each physics of :data:`PHYSICS` (JSON per physics; the
+    randomized one's first episode as MCAP); returns the metrics and that episode."""
+    from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
+
+    results, trace = {}, None
+    for label, kw in PHYSICS.items():
+        ev = run_evaluation(EvalSettings(run=run, episodes=s.episodes, device=s.device, **kw))
+        r = ev.results
+        atomic_write_text(s.out / f"eval_{label}.json", json.dumps(json_ready(r), indent=2) + "\n")
+        if label == "dr_default":
+            write_eval_mcap(s.out / "eval_dr_default.mcap", ev.motion, ev.joint_names,
+                            ev.step_dt, ev.policy, ev.open_loop, r)  # fmt: skip
+            trace = ev
+        results[label] = {k: r[k] for k in ("policy", "open_loop")}
+    return results, trace
+
+
+def _curve(run: Path, s: ImitateSettings) -> list[dict[str, float]]:
+    from humimic.tracking.curve import evaluation_curve
+
+    return evaluation_curve(run, episodes=min(8, s.episodes), dr="default", points=8,
+                            device=s.device)  # fmt: skip
+
+
+def per_body_errors(ev: Any) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+    """The tracked bodies' world position errors over the first policy episode of an
+    evaluation: times [s] Shape: (K,), errors [mm] Shape: (K, B), and the body names."""
+    from humimic.motion import motion_from_qpos
+    from humimic.robots import get_robot, nominal_model
+    from humimic.tracking.config import tracking_task
+
+    motion = ev.motion
+    qpos = np.asarray(ev.policy.qpos)
+    k = min(len(qpos), motion.num_frames)
+    model = nominal_model(get_robot(motion.robot))
+    rolled = motion_from_qpos(model, qpos[:k], motion.fps, motion.robot)
+    names = tracking_task(motion.robot, "none").body_names
+    idx = [rolled.body_names.index(b) for b in names]
+    ref = [motion.body_names.index(b) for b in names]
+    err = np.linalg.norm(rolled.body_pos_w[:, idx] - motion.body_pos_w[:k, ref], axis=-1)
+    return np.arange(k) * ev.step_dt, 1e3 * err, names
+
+
+def _plots(run: Path, curve: list[dict[str, float]], ev: Any, out: Path) -> None:
+    """``learning_curve.png`` and ``body_error.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from humimic.io import atomic_write
+    from humimic.tracking.curve import plot_learning_curve, progress_rows
+
+    plot_learning_curve(progress_rows(run), curve, out / "learning_curve.png",
+                        f"{run.parent.name}: training and evaluation (DR default)")  # fmt: skip
+    t, err, names = per_body_errors(ev)
+    fig, ax = plt.subplots(figsize=(9, 4))
+    worst = np.argsort(err.mean(axis=0))[::-1][:6]
+    for b in worst:
+        ax.plot(t, err[:, b], label=names[b])
+    ax.plot(t, err.mean(axis=1), "k--", label="mean of all tracked bodies")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("world position error [mm]")
+    ax.set_title("first evaluation episode under DR default: the six worst bodies")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_write(out / "body_error.png") as f:
+        fig.savefig(f, format="png", dpi=90)
+    plt.close(fig)
+
+
+def _screenshot(screenshot: Screenshot | None, out: Path) -> str | None:
+    """The viewer's picture of the randomized rollout, or why there is none."""
+    if screenshot is None:
+        return None
+    png = out / "rollout.png"
+    try:
+        screenshot(out / "eval_dr_default.mcap", out / "eval_dr_default.mcap", png)
+    except MissingDependencyError as e:  # No browser here: the report says so.
+        return f"not taken: {e}"
+    return str(png)
+
+
+def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
+    """``report.md`` from the job's numbers."""
+    lines = [f"# humimic imitate: {Path(r['clip']).name} on the {r['robot']}", ""]
+    if r["retarget"]:
+        rt = r["retarget"]
+        lines += [f"Retargeted: {rt['frames']} frames at {rt['fps']:g} fps, key points "
+                  f"{rt['keypoint_error_mm_mean']:.1f} mm, foot skating "
+                  f"{rt['foot_skating_mm_per_s']:.0f} mm/s, ground penetration "
+                  f"{rt['max_ground_penetration_mm']:.1f} mm, joint-limit violations "
+                  f"{rt['joint_limit_violations']}.", ""]  # fmt: skip
+    t = r["train"]
+    lines += [f"Trained {t['seconds'] / 60:.1f} min of wall time (refining included): "
+              f"{t['iterations']} PPO iterations, {t['env_steps']:,} env steps; reference "
+              f"`{t['reference']}`.", "",
+              f"Evaluated on {s.episodes} episodes per physics, each the whole clip from its "
+              "first frame (policy, and the open loop: the stored controls alone):", "",
+              "| physics | controller | success | mean steps | global MPJPE mm | "
+              "root-relative MPJPE mm | joint error rad |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for label, ev in r["eval"].items():
+        for ctl in ("policy", "open_loop"):
+            m = ev[ctl]
+            lines.append(f"| {label} | {ctl.replace('_', ' ')} | {100 * m['success_rate']:.0f}% | "
+                         f"{m['mean_steps']:.0f} | {m['mpjpe_global_mm']:.0f} | "
+                         f"{m['mpjpe_root_mm']:.0f} | {m['joint_error_rad']:.3f} |")  # fmt: skip
+    first = next((c for c in r["curve"] if c["success_rate"] > 0.0), None)
+    lines += ["", "Learning curve (training episodes, and checkpoints evaluated under DR "
+              "default): ![learning curve](learning_curve.png)", "",
+              "First evaluated checkpoint that completed the clip (on at least one episode): "
+              + (f"iteration {first['iteration']:.0f}, {first['seconds'] / 60:.1f} min."
+                 if first else "none."), "",
+              "Per-body error of the first randomized episode: ![per-body error](body_error.png)",
+              ""]  # fmt: skip
+    shot = r.get("screenshot")
+    if shot and not shot.startswith("not taken"):
+        lines += ["The rollout in the viewer (`humimic view eval_dr_default.mcap`): "
+                  "![rollout](rollout.png)", ""]  # fmt: skip
+    else:
+        lines += [f"Screenshot: {shot or 'not asked for'}; `humimic view "
+                  "eval_dr_default.mcap` shows the rollout.", ""]  # fmt: skip
+    lines += [f"The policy: `{r['onnx']}` (ONNX; its PD targets are the run's action base plus "
+              "the scaled actions, docs/tracking.md).", "",
+              f"Total: {r['wall_seconds'] / 60:.1f} min.", ""]  # fmt: skip
+    return "\n".join(lines)
+
+
+__all__ = ["PHYSICS", "imitate", "per_body_errors", "render_report"]
