@@ -160,7 +160,8 @@ def main() -> None:
     model = tracking_model(g1_tracking("none"))
     motion = arm_swing(model)
     for n in args.num_envs:
-        cfg = replace(g1_tracking(args.dr), episode_length_s=1e3)
+        # A kinematic motion: the action base of the measurements before issue 25 (no LQR).
+        cfg = replace(g1_tracking(args.dr), episode_length_s=1e3, action_base="default")
         gen = torch.Generator().manual_seed(0)
         actions = [0.3 * torch.randn(n, 29, generator=gen) for _ in range(args.steps)]
         envs = {"eager": TrackingEnv(cfg, motion, n, model=model)}

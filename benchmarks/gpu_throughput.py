@@ -30,6 +30,7 @@ import torch
 
 from env_throughput import arm_swing  # The CPU benchmark's reference (no data files needed).
 from humimic.sim.warp_backend import MujocoWarpBackend
+from humimic.tracking.actions import has_stored_controls
 from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
 from humimic.tracking.train import load_reference, resolve_dr
@@ -71,6 +72,8 @@ def main() -> None:
         if args.motion is None
         else load_reference(args.motion, "g1", 1.0 / cfg.step_dt)
     )
+    if not has_stored_controls(motion):  # The LQR base needs a refined motion.
+        cfg = replace(cfg, action_base="default")
     dec = cfg.decimation
     out: dict = {
         "benchmark": "gpu_throughput",

@@ -438,3 +438,19 @@ def test_folder_outputs_keep_relative_names_and_skip_the_output_folder(
     assert (out / "a" / "walk.json").is_file()
     mode = (out / "a" / "walk.npz").stat().st_mode & 0o777
     assert mode & 0o044, f"outputs must be readable by others (umask permitting): {oct(mode)}"
+
+
+def test_a_closed_output_pipe_ends_quietly() -> None:
+    """``humimic ... --help | head -1``: the reader has closed the pipe; humimic stops
+    without a traceback, with the shell's SIGPIPE code."""
+    import os
+
+    read, write = os.pipe()
+    os.close(read)  # Closed before humimic writes: every write to stdout fails.
+    try:
+        proc = subprocess.run([*_humimic_command(), "refine", "--help"], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=60)  # fmt: skip
+    finally:
+        os.close(write)
+    assert proc.returncode == 141, proc.stderr
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr

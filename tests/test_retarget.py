@@ -49,6 +49,7 @@ def test_real_clip_meets_quality_bars(shared_data: Path, name: str) -> None:
     assert r["foot_skating_mm_per_s"] <= 150.0
     assert r["keypoint_error_mm_mean"] <= 40.0
     assert r["relaxed_qp_iterations"] <= 5
+    assert r["turned_knee_frames"] == 0, r["worst_knee_turn_deg"]
 
 
 def test_walk_feet_are_on_the_floor(shared_data: Path) -> None:
@@ -64,6 +65,61 @@ def test_run_feet_follow_the_human_clearance(shared_data: Path) -> None:
     assert r["median_lowest_foot_mm"] <= 20.0
     assert r["median_lowest_foot_in_contact_mm"] <= 5.0
     assert 0.3 <= r["foot_contact_frames"] <= 0.8
+
+
+@pytest.mark.parametrize("name", ["cmu/35_01.bvh", "cmu/09_01.bvh"])
+def test_knees_face_forward(shared_data: Path, name: str) -> None:
+    """Every knee's hinge axis stays within 60 degrees of the pelvis's left-right axis: no
+    leg turned about itself. In the run's back-kicks the human toe points behind the ankle;
+    read as a foot facing backward, the foot targets once turned the robot's legs by 160
+    degrees (hip yaw at its limit in 35 of 62 frames), which the key-point error let pass
+    (30 mm mean)."""
+    import mujoco
+
+    from humimic.robots import get_robot, nominal_model
+
+    m = _retarget(shared_data, name).motion
+    model = nominal_model(get_robot("g1"))
+    data = mujoco.MjData(model)
+    knees = [j for j in range(model.njnt) if "knee" in model.joint(j).name]
+    pelvis = model.body("pelvis").id
+    assert len(knees) == 2
+
+    def facing(q: np.ndarray) -> np.ndarray:
+        """Each knee axis dotted with the pelvis's left axis."""
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_comPos(model, data)  # The joints' world axes.
+        left = data.xmat[pelvis].reshape(3, 3)[:, 1]
+        return np.array([float(data.xaxis[j] @ left) for j in knees])
+
+    sign = np.sign(facing(model.qpos0))  # As in the zero pose, where the knees face forward.
+    assert np.all(np.abs(facing(model.qpos0)) > 0.99)
+    worst = min(float((sign * facing(q)).min()) for q in m.qpos)
+    assert worst > np.cos(np.radians(60.0)), worst
+
+
+@pytest.mark.parametrize(("robot", "hip"), [("g1", "right_hip_yaw_joint"),
+                                           ("t1", "Right_Hip_Yaw")])  # fmt: skip
+def test_the_report_counts_turned_knees(robot: str, hip: str) -> None:
+    """The report's knee check on poses made by hand: the zero pose and a hip turned by 0.5 rad
+    pass; a hip turned by 2.5 rad (the leg about itself) is counted, with its angle."""
+    from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX
+    from humimic.retarget.metrics import evaluate, knee_joints
+
+    rt = _retargeter(robot, "cmu")
+    model, feet = rt.ik.model, [f.body for f in rt.map.feet.values()]
+    assert len(knee_joints(model, feet)) == 2
+    j = model.joint(hip)
+    q = np.tile(model.qpos0, (3, 1))
+    q[1, j.qposadr[0]] = 0.5
+    turn = 2.5  # Beyond the T1's hip yaw range: the check measures geometry, not limits.
+    q[2, j.qposadr[0]] = turn
+    site = KEYPOINT_SITE_PREFIX + rt.map.root
+    report, _ = evaluate(model, q, 50.0, keypoint_sites=[site], keypoint_targets=np.zeros((3, 1, 3)),
+                         foot_bodies=feet, self_collision=np.zeros((0, 2), dtype=int))  # fmt: skip
+    assert report.turned_knee_frames == 1
+    assert report.worst_knee_turn_deg == pytest.approx(np.degrees(abs(turn)), abs=1.0)
 
 
 def test_motion_fields_are_consistent(shared_data: Path) -> None:

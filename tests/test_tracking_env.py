@@ -539,3 +539,40 @@ def test_actor_output_gain_starts_the_policy_at_its_base(
         assert float(policy(obs).abs().max()) == 0.0
     finally:
         env.close()
+
+
+def test_critic_warmup_trains_the_critic_alone_then_both(
+    model: mujoco.MjModel, motion: Motion
+) -> None:
+    """During the warmup iterations PPO's update leaves every actor parameter (its noise
+    included) and the learning rate as they were and changes the critic; after them both
+    learn."""
+    from humimic.tracking.rsl import make_runner
+
+    env = make_env(model, motion, n=4, dr="default")
+    try:
+        cfg = PpoConfig(actor_hidden_dims=(16,), critic_hidden_dims=(16,), num_steps_per_env=4,
+                        critic_warmup_iterations=2)  # fmt: skip
+        runner = make_runner(env, train_cfg(cfg), log_dir=None, device="cpu")
+        runner.logger.log = lambda **kw: None
+
+        def snapshot(m: torch.nn.Module) -> list[torch.Tensor]:
+            return [p.detach().clone() for p in m.parameters()]
+
+        actor, critic = snapshot(runner.alg.actor), snapshot(runner.alg.critic)
+        runner.learn(2)
+        assert all(
+            torch.equal(a, b) for a, b in zip(actor, snapshot(runner.alg.actor), strict=True)
+        )
+        assert not all(
+            torch.equal(a, b) for a, b in zip(critic, snapshot(runner.alg.critic), strict=True)
+        )
+        assert runner.alg.learning_rate == cfg.learning_rate
+        assert all(p.requires_grad for p in runner.alg.actor.parameters())
+        runner.current_learning_iteration = 2  # As a resume from those 2 iterations sets it.
+        runner.learn(1)  # The third iteration: past the warmup.
+        assert not all(
+            torch.equal(a, b) for a, b in zip(actor, snapshot(runner.alg.actor), strict=True)
+        )
+    finally:
+        env.close()

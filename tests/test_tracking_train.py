@@ -248,6 +248,8 @@ def test_bad_input_exits_2(motion_file: Path, tmp_path: Path) -> None:
     assert main(args) == 2
     assert not (tmp_path / "a").exists() and not (tmp_path / "c" / "config.yaml").exists()
     assert main(["eval", str(tmp_path / "nothing")]) == 2
+    warm = [*_train_args(motion_file, tmp_path / "d", 1), "--ppo.critic-warmup-iterations", "-1"]
+    assert main(warm) == 2 and not (tmp_path / "d").exists()
 
 
 def test_failed_compile_exits_1_and_leaves_no_run_folder(

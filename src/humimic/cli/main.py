@@ -3,6 +3,7 @@ command group's dataclasses and runners live in a module of this package."""
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable
 from typing import Annotated, Any
@@ -78,8 +79,21 @@ def parse(argv: list[str]) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``humimic`` console script. Bad input exits with code 2."""
-    cmd = parse(sys.argv[1:] if argv is None else argv)
+    """Entry point of the ``humimic`` console script. Bad input exits with code 2; a
+    closed output pipe (``humimic ... | head``) ends it quietly with code 141, as a shell
+    command killed by SIGPIPE."""
+    try:
+        return _run(sys.argv[1:] if argv is None else argv)
+    except BrokenPipeError:
+        # Python's advice (signal docs, "Note on SIGPIPE"): point stdout at devnull so that
+        # the interpreter's final flush does not raise again.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
+
+
+def _run(argv: list[str]) -> int:
+    cmd = parse(argv)
     try:
         return RUNNERS[type(cmd)](cmd) or 0
     except InputError as e:

@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import tyro
 
@@ -24,7 +22,7 @@ from humimic.configs.choices import RetargetPreset, RobotName
 from humimic.configs.runs import check_device
 from humimic.errors import InputError
 from humimic.io import check_not_input, check_writable, json_ready
-from humimic.pipeline.batch import Method
+from humimic.pipeline.batch import Method, frame_bars
 
 MAX_ROBUSTNESS = 1000
 """The most perturbed replays ``humimic refine --robustness`` makes for its report."""
@@ -160,17 +158,12 @@ def _units(units: str) -> str | float:
         return units
 
 
-def _bars(quiet: bool) -> Callable[[str, int], Any]:
-    """Progress bars of frames (tqdm), none if ``quiet``."""
-    from tqdm import tqdm
-
-    @contextmanager
-    def bar(description: str, total: int) -> Iterator[Callable[[int], Any]]:
-        with tqdm(total=total, desc=description, unit="frame", disable=quiet,
-                  leave=False) as b:  # fmt: skip
-            yield b.update
-
-    return bar
+def _knees(r: dict) -> str:
+    """The summary's turned-knee part: nothing for a model without knees (or an old report)."""
+    n = r.get("turned_knee_frames")
+    if n is None:
+        return ""
+    return f" | turned knees {n} frames (worst {r['worst_knee_turn_deg']:.0f} deg)"
 
 
 def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
@@ -184,6 +177,7 @@ def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
         f"{r['median_lowest_foot_mm']:.1f} mm | joint-limit violations {r['joint_limit_violations']} "
         f"| self-collision frames {r['self_collision_frames']} "
         f"(max {r['max_self_penetration_mm']:.1f} mm) | jerk {r['mean_joint_jerk']:.0f} rad/s^3"
+        + _knees(r)
     )
     if "max_scene_penetration_mm" in r:
         k = r["kinematic"]
@@ -251,7 +245,7 @@ def retarget_clips(cmd: RetargetCommand) -> list[dict]:
         map_file=cmd.map, menagerie_root=cmd.menagerie_root, start=cmd.start, scene=cmd.scene,
     )  # fmt: skip
     reports = []
-    for r in batch.run(progress=_bars(cmd.quiet)):
+    for r in batch.run(progress=frame_bars(cmd.quiet)):
         print_summary(r.report, r.motion_path, cmd.mesh.scene_spacing)
         if "dynamics" in r.report:
             print_dynamics(r.report["dynamics"], r.motion_path)
@@ -300,7 +294,7 @@ def run_refine(cmd: RefineCommand) -> None:
     if cmd.report is not None:
         check_writable(cmd.report)
     motion = load_motion(cmd.motion)
-    with _bars(cmd.quiet)(cmd.motion.name, motion.num_frames - 1) as update:
+    with frame_bars(cmd.quiet)(cmd.motion.name, motion.num_frames - 1) as update:
         refined, report = refine(motion, cmd.dyn, robustness=cmd.robustness, progress=update,
                                  backend=cmd.backend, device=cmd.device)  # fmt: skip
     report = json_ready(report)

@@ -192,6 +192,10 @@ class PpoConfig:
         actor_output_gain: The actor's last layer's initial weights times this, its bias
             zero (1: PyTorch's initialization): a small gain starts a residual policy (action
             base ``reference`` or ``feedforward``) at its base.
+        critic_warmup_iterations: For this many first iterations, PPO's updates train the
+            critic alone, at a fixed learning rate: the actor (a residual policy that starts
+            at its action base) keeps its initial weights until the critic's advantages mean
+            something (residual RL's critic burn-in; BENCHMARKS.md, issue 25).
         learning_rate: Adam learning rate (adapted to ``desired_kl``).
         schedule: ``adaptive`` or ``fixed``.
         desired_kl: Target KL divergence of the adaptive schedule.
@@ -218,6 +222,7 @@ class PpoConfig:
     obs_normalization: bool = True
     init_std: float = 0.3
     actor_output_gain: float = 0.01
+    critic_warmup_iterations: int = 0
     learning_rate: float = 1e-3
     schedule: Literal["adaptive", "fixed"] = "adaptive"
     desired_kl: float = 0.01
@@ -250,6 +255,9 @@ class PpoConfig:
             v = getattr(self, name)
             if not 0 < v <= 1:  # NaN fails too.
                 raise InputError(f"--ppo.{name} {v}: must be in (0, 1]")
+        w = self.critic_warmup_iterations
+        if isinstance(w, bool) or not isinstance(w, int) or w < 0:
+            raise InputError(f"--ppo.critic-warmup-iterations {w}: must be a whole number >= 0")
         for name in ("num_learning_epochs", "num_mini_batches"):
             v = getattr(self, name)
             if not 1 <= v <= MAX_EPOCHS:

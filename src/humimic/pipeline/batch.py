@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, nullcontext
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -28,6 +28,19 @@ Progress = Callable[[str, int], AbstractContextManager[Callable[[int], Any]]]
 called with the number of frames done since its last call."""
 
 Method = Literal["kinematic", "interaction-mesh", "dynamics"]
+
+
+def frame_bars(quiet: bool) -> Progress:
+    """A :data:`Progress` of tqdm bars counting frames (disabled if ``quiet``)."""
+    from tqdm import tqdm
+
+    @contextmanager
+    def bar(description: str, total: int) -> Iterator[Callable[[int], Any]]:
+        with tqdm(total=total, desc=description, unit="frame", disable=quiet,
+                  leave=False) as b:  # fmt: skip
+            yield b.update
+
+    return bar
 
 
 def _no_progress(description: str, total: int) -> AbstractContextManager[Callable[[int], Any]]:
@@ -331,6 +344,7 @@ __all__ = [
     "Progress",
     "RetargetBatch",
     "clip_files",
+    "frame_bars",
     "plan_retarget",
     "save_with_report",
 ]

@@ -106,7 +106,9 @@ def _stages(
     _stage(1, "retarget", started, s.quiet, s.clip.name)
     report: dict[str, Any] = {"clip": str(s.clip), "robot": s.robot, "minutes": s.minutes}
     if batch is not None:
-        (result,) = list(batch.run(progress=_bars(s.quiet)))
+        from humimic.pipeline.batch import frame_bars
+
+        (result,) = list(batch.run(progress=frame_bars(s.quiet)))
         report["retarget"] = {k: result.report.get(k) for k in _RETARGET_KEYS}
     else:
         motion_path = s.clip
@@ -159,20 +161,6 @@ def _is_robot_motion(path: Path) -> bool:
             return "schema_version.npy" in z.namelist()
     except (OSError, zipfile.BadZipFile):
         return False  # The clip reader names what is wrong with it.
-
-
-def _bars(quiet: bool) -> Any:
-    from contextlib import contextmanager
-
-    from tqdm import tqdm
-
-    @contextmanager
-    def bar(description: str, total: int) -> Any:
-        with tqdm(total=total, desc=description, unit="frame", disable=quiet,
-                  leave=False) as b:  # fmt: skip
-            yield b.update
-
-    return bar
 
 
 def _evaluate(s: ImitateSettings, run: Path) -> tuple[dict[str, Any], Any]:

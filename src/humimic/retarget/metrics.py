@@ -37,6 +37,11 @@ class QualityReport:
         worst_self_collision: The bodies of the deepest penetrating pair, ``"a | b"`` (empty
             when no pair penetrates).
         mean_joint_jerk: Mean absolute third derivative of the joint angles [rad/s^3].
+        turned_knee_frames: Frames in which a knee's hinge axis is more than 60 degrees off
+            its direction relative to the root body in the zero pose (a leg turned about
+            itself, the knee facing sideways or backward; :func:`knee_joints`); None where
+            the model has no knee to check.
+        worst_knee_turn_deg: The largest such angle over the clip [deg]; None likewise.
     """
 
     keypoint_error_mm_mean: float
@@ -52,6 +57,45 @@ class QualityReport:
     max_self_penetration_mm: float
     worst_self_collision: str
     mean_joint_jerk: float
+    turned_knee_frames: int | None = None
+    worst_knee_turn_deg: float | None = None
+
+
+KNEE_TURN_DEG = 60.0
+"""A knee axis further than this from its zero-pose direction (in the root's frame) is turned."""
+
+
+def knee_joints(model: mujoco.MjModel, foot_bodies: list[str]) -> list[int]:
+    """The knees of a floating-base model: the hinge joints named ``*knee*`` (any case) on
+    the chain from each foot body up to the root body (the free joint's), whose axis lies
+    along the root's left-right axis in the zero pose (within 25 degrees). Empty if none."""
+    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    if not free:
+        return []
+    root = int(model.jnt_bodyid[free[0]])
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    mujoco.mj_kinematics(model, data)
+    left = data.xmat[root].reshape(3, 3)[:, 1]
+    out = []
+    for name in foot_bodies:
+        b = model.body(name).id
+        while b not in (0, root):
+            for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
+                hinge = model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+                if hinge and "knee" in model.joint(j).name.lower():
+                    if abs(float(data.xaxis[j] @ left)) >= np.cos(np.radians(25.0)):
+                        out.append(j)
+            b = int(model.body_parentid[b])
+    return out
+
+
+def _knee_axes(
+    model: mujoco.MjModel, data: mujoco.MjData, knees: list[int], root: int
+) -> np.ndarray:
+    """The knees' axes in the root body's frame, at ``data``'s kinematics. Shape: (K, 3)."""
+    r = data.xmat[root].reshape(3, 3)
+    return data.xaxis[knees] @ r
 
 
 def evaluate(
@@ -97,6 +141,14 @@ def evaluate(
     worst_pair, worst_depth = "", 0.0
     fromto = np.zeros(6)
 
+    knees = knee_joints(model, foot_bodies)
+    root = int(model.jnt_bodyid[0])
+    knee_cos = np.ones((T, len(knees)))
+    if knees:
+        data.qpos[:] = model.qpos0
+        mujoco.mj_kinematics(model, data)
+        knee0 = _knee_axes(model, data, knees, root)
+
     kp_err = np.zeros((T, len(site_ids)))
     foot_xy = np.zeros((T, len(ids), 2))
     foot_bottom = np.zeros((T, len(ids)))
@@ -106,6 +158,8 @@ def evaluate(
         data.qpos[:] = qpos[t]
         mujoco.mj_kinematics(model, data)
         kp_err[t] = np.linalg.norm(data.site_xpos[site_ids] - keypoint_targets[t], axis=-1)
+        if knees:
+            knee_cos[t] = np.einsum("kj,kj->k", _knee_axes(model, data, knees, root), knee0)
         world, bottom = contact_point_heights(data, ids, pts, rad)
         foot_xy[t] = world[:, :2]
         foot_bottom[t] = bottom
@@ -159,6 +213,14 @@ def evaluate(
         max_self_penetration_mm=float(self_pen.max() * 1e3),
         worst_self_collision=worst_pair,
         mean_joint_jerk=float(np.abs(jerk).mean()),
+        turned_knee_frames=(
+            int(np.sum((knee_cos < np.cos(np.radians(KNEE_TURN_DEG))).any(axis=1)))
+            if knees
+            else None
+        ),
+        worst_knee_turn_deg=(
+            float(np.degrees(np.arccos(np.clip(knee_cos.min(), -1.0, 1.0)))) if knees else None
+        ),
     )
     frames = {
         "keypoint_error": kp_err.mean(axis=1),

@@ -225,7 +225,8 @@ def build_targets(
     # orientation) would put a contact point lower than the human foot's scaled clearance,
     # the foot's targets are lifted (a heel-down swing foot must not skim the floor).
     clearance = scale * np.maximum(above.min(axis=2), 0.0)  # (T, 2)
-    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg)
+    heading = frames_h[:, 0, :, 0] if m.frames else None
+    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg, heading)
     for s_ in range(len(sides)):
         a, t_ = foot_keys[s_]
         pts = robot.foot_points[s_]
@@ -317,12 +318,25 @@ def _foot_rotations(
     contacts: np.ndarray,
     robot: RobotGeometry,
     cfg: RetargetConfig,
+    heading: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Foot orientation targets and costs.
 
     Yaw follows the human ankle-to-toe direction; pitch follows its elevation relative to the
     foot's elevation when flat on the ground; roll is zero. A foot whose heel and toe are both
     planted gets a flat target at the contact's mean yaw, with the contact cost.
+
+    A foot pitched past the vertical (a running back-kick: the toe below and behind the
+    ankle, the sole facing back or up) has its toe's horizontal direction opposite to where
+    the foot faces. Where that direction points backward relative to ``heading`` (the body's
+    forward direction per frame, the map's first frame: a foot cannot turn more than 90
+    degrees from the pelvis), the foot faces the other way and is pitched by more than 90
+    degrees; read naively, the target turns the foot, and the IK the whole leg, by 180 degrees
+    (seen on CMU 09_01: hip yaw at its 2.8 rad limit for half the clip).
+
+    Args:
+        heading: The body's forward direction. Shape: (T, 3). None: every toe direction is
+            taken as forward.
 
     Returns:
         Rotations (T, 2, 3, 3) and costs (T, 2).
@@ -333,8 +347,12 @@ def _foot_rotations(
     weights = np.full((T, len(sides)), cfg.foot_orientation_weight)
     for s, foot in enumerate(sides):
         d = human[:, idx[foot.toe]] - human[:, idx[foot.ankle]]
-        yaw = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-        pitch = np.arctan2(d[:, 2], np.linalg.norm(d[:, :2], axis=-1))
+        back = np.zeros(T, dtype=bool)
+        if heading is not None:
+            back = np.einsum("tj,tj->t", d[:, :2], heading[:, :2]) < 0.0
+        sign = np.where(back, -1.0, 1.0)
+        yaw = np.unwrap(np.arctan2(sign * d[:, 1], sign * d[:, 0]))
+        pitch = np.unwrap(np.arctan2(d[:, 2], sign * np.linalg.norm(d[:, :2], axis=-1)))
         both = contacts[:, s, 0] & contacts[:, s, 1]
         flat_pitch = float(np.median(pitch[both] if both.any() else pitch))
         pitch_rel = flat_pitch - pitch

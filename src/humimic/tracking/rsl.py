@@ -53,6 +53,7 @@ def train_cfg(cfg: PpoConfig) -> dict[str, Any]:
         "logger": cfg.logger,
         "run_name": cfg.run_name,
         "check_for_nan": cfg.check_for_nan,
+        "critic_warmup_iterations": cfg.critic_warmup_iterations,
         "algorithm": {
             "class_name": "PPO",
             "learning_rate": cfg.learning_rate,
@@ -116,6 +117,24 @@ def torch_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(old)
 
 
+@contextlib.contextmanager
+def _critic_only(alg: Any) -> Iterator[None]:
+    """Inside the block, PPO's update leaves the actor (its weights and its noise) as it is
+    and keeps its learning rate: the actor's parameters take no gradient, and the adaptive
+    schedule, which reads the actor's KL divergence (zero here), is off."""
+    params = [p for p in alg.actor.parameters() if p.requires_grad]
+    schedule = alg.schedule
+    for p in params:
+        p.requires_grad_(False)
+    alg.schedule = "fixed"
+    try:
+        yield
+    finally:
+        alg.schedule = schedule
+        for p in params:
+            p.requires_grad_(True)
+
+
 def make_runner(
     env: Any,
     cfg: dict[str, Any],
@@ -146,20 +165,30 @@ def make_runner(
         whole) and names it by the iteration in progress. humimic writes them atomically, named
         by iterations done, and loads them with ``weights_only=True``."""
 
+        critic_warmup = 0
+        """Iterations whose updates train the critic alone (:attr:`PpoConfig.critic_warmup_iterations`)."""
+
         def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
             """rsl_rl's loop; on the CPU, rollouts run torch on one thread and the PPO update
-            on all of them (see :func:`torch_threads`)."""
-            if torch.device(self.device).type != "cpu":
-                return super().learn(num_learning_iterations, init_at_random_ep_len)
+            on all of them (see :func:`torch_threads`). The first :attr:`critic_warmup`
+            iterations (counted from the run's start, so a resume after them has none)
+            update the critic alone."""
+            cpu = torch.device(self.device).type == "cpu"
             full, update = torch.get_num_threads(), self.alg.update
+            done = [self.current_learning_iteration]
 
-            def update_all_threads(*args: Any, **kwargs: Any) -> Any:
-                with torch_threads(full):
-                    return update(*args, **kwargs)
+            def wrapped(*args: Any, **kwargs: Any) -> Any:
+                warm = done[0] < self.critic_warmup
+                done[0] += 1
+                with torch_threads(full) if cpu else contextlib.nullcontext():
+                    if not warm:
+                        return update(*args, **kwargs)
+                    with _critic_only(self.alg):
+                        return update(*args, **kwargs)
 
-            self.alg.update = update_all_threads
+            self.alg.update = wrapped
             try:
-                with torch_threads(1):
+                with torch_threads(1) if cpu else contextlib.nullcontext():
                     return super().learn(num_learning_iterations, init_at_random_ep_len)
             finally:
                 self.alg.update = update
@@ -196,4 +225,6 @@ def make_runner(
             self.current_learning_iteration = int(blob["iter"])
 
     with contextlib.redirect_stdout(io.StringIO()):  # rsl_rl prints its networks.
-        return _Runner(env, cfg, log_dir=None if log_dir is None else str(log_dir), device=device)
+        runner = _Runner(env, cfg, log_dir=None if log_dir is None else str(log_dir), device=device)
+    runner.critic_warmup = int(cfg.get("critic_warmup_iterations", 0))
+    return runner
