@@ -72,7 +72,7 @@ def evaluate_variant(motion_path: Path, robot: str, variant: dict, dr: str, phys
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--motion", type=Path, required=True, help="a refined motion (.npz)")
     p.add_argument("--robot", default="g1")
     p.add_argument("--variants", nargs="+", default=["feedforward", "feedback"],

@@ -83,9 +83,9 @@ def knee_joints(model: mujoco.MjModel, foot_bodies: list[str]) -> list[int]:
         while b not in (0, root):
             for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
                 hinge = model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
-                if hinge and "knee" in model.joint(j).name.lower():
-                    if abs(float(data.xaxis[j] @ left)) >= np.cos(np.radians(25.0)):
-                        out.append(j)
+                knee = hinge and "knee" in model.joint(j).name.lower()
+                if knee and abs(float(data.xaxis[j] @ left)) >= np.cos(np.radians(25.0)):
+                    out.append(j)
             b = int(model.body_parentid[b])
     return out
 
