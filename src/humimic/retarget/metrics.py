@@ -37,10 +37,10 @@ class QualityReport:
         worst_self_collision: The bodies of the deepest penetrating pair, ``"a | b"`` (empty
             when no pair penetrates).
         mean_joint_jerk: Mean absolute third derivative of the joint angles [rad/s^3].
-        turned_knee_frames: Frames in which a knee's hinge axis is more than 60 degrees off
-            its direction relative to the root body in the zero pose (a leg turned about
-            itself, the knee facing sideways or backward; :func:`knee_joints`); None where
-            the model has no knee to check.
+        turned_knee_frames: Frames in which a knee's hinge axis is more than 90 degrees off
+            its direction relative to the root body in the zero pose (:data:`KNEE_TURN_DEG`:
+            a leg turned about itself, the knee facing sideways or backward;
+            :func:`knee_joints`); None where the model has no knee to check.
         worst_knee_turn_deg: The largest such angle over the clip [deg]; None likewise.
     """
 
@@ -61,8 +61,10 @@ class QualityReport:
     worst_knee_turn_deg: float | None = None
 
 
-KNEE_TURN_DEG = 60.0
-"""A knee axis further than this from its zero-pose direction (in the root's frame) is turned."""
+KNEE_TURN_DEG = 90.0
+"""A knee axis further than this from its zero-pose direction (in the root's frame) is turned:
+the knee faces sideways or backward. A human hip's rotation and abduction turn it by up to
+about 70 degrees (the climbing clips: 61-71); a leg turned about itself, by 150 or more."""
 
 
 def knee_joints(model: mujoco.MjModel, foot_bodies: list[str]) -> list[int]:
