@@ -71,10 +71,9 @@ def knee_joints(model: mujoco.MjModel, foot_bodies: list[str]) -> list[int]:
     """The knees of a floating-base model: the hinge joints named ``*knee*`` (any case) on
     the chain from each foot body up to the root body (the free joint's), whose axis lies
     along the root's left-right axis in the zero pose (within 25 degrees). Empty if none."""
-    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
-    if not free:
+    root = _root_body(model)
+    if root is None:
         return []
-    root = int(model.jnt_bodyid[free[0]])
     data = mujoco.MjData(model)
     data.qpos[:] = model.qpos0
     mujoco.mj_kinematics(model, data)
@@ -90,6 +89,12 @@ def knee_joints(model: mujoco.MjModel, foot_bodies: list[str]) -> list[int]:
                     out.append(j)
             b = int(model.body_parentid[b])
     return out
+
+
+def _root_body(model: mujoco.MjModel) -> int | None:
+    """The body of the model's (first) free joint, or None for a fixed base."""
+    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    return int(model.jnt_bodyid[free[0]]) if free else None
 
 
 def _knee_axes(
@@ -144,7 +149,7 @@ def evaluate(
     fromto = np.zeros(6)
 
     knees = knee_joints(model, foot_bodies)
-    root = int(model.jnt_bodyid[0])
+    root = _root_body(model) or 0
     knee_cos = np.ones((T, len(knees)))
     if knees:
         data.qpos[:] = model.qpos0
