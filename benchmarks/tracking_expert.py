@@ -22,6 +22,7 @@ from pathlib import Path
 VARIANTS: dict[str, dict] = {
     "feedforward": {"action_base": "feedforward"},
     "feedback": {"action_base": "feedback"},
+    "root10": {"action_base": "feedback", "feedback": {"base_position": 10.0}},
     "root100": {"action_base": "feedback", "feedback": {"base_position": 100.0}},
     "root1000": {"action_base": "feedback", "feedback": {"base_position": 1000.0}},
     "control3": {"action_base": "feedback", "feedback": {"control": 3.0}},
@@ -29,8 +30,12 @@ VARIANTS: dict[str, dict] = {
 }
 """Variant name -> the task fields it sets (``feedback``: :class:`~humimic.sim.lqr.LqrWeights` fields)."""
 
+UNSEEN = Path(__file__).parent / "physics"
+"""Unseen robots of the same kind as the shipped ones, outside DR ``default`` (issue 25)."""
+
 PHYSICS = {"nominal": ("none", None), "dr_default": ("default", None),
-           "backpack": ("none", "backpack"), "worn_knees": ("none", "worn_knees")}  # fmt: skip
+           "backpack": ("none", "backpack"), "worn_knees": ("none", "worn_knees"),
+           **{p.stem: ("none", str(p)) for p in sorted(UNSEEN.glob("*.yaml"))}}  # fmt: skip
 """Evaluation physics -> (DR profile, physics file)."""
 
 
@@ -77,7 +82,8 @@ def main() -> None:
     p.add_argument("--robot", default="g1")
     p.add_argument("--variants", nargs="+", default=["feedforward", "feedback"],
                    choices=sorted(VARIANTS))  # fmt: skip
-    p.add_argument("--physics", nargs="+", default=list(PHYSICS), choices=list(PHYSICS))
+    p.add_argument("--physics", nargs="+", default=list(PHYSICS)[:4], choices=list(PHYSICS),
+                   help="default: nominal, DR default and the shipped unseen robots")  # fmt: skip
     p.add_argument("--episodes", type=int, default=32)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(

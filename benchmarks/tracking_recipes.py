@@ -21,10 +21,15 @@ import sys
 import time
 from pathlib import Path
 
+MJLAB_ANCHOR = ["--task.reward-stds", "anchor_pos", "0.3", "--task.reward-weights", "anchor_pos",
+                "0.5"]  # fmt: skip
+"""mjlab's anchor-position reward (humimic's default holds the world position tighter)."""
+
 RECIPES: dict[str, list[str]] = {
     "default": [],
     "beyondmimic": ["--task.action-base", "default", "--ppo.init-std", "1.0",
-                    "--ppo.actor-output-gain", "1.0"],
+                    "--ppo.actor-output-gain", "1.0", *MJLAB_ANCHOR],
+    "feedback-root10": ["--task.feedback-root-cost", "10", *MJLAB_ANCHOR],
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],
     "feedforward-std1": ["--task.action-base", "feedforward", "--ppo.init-std", "1.0",
@@ -35,9 +40,14 @@ RECIPES: dict[str, list[str]] = {
 """Recipe name -> the flags it adds to ``humimic train --motion M --out RUN --max-minutes X``
 (``default``: none, the command a user runs)."""
 
+UNSEEN = Path(__file__).parent / "physics"
+"""Unseen robots of the same kind as the shipped ones, outside DR ``default`` (issue 25)."""
+
 PHYSICS = {"nominal": ["--dr", "none"], "dr_default": ["--dr", "default"],
            "backpack": ["--dr", "none", "--physics", "backpack"],
-           "worn_knees": ["--dr", "none", "--physics", "worn_knees"]}  # fmt: skip
+           "worn_knees": ["--dr", "none", "--physics", "worn_knees"],
+           **{p.stem: ["--dr", "none", "--physics", str(p)]
+              for p in sorted(UNSEEN.glob("*.yaml"))}}  # fmt: skip
 """Evaluation physics -> ``humimic eval`` flags."""
 
 METRICS = ("success_rate", "mean_steps", "mpjpe_global_mm", "mpjpe_root_mm", "joint_error_rad")

@@ -285,6 +285,26 @@ def test_dr_default_varies_within_ranges(model: mujoco.MjModel, motion: Motion) 
     assert torch.equal(obs["critic"][:, p.shape[1] : p.shape[1] + e.shape[1]], e)
 
 
+def test_com_mass_scale_loads_the_anchor_body_alone(model: mujoco.MjModel, motion: Motion) -> None:
+    """``com_mass_scale`` (a payload on the torso) multiplies the anchor body's mass on top of
+    ``mass_scale``; the other bodies keep theirs; ``e`` spans the product of both ranges."""
+    dr = replace(dr_mod.dr_none(), mass_scale=(0.95, 1.05), com_mass_scale=(1.4, 1.6))
+    cfg = replace(g1_tracking(dr), action_base="default")
+    env = TrackingEnv(cfg, motion, 6, model=model)
+    be = env.backend
+    assert isinstance(be, MujocoCpuBackend)
+    torso = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, cfg.anchor_body)
+    ratio = np.stack([be.model_of(i).body_mass / model.body_mass.clip(1e-12) for i in range(6)])
+    assert ratio[:, torso].min() >= 1.4 * 0.95 - 1e-9 and ratio[:, torso].max() <= 1.6 * 1.05
+    others = np.delete(ratio[:, 1:], torso - 1, axis=1)
+    others = others[:, model.body_mass[1:][np.arange(model.nbody - 1) != torso - 1] > 0]
+    assert others.min() >= 0.95 - 1e-9 and others.max() <= 1.05 + 1e-9
+    e = env.physics_params
+    assert e.abs().max() <= 1.0 + 1e-6 and e.std(dim=0).max() > 0.1
+    with pytest.raises(ValueError, match="com_column"):
+        dr_mod.sample(dr, 2, num_bodies=5, num_joints=3, rng=np.random.default_rng(0))
+
+
 def test_sample_pool_serves_fresh_rows_with_their_normalization() -> None:
     dr = dr_default()
     pool = dr_mod.SamplePool(dr, num_bodies=5, num_joints=3, rng=np.random.default_rng(0), block=4)

@@ -95,11 +95,15 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
 
     out = tmp_path / "run"
     tuned = ["--task.action-scale", "0.5", "--task.reward-weights", "body_pos", "2.0",
+             "--task.reward-stds", "anchor_pos", "0.3", "--task.feedback-root-cost", "10",
              "--ppo.learning-rate", "3e-4", "--ppo.actor-hidden-dims", "32", "16"]  # fmt: skip
     assert main(_train_args(motion_file, out, 1, *tuned)) == 0
     cfg = yaml.safe_load((out / "config.yaml").read_text())
     assert cfg["settings"]["task"]["action_scale"] == 0.5
     assert cfg["settings"]["task"]["reward_weights"] == {"body_pos": 2.0}
+    assert cfg["settings"]["task"]["reward_stds"] == {"anchor_pos": 0.3}
+    assert cfg["tracking"]["rewards"]["anchor_pos"]["params"]["std"] == 0.3
+    assert cfg["tracking"]["feedback"]["base_position"] == 10.0
     assert cfg["settings"]["ppo"]["learning_rate"] == 3e-4
     assert cfg["tracking"]["action_scale"] == 0.5
     assert cfg["tracking"]["rewards"]["body_pos"]["weight"] == 2.0
@@ -113,6 +117,9 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
     assert settings.task.action_scale == 0.5 and settings.ppo.actor_hidden_dims == (32, 16)
     task = task_config("g1", "none", 0, settings=settings.task)
     assert task.action_scale == 0.5 and task.rewards["body_pos"].weight == 2.0
+    assert task.rewards["anchor_pos"].params["std"] == 0.3
+    assert task.rewards["body_pos"].params["std"] == 0.3  # The others as they were.
+    assert task.feedback.base_position == 10.0
     capsys.readouterr()
     assert main(_train_args(motion_file, out, 2, "--resume")) == 2
     err = capsys.readouterr().err
@@ -123,10 +130,37 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
     # Bad values are refused before anything is written, naming the flag.
     for bad, named in ((["--task.action-scale", "0"], "--task.action-scale"),
                        (["--task.reward-weights", "nope", "1"], "nope"),
+                       (["--task.reward-stds", "action_rate_l2", "1"], "action_rate_l2"),
+                       (["--task.reward-stds", "anchor_pos", "0"], "--task.reward-stds"),
+                       (["--task.feedback-root-cost", "-1"], "--task.feedback-root-cost"),
                        (["--ppo.gamma", "1.5"], "--ppo.gamma")):  # fmt: skip
         assert main(_train_args(motion_file, tmp_path / "bad", 1, *bad)) == 2
         assert named in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()
+
+
+def test_run_records_the_feedback_it_trains_with_and_older_runs_read_as_trained() -> None:
+    """A run records the LQR root cost its task resolves to, so a later change of the default
+    does not change what eval rebuilds; a config.yaml written before the setting existed reads
+    as the root cost and anchor reward of then (10; std 0.3, weight 0.5)."""
+    from dataclasses import asdict
+
+    from humimic.configs.runs import TrainSettings
+    from humimic.tracking.config import tracking_task
+    from humimic.tracking.runs import _settings_from, resolved_settings
+    from humimic.tracking.train import task_config
+
+    r = resolved_settings(TrainSettings(motion=Path("m.npz"), out=Path("run")))
+    assert r.task.feedback_root_cost == tracking_task("g1").feedback.base_position
+    old = asdict(r)
+    del old["task"]["feedback_root_cost"], old["task"]["reward_stds"]
+    old["task"]["reward_weights"] = {"body_pos": 2.0}
+    read = _settings_from(old).task
+    assert read.feedback_root_cost == 10.0
+    task = task_config("g1", "none", 0, settings=read)
+    assert task.feedback.base_position == 10.0
+    assert task.rewards["anchor_pos"].params["std"] == 0.3
+    assert task.rewards["anchor_pos"].weight == 0.5 and task.rewards["body_pos"].weight == 2.0
 
 
 @pytest.mark.parametrize(

@@ -155,10 +155,27 @@ class TaskSettings:
     ] = field(default_factory=dict)
     """New weights of reward terms, by name: ``--task.reward-weights body_pos 2.0
     action_rate_l2 -0.05`` (the terms: docs/tracking.md)."""
+    reward_stds: Annotated[
+        dict[str, float], tyro.conf.arg(help_behavior_hint="(default: the task's stds)")
+    ] = field(default_factory=dict)
+    """New widths of the tracking terms ``exp(-err / std**2)``, by name:
+    ``--task.reward-stds anchor_pos 0.3`` (mjlab's; the terms with a std: docs/tracking.md)."""
+    feedback_root_cost: Annotated[float | None, _TASKS] = None
+    """The ``feedback`` base's LQR cost of the root's world position [1/m^2] (the task's
+    default holds the robot to the clip's place in the world; 10 was the default before
+    2026-12-02)."""
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the flag."""
-        _check_reals(self, "task", ("episode_length_s", "action_scale"), positive=True)
+        _check_reals(
+            self, "task", ("episode_length_s", "action_scale", "feedback_root_cost"), positive=True
+        )
+        for name, v in self.reward_stds.items():
+            if not (math.isfinite(v) and 0 < v <= MAX_WEIGHT):
+                raise InputError(
+                    f"--task.reward-stds {name} {v}: must be a positive number of at most "
+                    f"{MAX_WEIGHT:g}"
+                )
         if self.soft_limit_factor is not None and not 0 < self.soft_limit_factor <= 1:
             raise InputError(
                 f"--task.soft-limit-factor {self.soft_limit_factor}: must be in (0, 1]"

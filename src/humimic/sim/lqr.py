@@ -80,6 +80,10 @@ class LqrWeights:
     """Diagonal costs of the time-varying LQR around a plan, per unit of the tangent state
     (``mj_differentiatePos`` positions, then velocities) and of the PD targets.
 
+    The root position's cost (100 per m^2, as much as the orientation's per rad^2) holds the
+    robot to the plan's place in the world: with 10, the expert alone drifted 96 mm (global
+    MPJPE) under DR ``default`` on the CMU walk, with 100, 66 mm (BENCHMARKS.md, issue 25).
+
     Attributes:
         base_position: Root position [1/m^2].
         base_orientation: Root orientation [1/rad^2].
@@ -89,7 +93,7 @@ class LqrWeights:
         control: PD target deviation [1/rad^2].
     """
 
-    base_position: float = 10.0
+    base_position: float = 100.0
     base_orientation: float = 100.0
     joint_position: float = 3.0
     base_velocity: float = 1.0

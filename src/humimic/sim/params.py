@@ -160,6 +160,13 @@ class ModelLayout:
             nominal={name: getattr(model, name).copy() for name in DR_FIELDS},
         )
 
+    @property
+    def com_column(self) -> int:
+        """The column of :attr:`com_body` in :attr:`robot_bodies` (and in
+        ``PhysicsParams.mass_scale``), or -1."""
+        hit = np.flatnonzero(self.robot_bodies == self.com_body) if self.com_body >= 0 else []
+        return int(hit[0]) if len(hit) else -1
+
     def fields(self, params: PhysicsParams) -> dict[str, np.ndarray]:
         """The :data:`DR_FIELDS` of the n models ``params`` describes (the nominal values where
         domain randomization leaves them). Shape of each: (n, *the model field's shape)."""

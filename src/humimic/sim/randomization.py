@@ -51,6 +51,9 @@ class DomainRandomization:
     Attributes:
         friction: Floor and collider sliding friction (uniform).
         mass_scale: Per-link mass (and inertia) multiplier (log-uniform).
+        com_mass_scale: A further multiplier of the anchor body's mass and inertia
+            (log-uniform), on top of ``mass_scale``: a payload carried on the torso (1.5:
+            half the torso's mass again).
         com_offset: Anchor-body CoM offset per axis x, y, z [m] (uniform).
         kp_scale: Per-joint stiffness multiplier (log-uniform).
         kd_scale: Per-joint damping multiplier (log-uniform).
@@ -66,6 +69,7 @@ class DomainRandomization:
 
     friction: Range = (1.0, 1.0)
     mass_scale: Range = (1.0, 1.0)
+    com_mass_scale: Range = (1.0, 1.0)
     com_offset: tuple[Range, Range, Range] = ((0.0, 0.0), (0.0, 0.0), (0.0, 0.0))
     kp_scale: Range = (1.0, 1.0)
     kd_scale: Range = (1.0, 1.0)
@@ -80,8 +84,8 @@ class DomainRandomization:
     @property
     def randomizes_model(self) -> bool:
         """Whether any parameter of the physics model varies (needs per-env models)."""
-        ranges = [self.friction, self.mass_scale, *self.com_offset, self.kp_scale]
-        ranges += [self.kd_scale, self.armature_scale]
+        ranges = [self.friction, self.mass_scale, self.com_mass_scale, *self.com_offset]
+        ranges += [self.kp_scale, self.kd_scale, self.armature_scale]
         return any(lo != hi for lo, hi in ranges)
 
     def validate(self, where: str = "dr") -> None:
@@ -98,7 +102,7 @@ class DomainRandomization:
         check("friction", self.friction)
         if self.friction[0] < 0:
             raise InputError(f"{where}.friction: must not be negative, got {self.friction!r}")
-        for name in ("mass_scale", "kp_scale", "kd_scale", "armature_scale"):
+        for name in ("mass_scale", "com_mass_scale", "kp_scale", "kd_scale", "armature_scale"):
             check(name, getattr(self, name), positive=True)
         check("joint_offset", self.joint_offset)
         check("action_delay", self.action_delay)
@@ -275,11 +279,26 @@ def sample(
     num_bodies: int,
     num_joints: int,
     rng: np.random.Generator,
+    com_column: int = -1,
 ) -> DrSample:
-    """Sample the parameters of ``n`` envs (uniform; log-uniform for scales)."""
+    """Sample the parameters of ``n`` envs (uniform; log-uniform for scales).
+
+    Args:
+        com_column: The anchor body's column of ``mass_scale``
+            (:attr:`~humimic.sim.params.ModelLayout.com_column`), which ``com_mass_scale``
+            scales further.
+
+    Raises:
+        ValueError: ``com_mass_scale`` varies and no ``com_column`` is given.
+    """
+    mass_scale = _log_uniform(rng, dr.mass_scale, (n, num_bodies))
+    if dr.com_mass_scale != (1.0, 1.0):
+        if not 0 <= com_column < num_bodies:
+            raise ValueError("com_mass_scale needs the anchor body's column (com_column)")
+        mass_scale[:, com_column] *= _log_uniform(rng, dr.com_mass_scale, (n,))
     physics = PhysicsParams(
         friction=_uniform(rng, dr.friction, (n,)),
-        mass_scale=_log_uniform(rng, dr.mass_scale, (n, num_bodies)),
+        mass_scale=mass_scale,
         com_offset=np.stack([_uniform(rng, r, (n,)) for r in dr.com_offset], axis=-1),
         kp_scale=_log_uniform(rng, dr.kp_scale, (n, num_joints)),
         kd_scale=_log_uniform(rng, dr.kd_scale, (n, num_joints)),
@@ -301,12 +320,17 @@ def _norm(x: np.ndarray, r: tuple[float, float], log: bool = False) -> np.ndarra
     return (2.0 * v - (lo + hi)) / (hi - lo)
 
 
-def normalize(dr: DomainRandomization, s: DrSample) -> np.ndarray:
-    """The critic's parameter vector ``e`` in [-1, 1]. Shape: (n, :func:`param_dim`)."""
+def normalize(dr: DomainRandomization, s: DrSample, com_column: int = -1) -> np.ndarray:
+    """The critic's parameter vector ``e`` in [-1, 1]. Shape: (n, :func:`param_dim`). The
+    anchor body's mass (``com_column``) is normalized over the product of its two ranges."""
     p = s.physics
+    mass = _norm(p.mass_scale, dr.mass_scale, log=True)
+    if dr.com_mass_scale != (1.0, 1.0) and 0 <= com_column < mass.shape[1]:
+        (lo, hi), (clo, chi) = dr.mass_scale, dr.com_mass_scale
+        mass[:, com_column] = _norm(p.mass_scale[:, com_column], (lo * clo, hi * chi), log=True)
     parts = [
         _norm(p.friction, dr.friction)[:, None],
-        _norm(p.mass_scale, dr.mass_scale, log=True),
+        mass,
         np.stack([_norm(p.com_offset[:, k], r) for k, r in enumerate(dr.com_offset)], axis=-1),
         _norm(p.kp_scale, dr.kp_scale, log=True),
         _norm(p.kd_scale, dr.kd_scale, log=True),
@@ -356,13 +380,16 @@ class SamplePool:
         num_joints: int,
         rng: np.random.Generator,
         block: int = 256,
+        com_column: int = -1,
     ) -> None:
         self._fields = [f.name for f in fields(PhysicsParams)]
 
         def draw(n: int) -> tuple[np.ndarray, ...]:
-            smp = sample(dr, n, num_bodies=num_bodies, num_joints=num_joints, rng=rng)
+            smp = sample(dr, n, num_bodies=num_bodies, num_joints=num_joints, rng=rng,
+                         com_column=com_column)  # fmt: skip
             physics = [getattr(smp.physics, f) for f in self._fields]
-            return (*physics, smp.joint_offset, smp.action_delay, normalize(dr, smp))
+            return (*physics, smp.joint_offset, smp.action_delay,
+                    normalize(dr, smp, com_column))  # fmt: skip
 
         self._blocks = Blocks(draw, block)
 

@@ -246,7 +246,11 @@ class TrackingEnv(VecEnv):
         self._gen = torch.Generator(device=dev).manual_seed(cfg.seed)
         self._rng = np.random.default_rng(cfg.seed)
         self._dr_pool = dr_mod.SamplePool(
-            cfg.dr, num_bodies=be.num_bodies_total, num_joints=J, rng=self._rng
+            cfg.dr,
+            num_bodies=be.num_bodies_total,
+            num_joints=J,
+            rng=self._rng,
+            com_column=be.layout.com_column,
         )
         self._reset_noise = dr_mod.Blocks(self._draw_reset_noise)
         max_delay = int(cfg.dr.action_delay[1])

@@ -165,16 +165,22 @@ def resolved_settings(s: TrainSettings) -> TrainSettings:
         dr=resolved_source(s.dr, DR_PROFILES) or s.dr,
         physics=resolved_source(s.physics, _physics_names()),
         ppo=ppo_for(s),
-        task=replace(s.task, action_base=s.task.action_base or _task_action_base(s.robot)),
+        task=_resolved_task(s.robot, s.task),
     )
 
 
-def _task_action_base(robot: str) -> str:
-    """The action base of a robot's registered task (what an unset ``--task.action-base``
-    trains with)."""
+def _resolved_task(robot: str, t: TaskSettings) -> TaskSettings:
+    """The task settings with the action base and the feedback's root cost the run trains
+    with (an unset flag: the robot's registered task's value), so that a later change of the
+    defaults does not change what ``eval`` rebuilds."""
     from humimic.tracking.config import tracking_task
 
-    return tracking_task(robot, "none").action_base
+    task = tracking_task(robot, "none")
+    return replace(
+        t,
+        action_base=t.action_base or task.action_base,
+        feedback_root_cost=t.feedback_root_cost or task.feedback.base_position,
+    )
 
 
 def settings_differences(old: Any, new: Any, names: tuple[str, ...], prefix: str = "") -> list[str]:
@@ -200,6 +206,11 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
     task = dict(data.get("task") or {})
     if task.get("action_base") is None:  # Recorded before action bases: the default pose.
         task["action_base"] = "default"
+    if "feedback_root_cost" not in task:
+        # Recorded before 2026-12-02: the LQR root cost and the anchor reward of then.
+        task["feedback_root_cost"] = 10.0
+        task["reward_stds"] = {"anchor_pos": 0.3, **(task.get("reward_stds") or {})}
+        task["reward_weights"] = {"anchor_pos": 0.5, **(task.get("reward_weights") or {})}
     data["task"] = TaskSettings(**task)
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])

@@ -85,7 +85,8 @@ def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> Trackin
     """The task with the values ``settings`` sets (``--task.*``; unset ones keep the task's).
 
     Raises:
-        InputError: ``--task.reward-weights`` names a term the task does not have.
+        InputError: ``--task.reward-weights`` names a term the task does not have, or
+            ``--task.reward-stds`` one without a std.
     """
     names = ("episode_length_s", "action_base", "action_scale", "soft_limit_factor",
              "history_length")  # fmt: skip
@@ -98,11 +99,25 @@ def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> Trackin
             f"--task.reward-weights: the {task.robot} task has no reward term {unknown[0]!r}; "
             f"its terms: {', '.join(task.rewards)}"
         )
-    if weights:
+    stds = settings.reward_stds
+    no_std = sorted(n for n in stds if "std" not in getattr(task.rewards.get(n), "params", {}))
+    if no_std:
+        with_std = [n for n, t in task.rewards.items() if "std" in t.params]
+        raise InputError(
+            f"--task.reward-stds: the {task.robot} task has no reward term {no_std[0]!r} with a "
+            f"std; its terms with one: {', '.join(with_std)}"
+        )
+    if weights or stds:
         changes["rewards"] = {
-            name: replace(term, weight=float(weights.get(name, term.weight)))
+            name: replace(
+                term,
+                weight=float(weights.get(name, term.weight)),
+                params={**term.params, **({"std": float(stds[name])} if name in stds else {})},
+            )
             for name, term in task.rewards.items()
         }
+    if settings.feedback_root_cost is not None:
+        changes["feedback"] = replace(task.feedback, base_position=settings.feedback_root_cost)
     return replace(task, **changes)
 
 

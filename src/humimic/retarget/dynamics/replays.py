@@ -166,7 +166,8 @@ def perturbed_models(
     from the ``default`` domain-randomization ranges (robustness of a replay)."""
     rng = np.random.default_rng(seed)
     smp = dr_mod.sample(dr_default(), count, num_bodies=backend.num_bodies_total,
-                        num_joints=backend.nu, rng=rng)  # fmt: skip
+                        num_joints=backend.nu, rng=rng,
+                        com_column=backend.layout.com_column)  # fmt: skip
     return physics_copies(model, backend.layout, smp.physics)
 
 

@@ -194,7 +194,8 @@ class DynamicsRetargeter:
         if cfg.ensemble:
             rng = np.random.default_rng(cfg.seed + 1)
             smp = dr_mod.sample(dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
-                                num_joints=self.backend.nu, rng=rng)  # fmt: skip
+                                num_joints=self.backend.nu, rng=rng,
+                                com_column=self.backend.layout.com_column)  # fmt: skip
             for e in range(cfg.ensemble):
                 ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
                 self.backend.set_params(ids, smp.physics.select(np.full(len(ids), e)))
