@@ -25,9 +25,16 @@ VARIANTS: dict[str, dict] = {
     "root10": {"action_base": "feedback", "feedback": {"base_position": 10.0}},
     "root100": {"action_base": "feedback", "feedback": {"base_position": 100.0}},
     "root1000": {"action_base": "feedback", "feedback": {"base_position": 1000.0}},
-    "control3": {"action_base": "feedback", "feedback": {"control": 3.0}},
-    "limit1": {"action_base": "feedback", "feedback_limit": 1.0},
-}
+    # Around the root cost of 10 (the default until 2026-12-02), as BENCHMARKS.md reports them.
+    **{name: {"action_base": "feedback", "feedback": {"base_position": 10.0, **costs}}
+       for name, costs in (("control3", {"control": 3.0}), ("control30", {"control": 30.0}),
+                           ("control100", {"control": 100.0}),
+                           ("ori1000", {"base_orientation": 1000.0}),
+                           ("joints10", {"joint_position": 10.0}),
+                           ("vel10", {"base_velocity": 10.0}))},
+    "limit1": {"action_base": "feedback", "feedback_limit": 1.0,
+               "feedback": {"base_position": 10.0}},
+}  # fmt: skip
 """Variant name -> the task fields it sets (``feedback``: :class:`~humimic.sim.lqr.LqrWeights` fields)."""
 
 UNSEEN = Path(__file__).parent / "physics"

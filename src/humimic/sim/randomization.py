@@ -289,7 +289,7 @@ def sample(
             scales further.
 
     Raises:
-        ValueError: ``com_mass_scale`` varies and no ``com_column`` is given.
+        ValueError: ``com_mass_scale`` is not ``(1, 1)`` and no ``com_column`` is given.
     """
     mass_scale = _log_uniform(rng, dr.mass_scale, (n, num_bodies))
     if dr.com_mass_scale != (1.0, 1.0):
