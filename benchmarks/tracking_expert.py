@@ -32,6 +32,9 @@ VARIANTS: dict[str, dict] = {
                            ("ori1000", {"base_orientation": 1000.0}),
                            ("joints10", {"joint_position": 10.0}),
                            ("vel10", {"base_velocity": 10.0}))},
+    # The default costs, the LQR designed for 1 or 2 policy steps (20, 40 ms) of latency.
+    "delay1": {"action_base": "feedback", "feedback_delay": 1},
+    "delay2": {"action_base": "feedback", "feedback_delay": 2},
     "limit1": {"action_base": "feedback", "feedback_limit": 1.0,
                "feedback": {"base_position": 10.0}},
 }  # fmt: skip

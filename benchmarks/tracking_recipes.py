@@ -30,6 +30,8 @@ RECIPES: dict[str, list[str]] = {
     "beyondmimic": ["--task.action-base", "default", "--ppo.init-std", "1.0",
                     "--ppo.actor-output-gain", "1.0", *MJLAB_ANCHOR],
     "feedback-root10": ["--task.feedback-root-cost", "10", *MJLAB_ANCHOR],
+    "wide-dr": ["--dr", "wide"],
+    "kl0.1": ["--ppo.desired-kl", "0.1"],
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],
     "feedforward-std1": ["--task.action-base", "feedforward", "--ppo.init-std", "1.0",
@@ -84,7 +86,8 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
     result: dict = {"recipe": name, "flags": RECIPES[name], "train_wall_s": train_wall,
                     "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
                     "curve": curve, **curve_summary(curve, progress)}  # fmt: skip
-    for label, flags in PHYSICS.items():
+    for label in args.physics:
+        flags = PHYSICS[label]
         out = run / f"eval_{label}.json"
         _humimic("eval", str(run), "--episodes", str(args.episodes), "--out", str(out), *flags)
         ev = json.loads(out.read_text())
@@ -99,6 +102,8 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=30.0)
     parser.add_argument("--recipes", nargs="+", default=["default", "beyondmimic"],
                         choices=sorted(RECIPES))  # fmt: skip
+    parser.add_argument("--physics", nargs="+", default=list(PHYSICS), choices=list(PHYSICS),
+                        help="the physics to evaluate the last checkpoint on (default: all)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=32)
     parser.add_argument("--curve-episodes", type=int, default=8)
     parser.add_argument("--curve-points", type=int, default=10)

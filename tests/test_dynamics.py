@@ -368,3 +368,48 @@ def test_feedback_base_corrects_a_perturbed_start(shared_data: Path) -> None:
             env.close()
     assert posture["feedback"] < 0.5 * posture["feedforward"], posture
     assert world["feedback"] < world["feedforward"], world
+
+
+def test_delay_aware_feedback_base_issues_each_target_ahead_of_its_step(shared_data: Path) -> None:
+    """On a robot whose commands act 2 policy steps late (DR's action delay fixed at 2), the
+    ``feedback`` base designed for that delay (``feedback_delay=2``) issues the stored target
+    of the step its command will act on, so the drives receive each step's stored target in
+    time and the episode retraces the refined trajectory; designed for no delay it sends them
+    late and ends farther from it."""
+    import torch
+
+    from humimic.sim.randomization import dr_none
+    from humimic.tracking.config import AdaptiveSampling, ResetNoise, g1_tracking
+    from humimic.tracking.env import TrackingEnv
+
+    motion, _ = _refined(shared_data)
+    assert motion.dynamics is not None
+    ctrl, states = motion.dynamics["ctrl"], motion.dynamics["qpos"]
+    world, worst_target = {}, {}
+    for design in (0, 2):
+        task = replace(
+            g1_tracking(replace(dr_none(), action_delay=(2, 2))), action_base="feedback",
+            feedback_delay=design, start_frame=0, episode_length_s=10.0,
+            reset=ResetNoise(pose=((0.0, 0.0),) * 6, velocity=((0.0, 0.0),) * 6,  # type: ignore[arg-type]
+                             joint_pos=(0.0, 0.0)),
+            adaptive=AdaptiveSampling(enabled=False),
+        )  # fmt: skip
+        env = TrackingEnv(task, motion, 1)
+        try:
+            d, worst = task.decimation, 0.0
+            for f in range(motion.num_frames - 2):
+                _, _, done, _ = env.step(torch.zeros(1, env.num_actions))
+                assert not bool(done[0]), design
+                applied = env.joint_targets[0].numpy()
+                worst = max(worst, float(np.abs(applied - ctrl[f * d]).max()))
+            worst_target[design] = worst
+            qpos = env.backend.read().qpos[0]
+            world[design] = float(
+                np.abs(qpos[:3] - states[(motion.num_frames - 2) * d - 1][:3]).max()
+            )
+        finally:
+            env.close()
+    # In time: the stored target up to the LQR's small corrections of float32 round-off.
+    assert worst_target[2] < 0.02, worst_target
+    assert worst_target[0] > 5 * worst_target[2], worst_target  # Late by two steps.
+    assert world[2] < 0.01 and world[2] < 0.5 * world[0], world

@@ -190,3 +190,47 @@ def test_riccati_gains_equal_the_batch_least_squares_optimum() -> None:
         rhs = -np.concatenate([w[:, 0] * (s @ x0) for s in S] + [np.zeros(H * nu)])
         u = np.linalg.lstsq(M, rhs, rcond=None)[0]
         np.testing.assert_allclose(K0 @ x0, u[:nu], atol=1e-9)
+
+
+def test_delayed_gains_equal_the_batch_optimum_of_the_delayed_plant() -> None:
+    """With commands that act ``d`` steps after they are issued, the first gain of the
+    Riccati recursion on :func:`delayed_system` is the finite-horizon optimum found another
+    way: the delayed plant written out by hand (its first ``d`` inputs are the commands in
+    flight), one least-squares solve over every issued command, from each unit start."""
+    from humimic.sim.lqr import delayed_system, riccati
+
+    rng = np.random.default_rng(3)
+    nx, nu, H, d = 3, 2, 7, 2
+    A = np.stack([np.eye(nx) + 0.2 * rng.normal(size=(nx, nx)) for _ in range(H)])
+    B = rng.normal(size=(H, nx, nu))
+    qd, r = np.array([1.0, 2.0, 0.5]), 0.7
+    Az, Bz = delayed_system(A, B, d)
+    nz = nx + d * nu
+    lxx = np.zeros((H + 1, nz, nz))
+    lxx[:, :nx, :nx] = np.diag(qd)
+    luu = np.broadcast_to(r * np.eye(nu), (H, nu, nu)).copy()
+    out = riccati(np.zeros((H + 1, nz)), lxx, np.zeros((H, nu)), luu, Az, Bz, 0.0)
+    assert out is not None
+    K0 = out[1][0]
+    # Unknowns: the issued commands u_0..u_{H-1}. The plant at step t takes u_{t-d}: from the
+    # queue q (oldest first) while t < d. x_t = S_t z0 + G_t u.
+    S, G = [np.eye(nx, nz)], [np.zeros((nx, H * nu))]
+    for t in range(H):
+        s, g = A[t] @ S[-1], A[t] @ G[-1]
+        if t < d:
+            s[:, nx + t * nu : nx + (t + 1) * nu] += B[t]
+        else:
+            g[:, (t - d) * nu : (t - d + 1) * nu] += B[t]
+        S.append(s)
+        G.append(g)
+    w = np.sqrt(qd)[:, None]
+    M = np.vstack([w * g for g in G] + [np.sqrt(r) * np.eye(H * nu)])
+    for i in range(nz):
+        z0 = np.eye(nz)[i]
+        rhs = -np.concatenate([w[:, 0] * (s @ z0) for s in S] + [np.zeros(H * nu)])
+        u = np.linalg.lstsq(M, rhs, rcond=None)[0]
+        np.testing.assert_allclose(K0 @ z0, u[:nu], atol=1e-9)
+    assert np.abs(K0[:, nx:]).max() > 1e-3  # The commands in flight matter.
+    # No delay: the plant itself.
+    A0, B0 = delayed_system(A, B, 0)
+    assert A0 is A and B0 is B

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import mujoco
@@ -315,6 +315,25 @@ def test_sample_pool_serves_fresh_rows_with_their_normalization() -> None:
         assert e.shape == (len(smp.physics.friction), dr_mod.param_dim(5, 3))
         np.testing.assert_allclose(e, dr_mod.normalize(dr, smp))
         assert smp.physics.mass_scale.shape == (len(e), 5) and smp.joint_offset.shape == (len(e), 3)
+
+
+def test_wide_profile_contains_default_and_widens_the_robot_axes() -> None:
+    wide, default = dr_mod.dr_profile("wide"), dr_default()
+    wide.validate("wide")
+
+    def ranges(dr: dr_mod.DomainRandomization) -> dict[str, tuple[float, float]]:
+        out = {f.name: getattr(dr, f.name) for f in fields(dr)}
+        for name in ("com_offset", "push_lin_vel", "push_ang_vel"):
+            out.update({f"{name}.{a}": r for a, r in zip("xyz", out.pop(name), strict=True)})
+        return {k: v for k, v in out.items() if isinstance(v, tuple)}
+
+    w, d = ranges(wide), ranges(default)
+    assert w.keys() == d.keys()
+    for k in d:  # Every range of `default` lies inside `wide`'s ...
+        assert w[k][0] <= d[k][0] and w[k][1] >= d[k][1], k
+    widened = {k for k in d if w[k] != d[k]}  # ... and only the robot's axes grow.
+    assert widened == {"friction", "com_mass_scale", "action_delay", "com_offset.x"}
+    assert wide.obs_noise == default.obs_noise and wide.push_interval_s == default.push_interval_s
 
 
 def test_yaml_profile(tmp_path: Path) -> None:

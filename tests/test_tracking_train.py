@@ -133,6 +133,9 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
                        (["--task.reward-stds", "action_rate_l2", "1"], "action_rate_l2"),
                        (["--task.reward-stds", "anchor_pos", "0"], "--task.reward-stds"),
                        (["--task.feedback-root-cost", "-1"], "--task.feedback-root-cost"),
+                       (["--task.feedback-delay", "-1"], "--task.feedback-delay"),
+                       (["--task.feedback-delay", "1", "--task.action-base", "reference"],
+                        "--task.feedback-delay"),
                        (["--ppo.gamma", "1.5"], "--ppo.gamma")):  # fmt: skip
         assert main(_train_args(motion_file, tmp_path / "bad", 1, *bad)) == 2
         assert named in capsys.readouterr().err
@@ -161,6 +164,15 @@ def test_run_records_the_feedback_it_trains_with_and_older_runs_read_as_trained(
     assert task.feedback.base_position == 10.0
     assert task.rewards["anchor_pos"].params["std"] == 0.3
     assert task.rewards["anchor_pos"].weight == 0.5 and task.rewards["body_pos"].weight == 2.0
+    # The LQR's design delay: recorded as resolved, and none for a run recorded before it.
+    assert r.task.feedback_delay == 0
+    s = TrainSettings(motion=Path("m.npz"), out=Path("run"))
+    two = resolved_settings(replace(s, task=replace(s.task, feedback_delay=2)))
+    assert task_config("g1", "none", 0, settings=two.task).feedback_delay == 2
+    assert _settings_from(asdict(two)).task.feedback_delay == 2
+    before = asdict(two)
+    del before["task"]["feedback_delay"]
+    assert _settings_from(before).task.feedback_delay == 0
 
 
 @pytest.mark.parametrize(

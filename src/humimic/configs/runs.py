@@ -164,12 +164,25 @@ class TaskSettings:
     """The ``feedback`` base's LQR cost of the root's world position [1/m^2] (the task's
     default holds the robot to the clip's place in the world; 10 was the default before
     2026-12-02)."""
+    feedback_delay: Annotated[int | None, _TASKS] = None
+    """Policy steps (20 ms each on the G1) of command latency the ``feedback`` base's LQR is
+    designed for: it issues the stored target of the step its command will act on and feeds
+    back the commands still in flight (0: none, the default)."""
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the flag."""
         _check_reals(
             self, "task", ("episode_length_s", "action_scale", "feedback_root_cost"), positive=True
         )
+        if self.feedback_delay is not None and not 0 <= self.feedback_delay <= 10:
+            raise InputError(
+                f"--task.feedback-delay {self.feedback_delay}: expected 0-10 policy steps"
+            )
+        if self.feedback_delay and self.action_base not in (None, "feedback"):
+            raise InputError(
+                f"--task.feedback-delay {self.feedback_delay}: only the 'feedback' action base "
+                f"has an LQR to design for a delay (--task.action-base {self.action_base})"
+            )
         for name, v in self.reward_stds.items():
             if not (math.isfinite(v) and 0 < v <= MAX_WEIGHT):
                 raise InputError(

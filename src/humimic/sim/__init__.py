@@ -23,6 +23,7 @@ if TYPE_CHECKING:
         dr_default,
         dr_none,
         dr_profile,
+        dr_wide,
         load_dr_profile,
     )
     from humimic.sim.setup import (
@@ -57,6 +58,7 @@ _WHERE = {
     "build_backend": "humimic.sim.setup",
     "build_model": "humimic.sim.setup",
     "dr_default": "humimic.sim.randomization",
+    "dr_wide": "humimic.sim.randomization",
     "dr_none": "humimic.sim.randomization",
     "dr_profile": "humimic.sim.randomization",
     "fixed_base_spec": "humimic.sim.models",
@@ -99,6 +101,7 @@ __all__ = [
     "dr_default",
     "dr_none",
     "dr_profile",
+    "dr_wide",
     "fixed_base_spec",
     "key_body_setup",
     "load_dr_profile",

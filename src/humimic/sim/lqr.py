@@ -109,6 +109,32 @@ class LqrWeights:
         ])  # fmt: skip
 
 
+def delayed_system(A: np.ndarray, B: np.ndarray, delay: int) -> tuple[np.ndarray, np.ndarray]:
+    """The linear system of commands that reach the plant ``delay`` control steps after they
+    are issued, as an undelayed one: the state ``z_t = [dx_t, du_{t-d}, ..., du_{t-1}]``
+    appends the commands in flight (oldest first), ``dx_{t+1} = A_t dx_t + B_t du_{t-d}``, and
+    the command issued at ``t`` enters the end of the queue.
+
+    Args:
+        A, B: The plant's step Jacobians. Shape: (H, nx, nx), (H, nx, nu).
+        delay: Control steps ``d`` >= 0 (0 returns ``A`` and ``B``).
+
+    Returns:
+        ``A_z`` Shape: (H, nx + d nu, nx + d nu) and ``B_z`` Shape: (H, nx + d nu, nu).
+    """
+    if delay == 0:
+        return A, B
+    H, nx, nu = B.shape
+    nz = nx + delay * nu
+    Az, Bz = np.zeros((H, nz, nz)), np.zeros((H, nz, nu))
+    Az[:, :nx, :nx], Az[:, :nx, nx : nx + nu] = A, B
+    for i in range(delay - 1):  # The queue moves up by one command per step.
+        r, c = nx + i * nu, nx + (i + 1) * nu
+        Az[:, r : r + nu, c : c + nu] = np.eye(nu)
+    Bz[:, nz - nu :] = np.eye(nu)
+    return Az, Bz
+
+
 def tvlqr_gains(
     model: mujoco.MjModel,
     qpos: np.ndarray,
@@ -117,11 +143,18 @@ def tvlqr_gains(
     decimation: int,
     weights: LqrWeights | None = None,
     eps: float = 1e-6,
+    delay: int = 0,
 ) -> np.ndarray:
     """Time-varying LQR gains around a plan of a floating-base model: the feedback
     ``u_t = ctrl_t + K_t (x - x_t)`` (``x - x_t`` in the tangent state, as
     ``mj_differentiatePos(x_t, x)`` and the velocity difference) that minimizes the
     quadratic cost of :class:`LqrWeights` along the plan's linearization.
+
+    With ``delay`` d > 0 the gains are for a plant whose commands act d control steps after
+    they are issued (:func:`delayed_system`): the command issued at ``t`` is
+    ``ctrl_{t+d} + K_t [x - x_t, du_{t-d}, ..., du_{t-1}]``, where ``du_s`` is the command
+    issued at ``s`` minus ``ctrl_{s+d}``, the plan's control for the step it will act on. The
+    cost is on the plant's state and on each issued command's deviation.
 
     Args:
         model: The model (its physics step is the plan's).
@@ -131,10 +164,13 @@ def tvlqr_gains(
         decimation: Physics steps per control step.
         weights: The costs (default: :class:`LqrWeights`).
         eps: Finite-difference step of the Jacobians.
+        delay: Control steps between issuing a command and its acting on the plant.
 
     Returns:
-        ``K`` Shape: (H, nu, 2 nv).
+        ``K`` Shape: (H, nu, 2 nv + delay nu).
     """
+    if delay < 0 or int(delay) != delay:
+        raise ValueError(f"delay must be a whole number of control steps >= 0, got {delay}")
     w = weights or LqrWeights()
     H, nv, nu = ctrl.shape[0], model.nv, model.nu
     nx = 2 * nv
@@ -145,8 +181,11 @@ def tvlqr_gains(
         data.qpos[:], data.qvel[:] = qpos[t], qvel[t]
         mujoco.mj_forward(model, data)
         A[t], B[t] = control_step_jacobians(model, data, ctrl[t], decimation, eps)
-    q = np.diag(w.state_diagonal(nv))
-    lxx, lx = np.broadcast_to(q, (H + 1, nx, nx)).copy(), np.zeros((H + 1, nx))
+    A, B = delayed_system(A, B, int(delay))
+    nz = A.shape[1]
+    q = np.zeros((nz, nz))
+    q[:nx, :nx] = np.diag(w.state_diagonal(nv))  # No cost on the queue itself.
+    lxx, lx = np.broadcast_to(q, (H + 1, nz, nz)).copy(), np.zeros((H + 1, nz))
     luu, lu = np.broadcast_to(w.control * np.eye(nu), (H, nu, nu)).copy(), np.zeros((H, nu))
     out = riccati(lx, lxx, lu, luu, A, B, 0.0)
     if out is None:  # Positive costs keep Q_uu positive definite: only NaN gets here.
@@ -154,4 +193,4 @@ def tvlqr_gains(
     return out[1]
 
 
-__all__ = ["LqrWeights", "control_step_jacobians", "riccati", "tvlqr_gains"]
+__all__ = ["LqrWeights", "control_step_jacobians", "delayed_system", "riccati", "tvlqr_gains"]

@@ -147,9 +147,26 @@ def dr_default() -> DomainRandomization:
     )
 
 
+def dr_wide() -> DomainRandomization:
+    """``default`` widened to the ranges legged-robot trainers use for a robot that differs
+    from its model: a torso payload of -0.8 to +3.1 kg on the G1's 7.8 kg torso (mass x0.9-1.4;
+    unitree_rl_gym randomizes the base's mass by -1 to +3 kg), the torso CoM +-5 cm on every
+    axis (HOVER: +-10 cm; `default` has +-2.5 cm in x), floor friction down to 0.2 (unitree_rl_gym: 0.1, PBHC: 0.2) and
+    0-2 policy steps (0-40 ms) of action delay. Every other range is ``default``'s.
+    """
+    return replace(
+        dr_default(),
+        friction=(0.2, 1.2),
+        com_mass_scale=(0.9, 1.4),
+        com_offset=((-0.05, 0.05), (-0.05, 0.05), (-0.05, 0.05)),
+        action_delay=(0, 2),
+    )
+
+
 DR_PROFILES: dict[str, Callable[[], DomainRandomization]] = {
     "none": dr_none,
     "default": dr_default,
+    "wide": dr_wide,
 }
 """Named domain-randomization profiles: name -> factory."""
 

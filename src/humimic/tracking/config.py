@@ -121,6 +121,10 @@ class TrackingConfig:
             ``feedback`` (those plus time-varying LQR feedback around the refined trajectory).
         feedback: Costs of the ``feedback`` base's LQR.
         feedback_limit: The ``feedback`` base's correction is clipped to this [rad] per joint.
+        feedback_delay: Policy steps of command latency the ``feedback`` base's LQR is
+            designed for (:func:`humimic.sim.lqr.tvlqr_gains`' ``delay``): it issues the
+            stored target of the step its command will act on and feeds back the commands it
+            issued and that have not acted yet. 0: none.
         action_scale: PD target = base + ``action_scale * effort_limit / kp * action`` per
             joint (BeyondMimic's scaling).
         soft_limit_factor: Soft joint limits are this fraction of the range, centred.
@@ -158,6 +162,7 @@ class TrackingConfig:
     action_base: ActionBase = "default"
     feedback: LqrWeights = field(default_factory=LqrWeights)
     feedback_limit: float = 0.5
+    feedback_delay: int = 0
     action_scale: float = 0.25
     soft_limit_factor: float = 0.9
     rewards: dict[str, TermConfig]
@@ -216,6 +221,15 @@ class TrackingConfig:
             raise InputError(
                 f"tracking.action_base: expected one of {', '.join(ACTION_BASES)}, got "
                 f"{self.action_base!r}"
+            )
+        if not (isinstance(self.feedback_delay, int) and 0 <= self.feedback_delay <= 10):
+            raise InputError(
+                f"tracking.feedback_delay: expected 0-10 policy steps, got {self.feedback_delay!r}"
+            )
+        if self.feedback_delay and self.action_base != "feedback":
+            raise InputError(
+                "tracking.feedback_delay: only the 'feedback' action base has an LQR to "
+                f"design for a delay (the action base is {self.action_base!r})"
             )
         if self.backend not in ("cpu", "warp"):
             raise InputError(f"tracking.backend: expected 'cpu' or 'warp', got {self.backend!r}")

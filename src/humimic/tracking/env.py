@@ -343,6 +343,7 @@ class TrackingEnv(VecEnv):
         if self._cmd_hist.shape[1] > 1:
             self._cmd_hist[:, 1:] = self._cmd_hist[:, :-1].clone()
         self._cmd_hist[:, 0] = self._action_base() + self.action_scale * a
+        self._queue_command(self._cmd_hist[:, 0])
         targets = self._cmd_hist[self._arange, self._delay] + self._joint_offset
         self._targets = targets
         if self._tensor_backend is not None:
@@ -417,6 +418,8 @@ class TrackingEnv(VecEnv):
         f = self.state.frame
         if self._gains is None:
             return self._base[f]
+        d = self.cfg.feedback_delay
+        ff = self._base[(f + d).clamp(max=self._base.shape[0] - 1)]
         r = self.backend.read()
         qpos = torch.as_tensor(r.qpos, dtype=torch.float32, device=self.device)
         qvel = torch.as_tensor(r.qvel, dtype=torch.float32, device=self.device)
@@ -425,9 +428,21 @@ class TrackingEnv(VecEnv):
         dx = torch.cat([qpos[:, :3] - ref_q[:, :3],
                         quat_log(quat_conj_mul(ref_q[:, 3:7], qpos[:, 3:7])),
                         qpos[:, 7:] - ref_q[:, 7:], qvel - ref_v], dim=1)  # fmt: skip
+        if d:  # The commands in flight, oldest first (tvlqr_gains' delayed state).
+            dx = torch.cat([dx, self._fb_queue.reshape(self.num_envs, -1)], dim=1)
         fb = torch.einsum("nij,nj->ni", self._gains[f], dx)
         lim = self.cfg.feedback_limit
-        return self._base[f] + fb.clamp(-lim, lim)
+        return ff + fb.clamp(-lim, lim)
+
+    def _queue_command(self, command: torch.Tensor) -> None:
+        """Remember a command the delay-aware LQR issued, as its deviation from the stored
+        target of the step it will act on."""
+        d = self.cfg.feedback_delay
+        if self._gains is None or not d:
+            return
+        f = (self.state.frame + d).clamp(max=self._base.shape[0] - 1)  # type: ignore[union-attr]
+        self._fb_queue[:, :-1] = self._fb_queue[:, 1:].clone()
+        self._fb_queue[:, -1] = command - self._base[f]  # type: ignore[index]
 
     def _setup_feedback(self, motion: Motion, model: mujoco.MjModel | None) -> None:
         """The ``feedback`` base's time-varying LQR gains around the refined trajectory, on
@@ -445,13 +460,15 @@ class TrackingEnv(VecEnv):
             if model is not None and nominal
             else tracking_model(replace(self.cfg, physics=None))
         )
+        d = self.cfg.feedback_delay
         K = tvlqr_gains(m, qpos, qvel, self._base[:-1].double().cpu().numpy(),
-                        self.cfg.decimation, self.cfg.feedback)  # fmt: skip
+                        self.cfg.decimation, self.cfg.feedback, delay=d)  # fmt: skip
         K = np.concatenate([K, np.zeros_like(K[-1:])])  # The last frame: no control step.
         dev = self.device
         self._gains = torch.as_tensor(K, dtype=torch.float32, device=dev)
         self._fb_qpos = torch.as_tensor(qpos, dtype=torch.float32, device=dev)
         self._fb_qvel = torch.as_tensor(qvel, dtype=torch.float32, device=dev)
+        self._fb_queue = torch.zeros(self.num_envs, d, K.shape[1], device=dev)
 
     def close(self) -> None:
         """Release the backend's threads."""
@@ -608,6 +625,15 @@ class TrackingEnv(VecEnv):
         # Before the first command, the drives hold the start frame's base.
         start = self.default_joint_pos.expand(n, -1) if self._base is None else self._base[frames]
         self._cmd_hist[ids] = start.unsqueeze(1).expand(-1, self._cmd_hist.shape[1], -1)
+        d = self.cfg.feedback_delay
+        if self._gains is not None and d:
+            # The episode starts on the plan: the commands in flight are the stored targets
+            # a controller designed for d steps of latency issued (the one issued i + 1
+            # steps ago acts d - i - 1 steps from now).
+            self._fb_queue[ids] = 0.0
+            age = torch.arange(self._cmd_hist.shape[1], device=self.device)
+            f = (frames.to(self.device)[:, None] + d - 1 - age).clamp(0, self._base.shape[0] - 1)  # type: ignore[union-attr]
+            self._cmd_hist[ids] = self._base[f]  # type: ignore[index]
         self.episode_length_buf[ids] = 0
         self._fresh[ids] = True
         if cfg.dr.push_interval_s is not None:

@@ -170,8 +170,8 @@ def resolved_settings(s: TrainSettings) -> TrainSettings:
 
 
 def _resolved_task(robot: str, t: TaskSettings) -> TaskSettings:
-    """The task settings with the action base and the feedback's root cost the run trains
-    with (an unset flag: the robot's registered task's value), so that a later change of the
+    """The task settings with the action base and the feedback's root cost and delay the
+    run trains with (an unset flag: the robot's registered task's value), so that a later change of the
     defaults does not change what ``eval`` rebuilds."""
     from humimic.tracking.config import tracking_task
 
@@ -180,6 +180,7 @@ def _resolved_task(robot: str, t: TaskSettings) -> TaskSettings:
         t,
         action_base=t.action_base or task.action_base,
         feedback_root_cost=t.feedback_root_cost or task.feedback.base_position,
+        feedback_delay=task.feedback_delay if t.feedback_delay is None else t.feedback_delay,
     )
 
 
@@ -211,6 +212,7 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
         task["feedback_root_cost"] = 10.0
         task["reward_stds"] = {"anchor_pos": 0.3, **(task.get("reward_stds") or {})}
         task["reward_weights"] = {"anchor_pos": 0.5, **(task.get("reward_weights") or {})}
+    task.setdefault("feedback_delay", 0)  # Recorded before the delay-aware LQR: none.
     data["task"] = TaskSettings(**task)
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])

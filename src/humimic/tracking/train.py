@@ -118,6 +118,8 @@ def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> Trackin
         }
     if settings.feedback_root_cost is not None:
         changes["feedback"] = replace(task.feedback, base_position=settings.feedback_root_cost)
+    if settings.feedback_delay is not None:
+        changes["feedback_delay"] = int(settings.feedback_delay)
     return replace(task, **changes)
 
 
