@@ -32,6 +32,7 @@ RECIPES: dict[str, list[str]] = {
     "feedback-root10": ["--task.feedback-root-cost", "10", *MJLAB_ANCHOR],
     "wide-dr": ["--dr", "wide"],
     "kl0.1": ["--ppo.desired-kl", "0.1"],
+    "delay1": ["--task.feedback-delay", "1"],
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],
     "feedforward-std1": ["--task.action-base", "feedforward", "--ppo.init-std", "1.0",
