@@ -8,6 +8,9 @@ machine meanwhile):
   .venv/bin/humimic retarget ../shared/data/cmu/35_01.bvh --out runs/walk.npz
   .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \\
       --minutes 30 --recipes default beyondmimic reference feedforward-std1
+  # The default's run distilled into a student without the LQR (another 30 minutes):
+  .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \
+      --minutes 30 --recipes dagger-ff
 """
 
 from __future__ import annotations
@@ -43,6 +46,15 @@ RECIPES: dict[str, list[str]] = {
 """Recipe name -> the flags it adds to ``humimic train --motion M --out RUN --max-minutes X``
 (``default``: none, the command a user runs)."""
 
+DISTILLS: dict[str, tuple[str, list[str]]] = {
+    "dagger-ff": ("default", ["--student-base", "feedforward"]),
+    "dagger-ff-kl0.1": ("kl0.1", ["--student-base", "feedforward"]),
+}
+"""Recipe name -> (the recipe whose run teaches it, the flags it adds to ``humimic distill
+--teacher OUT/TEACHER --out RUN --max-minutes X``): a student that acts around the stored
+targets without the LQR. Its teacher's run must be in ``--out`` (listed before it, or there
+from an earlier invocation); the minutes are the student's own."""
+
 UNSEEN = Path(__file__).parent / "physics"
 """Unseen robots of the same kind as the shipped ones, outside DR ``default`` (issue 25)."""
 
@@ -74,7 +86,16 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
 
     run = args.out / name
     t0 = time.perf_counter()
-    if not (args.reuse and (run / "config.yaml").is_file()):
+    if args.reuse and (run / "config.yaml").is_file():
+        pass
+    elif name in DISTILLS:
+        teacher, flags = DISTILLS[name]
+        if not (args.out / teacher / "config.yaml").is_file():
+            raise SystemExit(f"{name}: its teacher's run {args.out / teacher} is missing")
+        _humimic("distill", "--teacher", str(args.out / teacher), "--out", str(run),
+                 "--max-minutes", str(args.minutes), "--max-iterations", "1000000", "--seed",
+                 str(args.seed), "--quiet", *flags)  # fmt: skip
+    else:
         _humimic("train", "--motion", str(args.motion), "--out", str(run), "--max-minutes",
                  str(args.minutes), "--seed", str(args.seed), "--quiet", *RECIPES[name])  # fmt: skip
     train_wall = time.perf_counter() - t0
@@ -84,7 +105,8 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
     plot_learning_curve(progress, curve, run / "learning_curve.png",
                         f"{name}: {args.motion.name}, {args.minutes:g} min on "
                         f"{os.cpu_count()} CPU cores")  # fmt: skip
-    result: dict = {"recipe": name, "flags": RECIPES[name], "train_wall_s": train_wall,
+    flags = DISTILLS[name][1] if name in DISTILLS else RECIPES[name]
+    result: dict = {"recipe": name, "flags": flags, "train_wall_s": train_wall,
                     "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
                     "curve": curve, **curve_summary(curve, progress)}  # fmt: skip
     for label in args.physics:
@@ -102,7 +124,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--minutes", type=float, default=30.0)
     parser.add_argument("--recipes", nargs="+", default=["default", "beyondmimic"],
-                        choices=sorted(RECIPES))  # fmt: skip
+                        choices=sorted([*RECIPES, *DISTILLS]))  # fmt: skip
     parser.add_argument("--physics", nargs="+", default=list(PHYSICS), choices=list(PHYSICS),
                         help="the physics to evaluate the last checkpoint on (default: all)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=32)

@@ -413,3 +413,143 @@ def test_delay_aware_feedback_base_issues_each_target_ahead_of_its_step(shared_d
     assert worst_target[2] < 0.02, worst_target
     assert worst_target[0] > 5 * worst_target[2], worst_target  # Late by two steps.
     assert world[2] < 0.01 and world[2] < 0.5 * world[0], world
+
+
+def test_feedforward_student_view_labels_replay_the_feedback_teacher(shared_data: Path) -> None:
+    """DAgger into a student that acts around the stored targets alone (``feedforward``, no
+    LQR, no simulator state) under a ``feedback`` teacher: a teacher (here a fixed linear map
+    of its observations) in its own env, and the same teacher's labels (its action plus
+    ``teacher_offset``) sent to the student's env (:class:`StudentView`), give the same
+    trajectory, PD targets and teacher observations step by step, from a perturbed start
+    where the LQR's correction is large. The teacher's action alone, without the offset,
+    does not."""
+    import torch
+
+    from humimic.tracking.config import AdaptiveSampling, ResetNoise, g1_tracking
+    from humimic.tracking.distill import StudentView
+    from humimic.tracking.env import TrackingEnv
+
+    motion, _ = _refined(shared_data)
+    kick = ((0.0, 0.0), (0.3, 0.3), (0.0, 0.0), (0.5, 0.5), (0.0, 0.0), (0.0, 0.0))
+
+    def task(base: str):
+        return replace(
+            g1_tracking("none"), action_base=base, start_frame=0, episode_length_s=10.0,
+            reset=ResetNoise(pose=((0.0, 0.0),) * 6, velocity=kick, joint_pos=(0.0, 0.0)),  # type: ignore[arg-type]
+            adaptive=AdaptiveSampling(enabled=False),
+        )  # fmt: skip
+
+    def teacher(policy: torch.Tensor) -> torch.Tensor:
+        gen = torch.Generator().manual_seed(0)  # The same map every call.
+        W = 0.02 * torch.randn(29, policy.shape[1], generator=gen)
+        return policy @ W.T
+
+    def run(with_offset: bool) -> tuple[float, float, float]:
+        """Worst differences to the teacher's own episode: qpos, PD targets, observations."""
+        student_env = TrackingEnv(task("feedforward"), motion, 1)
+        view = StudentView(student_env, "feedback")
+        env = TrackingEnv(task("feedback"), motion, 1)
+        worst = [0.0, 0.0, 0.0]
+        try:
+            obs_t, obs_s = env.get_observations(), view.get_observations()
+            for _ in range(motion.num_frames - 2):
+                a = teacher(obs_t["policy"])
+                label = teacher(obs_s["teacher_policy"])
+                if with_offset:
+                    label = label + obs_s["teacher_offset"]
+                obs_t, _, done_t, _ = env.step(a)
+                obs_s, _, done_s, _ = view.step(label)
+                assert not bool(done_t[0]) and not bool(done_s[0])
+                q_t, q_s = env.backend.read().qpos[0], student_env.backend.read().qpos[0]
+                worst[0] = max(worst[0], float(np.abs(q_t - q_s).max()))
+                worst[1] = max(
+                    worst[1], float((env.joint_targets - student_env.joint_targets).abs().max())
+                )
+                for g in ("policy", "proprio_history"):
+                    diff = (obs_t[g] - obs_s["teacher_" + g]).abs().max()
+                    worst[2] = max(worst[2], float(diff))
+            return worst[0], worst[1], worst[2]
+        finally:
+            env.close()
+            view.close()
+
+    # The correction matters here: the teacher's base is far from the student's.
+    view = StudentView(TrackingEnv(task("feedforward"), motion, 1), "feedback")
+    try:
+        assert float(view.get_observations()["teacher_offset"].abs().max()) > 0.1
+    finally:
+        view.close()
+    q, targets, obs = run(with_offset=True)
+    assert q < 1e-5 and targets < 1e-5 and obs < 1e-4, (q, targets, obs)
+    q, targets, _ = run(with_offset=False)
+    assert targets > 0.05 and q > 1e-2, (q, targets)
+
+
+def test_expert_teacher_reads_its_own_view_and_moves_to_the_students_base() -> None:
+    """:class:`ExpertTeacher` is the trained actor, weight for weight: on an env's plain
+    observations it acts as the actor; given ``teacher_policy`` it reads that instead of
+    ``policy`` and adds ``teacher_offset``."""
+    import torch
+    from rsl_rl.models import MLPModel
+    from tensordict import TensorDict
+
+    from humimic.tracking.distill import ExpertTeacher
+
+    gen = torch.Generator().manual_seed(1)
+    obs = TensorDict({"policy": torch.randn(4, 6, generator=gen)}, batch_size=[4])
+    groups = {"teacher": ["policy"]}
+    kw = {"hidden_dims": [8], "activation": "elu", "obs_normalization": False}
+    actor = MLPModel(obs, groups, "teacher", 3, **kw)  # type: ignore[arg-type]
+    expert = ExpertTeacher(obs, groups, "teacher", 3, **kw)  # type: ignore[arg-type]
+    expert.load_state_dict(actor.state_dict())
+    with torch.no_grad():
+        torch.testing.assert_close(expert(obs), actor(obs))
+        other = torch.randn(4, 6, generator=gen)
+        offset = torch.randn(4, 3, generator=gen)
+        moved = obs.clone().update({"teacher_policy": other, "teacher_offset": offset})
+        want = actor(TensorDict({"policy": other}, batch_size=[4])) + offset
+        torch.testing.assert_close(expert(moved), want)
+
+
+def test_distill_a_feedback_teacher_into_a_feedforward_student(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """``humimic distill --student-base feedforward``: the student's run records the
+    ``feedforward`` base (eval and export rebuild it without the LQR), its checkpoint holds
+    the teacher's actor weight for weight, and it evaluates and exports like any run. A
+    teacher whose LQR was designed for a latency is refused (exit 2, nothing written)."""
+    import torch
+    import yaml
+
+    motion, _ = _refined(shared_data)
+    path = tmp_path / "walk_dyn.npz"
+    save_motion(motion, path)
+
+    def train(out: Path, *extra: str) -> None:
+        args = ["train", "--motion", str(path), "--out", str(out), "--num-envs", "8",
+                "--max-iterations", "1", "--num-steps-per-env", "8", "--dr", "none", "--quiet",
+                *extra]  # fmt: skip
+        assert main(args) == 0
+
+    teacher = tmp_path / "teacher"
+    train(teacher)
+    student = tmp_path / "student"
+    args = ["distill", "--teacher", str(teacher), "--out", str(student), "--num-envs", "8",
+            "--max-iterations", "2", "--student-base", "feedforward", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    cfg = yaml.safe_load((student / "config.yaml").read_text())
+    assert cfg["settings"]["task"]["action_base"] == "feedforward"
+    assert cfg["tracking"]["action_base"] == "feedforward"
+    t_blob = torch.load(teacher / "checkpoints" / "model_000001.pt", weights_only=True)
+    s_blob = torch.load(student / "checkpoints" / "model_000002.pt", weights_only=True)
+    for k, v in t_blob["actor_state_dict"].items():
+        torch.testing.assert_close(s_blob["teacher_state_dict"][k], v)
+    assert main(["eval", str(student), "--episodes", "2", "--out", str(tmp_path / "e.json")]) == 0
+    assert main(["export", str(student), "--out", str(tmp_path / "s.onnx")]) == 0
+    delayed = tmp_path / "delayed"
+    train(delayed, "--task.feedback-delay", "1")
+    refused = tmp_path / "refused"
+    bad = ["distill", "--teacher", str(delayed), "--out", str(refused), "--num-envs", "8",
+           "--student-base", "feedforward", "--quiet"]  # fmt: skip
+    assert main(bad) == 2
+    assert not refused.exists()

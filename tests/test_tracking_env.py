@@ -89,7 +89,7 @@ def test_vec_env_contract(model: mujoco.MjModel, motion: Motion) -> None:
     assert env.num_actions == 29 and isinstance(env.max_episode_length, int)
     assert env.episode_length_buf.dtype == torch.long
     obs = env.get_observations()
-    assert set(obs.keys()) == {"policy", "critic", "proprio_history", "physics"}
+    assert set(obs.keys()) == {"policy", "critic", "proprio_history", "physics", "base_lin_vel"}
     for v in obs.values():
         assert v.dtype == torch.float32 and v.ndim == 2 and v.shape[0] == 4
     assert obs["proprio_history"].shape[1] == 5 * obs["policy"].shape[1]
@@ -615,3 +615,35 @@ def test_critic_warmup_trains_the_critic_alone_then_both(
         )
     finally:
         env.close()
+
+
+def test_base_lin_vel_group_is_the_roots_velocity_in_its_frame(
+    model: mujoco.MjModel, motion: Motion
+) -> None:
+    """``base_lin_vel`` (what the ``mlp-velocity`` student reads) is the root frame's world
+    linear velocity rotated into that frame, exact without DR; with DR ``default`` it is noisy within mjlab's half-width
+    of 0.5 m/s."""
+    env = make_env(model, motion, n=4, dr="none")
+    try:
+        for _ in range(5):
+            obs, *_ = env.step(0.3 * torch.ones(4, env.num_actions))
+        r, k = env.backend.read(), env.state.root_index
+        # The root frame's sensors (velocity and orientation, world frame), rotated here.
+        want = tf.quat_apply_inverse(r.body_quat_w[:, k], r.body_lin_vel_w[:, k])
+        assert np.abs(want).max() > 0.1  # It moves.
+        np.testing.assert_allclose(obs["base_lin_vel"].numpy(), want, atol=1e-5)
+        # The free joint's own velocity agrees up to the sensors' one physics step of lag
+        # (MuJoCo evaluates sensors before it integrates).
+        joint = np.stack([tf.quat_apply_inverse(q[3:7], v[:3])
+                          for q, v in zip(r.qpos, r.qvel, strict=True)])  # fmt: skip
+        np.testing.assert_allclose(obs["base_lin_vel"].numpy(), joint, atol=0.05)
+    finally:
+        env.close()
+    noisy = make_env(model, motion, n=64, dr="default")
+    try:
+        obs = noisy.get_observations()
+        start = noisy._policy_dim + noisy._params_dim
+        diff = obs["base_lin_vel"] - obs["critic"][:, start : start + 3]
+        assert 0.3 < float(diff.abs().max()) <= 0.5 + 1e-6
+    finally:
+        noisy.close()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -86,37 +87,47 @@ def test_missing_file_names_the_shipped_ones() -> None:
         load_physics("no_such_physics.yaml")
 
 
-def test_transport_delay_holds_the_reset_pose_and_survives_steps(
-    nominal: mujoco.MjModel,
+@pytest.mark.parametrize("method", ["rollout", "threads"])
+def test_transport_delay_starts_full_of_the_first_command_and_survives_steps(
+    nominal: mujoco.MjModel, method: Literal["rollout", "threads"]
 ) -> None:
-    """A 30 ms delay on the left knee: after a reset, its drive holds the reset pose for
-    30 ms whatever the new command, across several stepping calls (the delay line is part
-    of each env's state); without the delay the knee moves at once."""
+    """A 30 ms delay on the left knee. After a reset the delay line holds the first command
+    (a controller had been sending it: no sag towards the joint angles), and a change of
+    command 10 ms later reaches the drive 30 ms after it was sent, across several stepping
+    calls and a push (the delay line is part of each env's state); without the delay the knee
+    follows the change at once."""
     ph = parse_physics({"effects": ["delay:left_knee_joint=0.03"]}, "delay", "delay")
     delayed = tracking_model(replace(g1_tracking("none"), physics=ph))
     knee = delayed.jnt_qposadr[delayed.joint("left_knee_joint").id]
     pose = nominal.key_qpos[0].copy()
-    pose[knee] = 0.4  # Bent: a drive that held zeros instead would pull it straight.
+    pose[knee] = 0.4  # Bent: a drive holding the joint angles differs from one holding 0.9.
 
-    def knee_after(model: mujoco.MjModel, calls: int, command: float, push: bool = False) -> float:
-        be = build_backend(g1_tracking("none"), 1, model=model)
+    def knee_after(model: mujoco.MjModel, calls: int, change: float, push: bool = False) -> float:
+        """The knee after ``calls`` 10 ms stepping calls: the first sends the pose with the
+        knee target 0.5 rad further bent, the later ones add ``change`` to it."""
+        be = build_backend(replace(g1_tracking("none"), step_method=method), 1, model=model)
         assert isinstance(be, MujocoCpuBackend)
         be.set_ctrl(np.zeros((1, model.nu)))  # Whatever the previous episode commanded.
         be.reset_to(np.array([0]), pose[None], np.zeros((1, model.nv)))
         ctrl = pose[None, 7:].copy()
-        ctrl[0, knee - 7] += command
-        be.set_ctrl(ctrl)
+        ctrl[0, knee - 7] += 0.5
         for c in range(calls):
-            be.step(2)  # 10 ms per call.
-            if push and c == 0:  # A push of nothing: the delay line must carry on.
+            if c == 1:
+                ctrl[0, knee - 7] += change
+            be.set_ctrl(ctrl)
+            be.step(2)
+            if push and c == 1:  # A push of nothing: the delay line must carry on.
                 be.push(np.array([0]), np.zeros((1, model.nv)))
         be.close()
         return float(be.read().qpos[0, knee])
 
-    for calls in (1, 2):  # 10 and 20 ms: the command has not arrived, the drive holds the pose.
+    # The first command acts at once: the delayed knee moves as the undelayed one does.
+    assert knee_after(delayed, 1, 0.0) == pytest.approx(knee_after(nominal, 1, 0.0), abs=1e-9)
+    assert abs(knee_after(delayed, 1, 0.0) - 0.4) > 1e-3  # It moved towards 0.9 rad.
+    for calls in (2, 3, 4):  # The change, sent at 10 ms, has not arrived by 40 ms.
         held = knee_after(nominal, calls, 0.0)
-        assert knee_after(delayed, calls, 0.5) == pytest.approx(held, abs=1e-9)
-    assert knee_after(delayed, 5, 0.5) - knee_after(delayed, 5, 0.0) > 1e-3  # 50 ms: it has.
-    assert knee_after(nominal, 1, 0.5) - knee_after(nominal, 1, 0.0) > 1e-4
-    unpushed = knee_after(delayed, 5, 0.5)
-    assert knee_after(delayed, 5, 0.5, push=True) == pytest.approx(unpushed, abs=1e-6)
+        assert knee_after(delayed, calls, -0.5) == pytest.approx(held, abs=1e-9)
+    assert knee_after(delayed, 6, 0.0) - knee_after(delayed, 6, -0.5) > 1e-3  # 60 ms: it has.
+    assert knee_after(nominal, 2, 0.0) - knee_after(nominal, 2, -0.5) > 1e-4
+    unpushed = knee_after(delayed, 6, -0.5)
+    assert knee_after(delayed, 6, -0.5, push=True) == pytest.approx(unpushed, abs=1e-6)

@@ -256,6 +256,11 @@ def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> N
            "8", "--teacher-checkpoint", str(robust / "checkpoints" / "model_000001.pt")]  # fmt: skip
     assert main(bad) == 2
     assert not (tmp_path / "bad" / "config.yaml").exists()
+    # A student around stored targets the teacher's kinematic motion does not have: refused.
+    moved = ["distill", "--teacher", str(teacher), "--out", str(tmp_path / "ff"), "--num-envs",
+             "8", "--student-base", "feedforward", "--quiet"]  # fmt: skip
+    assert main(moved) == 2
+    assert not (tmp_path / "ff").exists()
     gru = tmp_path / "gru"
     gru_args = ["distill", "--teacher", str(teacher), "--out", str(gru), "--student", "gru",
                 "--num-envs", "8", "--max-iterations", "2", "--quiet"]  # fmt: skip

@@ -387,9 +387,14 @@ class DistillSettings:
     """Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one)."""
     out: Path
     """The student's run folder."""
-    student: Literal["mlp-history", "gru"] = "mlp-history"
-    """``mlp-history`` (an MLP on the policy observations and their history) or ``gru`` (a
-    recurrent network on the policy observations)."""
+    student: Literal["mlp-history", "mlp-velocity", "gru"] = "mlp-history"
+    """``mlp-history`` (an MLP on the policy observations and their history),
+    ``mlp-velocity`` (the same plus the base's linear velocity, which a robot estimates) or
+    ``gru`` (a recurrent network on the policy observations)."""
+    student_base: ActionBaseName | None = None
+    """The action base the student acts around (default: the teacher's). ``feedforward``
+    under a ``feedback`` teacher gives a student that needs no LQR and no simulator state:
+    it learns the teacher's residual plus its base's LQR correction."""
     teacher_checkpoint: Path | None = None
     """The teacher's checkpoint (default: its newest)."""
     num_envs: int | None = None

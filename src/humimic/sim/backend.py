@@ -90,6 +90,9 @@ class PhysicsBackend(Protocol):
 
     def reset_to(self, env_ids: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> None:
         """Set the state of some envs (and recompute what ``read`` returns for them).
+        Delay lines (actuators with a command history) start full of the first command the
+        next :meth:`step` sends: a controller had been sending it while the robot held the
+        start pose.
 
         Args:
             env_ids: Shape: (n,). qpos: Shape: (n, nq). qvel: Shape: (n, nv).
@@ -279,8 +282,10 @@ class MujocoCpuBackend(LayoutBackend):
         self._nstate = mujoco.mj_stateSize(model, self._spec)
         self._state = np.zeros((num_envs, self._nstate))
         self._scratch = [mujoco.MjData(model) for _ in range(self.nthread)]
-        # Actuators with a command history (a transport delay, e.g. from a physics file).
+        # Actuators with a command history (a transport delay, e.g. from a physics file), and
+        # the envs whose delay lines still wait for the first command after a reset.
         self._hist_acts = np.flatnonzero(model.actuator_history[:, 0] > 0)
+        self._unprimed = np.zeros(num_envs, dtype=bool)
         if method == "threads":
             self._datas = [mujoco.MjData(self.model_of(i)) for i in range(num_envs)]
             self._pool: ThreadPoolExecutor | None = ThreadPoolExecutor(self.nthread)
@@ -311,8 +316,9 @@ class MujocoCpuBackend(LayoutBackend):
             d.qpos[:] = qpos[k]
             d.qvel[:] = qvel[k]
             d.ctrl[:] = self._ctrl[i]
-            if self._hist_acts.size:  # Delayed drives have been holding the reset pose.
-                self._init_history(m, d, qpos[k])
+            if self._hist_acts.size:  # Until the first command: the reset pose.
+                self._init_history(m, d, qpos[k][m.jnt_qposadr[m.actuator_trnid[:, 0]]])
+                self._unprimed[i] = True
             mujoco.mj_forward(m, d)
             self._qpos[i] = d.qpos
             self._qvel[i] = d.qvel
@@ -337,18 +343,38 @@ class MujocoCpuBackend(LayoutBackend):
             self._sens[i] = d.sensordata
             mujoco.mj_getState(m, d, self._state[i], self._spec)
 
-    def _init_history(self, m: mujoco.MjModel, d: mujoco.MjData, qpos: np.ndarray) -> None:
+    def _init_history(self, m: mujoco.MjModel, d: mujoco.MjData, ctrl: np.ndarray) -> None:
+        """Fill every delay line with a constant command. ``ctrl``: Shape: (nu,)."""
         dt = m.opt.timestep
         for a in self._hist_acts:
             n = int(m.actuator_history[a, 0])
             times = -dt * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
-            values = np.full((n, 1), qpos[m.jnt_qposadr[m.actuator_trnid[a, 0]]])
+            values = np.full((n, 1), ctrl[a])
             mujoco.mj_initCtrlHistory(m, d, int(a), times, values)
+
+    def _prime_histories(self) -> None:
+        """Fill the delay lines of the envs reset since the last step with their first
+        command: a controller had been sending it while the robot held the start pose (as the
+        tracking env's DR delay starts with the action base's targets in flight), not targets
+        equal to the joint angles, which would let the robot sag under gravity for the length
+        of the delay at every episode start."""
+        for i in np.flatnonzero(self._unprimed):
+            m = self.model_of(int(i))
+            if self._datas:
+                self._init_history(m, self._datas[i], self._ctrl[i])
+            else:
+                d = self._scratch[0]
+                mujoco.mj_setState(m, d, self._state[i], self._spec)
+                self._init_history(m, d, self._ctrl[i])
+                mujoco.mj_getState(m, d, self._state[i], self._spec)
+        self._unprimed[:] = False
 
     def set_ctrl(self, ctrl: np.ndarray) -> None:
         self._ctrl[:] = ctrl
 
     def step(self, n_substeps: int) -> None:
+        if self._unprimed.any():
+            self._prime_histories()
         if self.method == "rollout":
             self._step_rollout(n_substeps)
         else:

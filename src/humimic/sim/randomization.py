@@ -34,6 +34,8 @@ class ObservationNoise:
         projected_gravity: Gravity in the base frame.
         base_ang_vel: Base angular velocity [rad/s].
         joint_pos: [rad]. joint_vel: [rad/s].
+        base_lin_vel: Base linear velocity [m/s] (the ``base_lin_vel`` group, which only a
+            student that reads it sees: a robot estimates it).
     """
 
     anchor_pos: float = 0.25
@@ -42,6 +44,7 @@ class ObservationNoise:
     base_ang_vel: float = 0.2
     joint_pos: float = 0.01
     joint_vel: float = 0.5
+    base_lin_vel: float = 0.5
 
 
 @dataclass(frozen=True, kw_only=True)

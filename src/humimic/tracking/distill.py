@@ -12,6 +12,9 @@ from typing import Any
 
 import torch
 import yaml
+from rsl_rl.env import VecEnv
+from rsl_rl.models import MLPModel
+from tensordict import TensorDict
 
 from humimic.configs.runs import DistillSettings
 from humimic.errors import InputError
@@ -19,13 +22,113 @@ from humimic.io import atomic_write_text, check_not_input, check_writable
 
 STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),
+    "mlp-velocity": ("policy", "proprio_history", "base_lin_vel"),
     "gru": ("policy",),
 }
 """Observation groups of each student kind: only deployable groups.
 
 * ``mlp-history``: an MLP on ``policy`` and ``proprio_history``;
+* ``mlp-velocity``: the same plus the base's linear velocity (a robot's state estimate, as
+  BeyondMimic's policy reads it; the LQR of a ``feedback`` teacher feeds it back);
 * ``gru``: a GRU on ``policy``.
 """
+
+
+TEACHER_PREFIX = "teacher_"
+"""Observation groups a :class:`StudentView` adds: ``teacher_<group>``, the teacher's view of
+a group, and ``teacher_offset``, the teacher's base minus the student's in action units."""
+
+
+class ExpertTeacher(MLPModel):
+    """A trained actor that labels the states of a student acting around another action base:
+    the actor reads ``teacher_<group>`` where the env gives one (:class:`StudentView`; else the
+    group itself) and its action is moved by ``teacher_offset`` into the student's base. Its
+    weights are the trained actor's exactly."""
+
+    def get_latent(
+        self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state: Any = None
+    ) -> torch.Tensor:
+        latent = torch.cat([obs.get(TEACHER_PREFIX + g, obs[g]) for g in self.obs_groups], dim=-1)
+        return self.obs_normalizer(latent)
+
+    def forward(
+        self,
+        obs: TensorDict,
+        masks: torch.Tensor | None = None,
+        hidden_state: Any = None,
+        stochastic_output: bool = False,
+    ) -> torch.Tensor:
+        out = super().forward(obs, masks, hidden_state, stochastic_output)
+        offset = obs.get(TEACHER_PREFIX + "offset", None)
+        return out if offset is None else out + offset
+
+
+class StudentView(VecEnv):
+    """A tracking env whose actions are a student's around ``student base + scale * action``,
+    seen also as the teacher saw its own: what DAgger needs when the student acts around a
+    different base than its teacher (a ``feedforward`` student, which needs neither the
+    simulator's state nor an LQR, under a ``feedback`` teacher).
+
+    The env runs the student's base. The teacher's action that would send the same PD
+    targets is ``a - offset``, ``offset = (teacher base - student base) / scale`` at the
+    step's state; the observations gain ``teacher_policy`` and ``teacher_proprio_history``
+    (the last action in them the teacher's) and ``teacher_offset`` (:class:`ExpertTeacher`
+    adds it to the teacher's action: the student's label).
+    """
+
+    def __init__(self, env: Any, teacher_base: str) -> None:
+        self.env = env
+        self.teacher_base = teacher_base
+        self.num_envs = env.num_envs
+        self.num_actions = env.num_actions
+        self.max_episode_length = env.max_episode_length
+        self.device = env.device
+        self.cfg = env.cfg
+        n, j = env.num_envs, env.num_actions
+        self._history_length = int(env.cfg.history_length)
+        # The teacher's view of the last actions, newest last (zero at an episode's start).
+        self._actions = torch.zeros(n, self._history_length + 1, j, device=env.device)
+        self._offset = self._compute_offset()
+
+    @property
+    def episode_length_buf(self) -> torch.Tensor:  # pyright: ignore[reportIncompatibleVariableOverride]
+        return self.env.episode_length_buf
+
+    @episode_length_buf.setter
+    def episode_length_buf(self, value: torch.Tensor) -> None:
+        self.env.episode_length_buf = value
+
+    def _compute_offset(self) -> torch.Tensor:
+        e = self.env
+        own = e.base_targets(e.cfg.action_base)
+        return (e.base_targets(self.teacher_base) - own) / e.action_scale
+
+    def _view(self, obs: TensorDict) -> TensorDict:
+        j, h = self.num_actions, self._history_length
+        policy = obs["policy"].clone()
+        policy[:, -j:] = self._actions[:, -1]
+        hist = obs["proprio_history"].reshape(self.num_envs, h, -1).clone()
+        hist[:, :, -j:] = self._actions[:, 1:]
+        obs[TEACHER_PREFIX + "policy"] = policy
+        obs[TEACHER_PREFIX + "proprio_history"] = hist.reshape(self.num_envs, -1)
+        obs[TEACHER_PREFIX + "offset"] = self._offset.clone()
+        return obs
+
+    def get_observations(self) -> TensorDict:
+        return self._view(self.env.get_observations())
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        a = actions.detach().to(self.device, torch.float32)
+        teacher_action = a - self._offset  # Sends the student's PD targets in teacher terms.
+        obs, rew, dones, extras = self.env.step(a)
+        self._actions[:, :-1] = self._actions[:, 1:].clone()
+        self._actions[:, -1] = teacher_action
+        self._actions[dones.to(self.device).bool()] = 0.0  # A new episode: no action yet.
+        self._offset = self._compute_offset()
+        return self._view(obs), rew, dones, extras
+
+    def close(self) -> None:
+        self.env.close()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -34,6 +137,10 @@ class DistillConfig:
 
     Attributes:
         num_learning_epochs: Passes over each rollout.
+        gradient_length: Policy steps of the rollout per optimizer step (rsl_rl's
+            ``gradient_length``; each step's batch is every env's sample of it). None: the
+            whole rollout (one optimizer step per epoch; what a recurrent student needs to
+            backpropagate through time).
         learning_rate: Adam step size.
         max_grad_norm: Gradient clipping.
         loss_type: ``mse`` or ``huber``.
@@ -44,6 +151,7 @@ class DistillConfig:
     """
 
     num_learning_epochs: int = 2
+    gradient_length: int | None = None
     learning_rate: float = 1e-3
     max_grad_norm: float = 1.0
     loss_type: str = "mse"
@@ -56,8 +164,8 @@ class DistillConfig:
 def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> dict[str, Any]:
     """The rsl_rl ``train_cfg`` of a distillation run from the teacher run's PPO ``train_cfg``.
 
-    The gradient length is the rollout length: each epoch backpropagates once through the
-    whole rollout (rsl_rl needs epochs x steps divisible by it). Two requirements of rsl_rl 5.x
+    The gradient length is ``d.gradient_length`` steps (default: the whole rollout, each
+    epoch backpropagating once through it); it must divide the rollout length. Two requirements of rsl_rl 5.x
     are met here: the student needs a ``distribution_cfg`` (it acts stochastically during
     rollouts; a small fixed std), and the teacher's model config must be the trained actor's
     exactly (it is copied from the teacher run, with the actor's observation groups as the
@@ -66,6 +174,12 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
     if student not in STUDENT_OBS:
         raise InputError(f"--student {student!r}: expected one of {', '.join(STUDENT_OBS)}")
     steps = int(teacher_cfg["num_steps_per_env"])
+    if d.gradient_length is not None and not 0 < d.gradient_length <= steps:
+        raise InputError(f"gradient_length {d.gradient_length}: expected 1-{steps} (the rollout)")
+    if d.gradient_length is not None and steps % d.gradient_length:
+        raise InputError(
+            f"gradient_length {d.gradient_length}: does not divide the rollout of {steps} steps"
+        )
     model: dict[str, Any] = {
         "class_name": "RNNModel" if student == "gru" else "MLPModel",
         "hidden_dims": list(d.hidden_dims),
@@ -93,7 +207,7 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
             "algorithm": {
                 "class_name": "Distillation",
                 "num_learning_epochs": d.num_learning_epochs,
-                "gradient_length": steps,
+                "gradient_length": d.gradient_length or steps,
                 "learning_rate": d.learning_rate,
                 "max_grad_norm": d.max_grad_norm,
                 "loss_type": d.loss_type,
@@ -150,15 +264,31 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     dr = s.dr or teacher.dr
     task = task_config(teacher.robot, dr, s.seed, teacher.physics, teacher.task)
     task = replace(task, torch_compile=s.compile)
+    teacher_base = task.action_base
+    student_base = s.student_base or teacher_base
+    moved = student_base != teacher_base
+    if moved:
+        if task.feedback_delay:
+            raise InputError(
+                f"--student-base {student_base}: the teacher's feedback base is designed for "
+                f"{task.feedback_delay} steps of latency; a student on another base learns from "
+                "undelayed ones only"
+            )
+        task = replace(task, action_base=student_base)
+        # The student's run rebuilds its env on its own base (eval, export).
+        teacher = replace(teacher, task=replace(teacher.task, action_base=student_base))
     motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
+    if moved:
+        cfg["teacher"]["class_name"] = f"{__name__}:ExpertTeacher"
     created = not run.exists()
     check_writable(run / "config.yaml", create=True)
 
     torch.manual_seed(s.seed)
     env = run_env(task, motion, s, created)
     try:
-        runner = make_runner(env, cfg, log_dir=run / "tensorboard", device=s.device)
+        venv = StudentView(env, teacher_base) if moved else env
+        runner = make_runner(venv, cfg, log_dir=run / "tensorboard", device=s.device)
         try:  # The teacher's actor -> the teacher model, before anything is written.
             runner.alg.load(teacher_blob, None, True)
         except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:

@@ -90,6 +90,9 @@ class TrackingEnv(VecEnv):
     * ``proprio_history``: the last ``history_length`` policy observations, oldest first.
     * ``physics``: the normalized physics parameters ``e`` alone (what a privileged teacher's
       actor adds to ``policy``).
+    * ``base_lin_vel``: the base's linear velocity (base frame), noisy as ``policy`` is: what a
+      robot's state estimator gives, and what the ``mlp-velocity`` student reads beside
+      ``policy`` and ``proprio_history``.
 
     All reward, termination and observation math is torch on batched tensors (the state lives
     in :class:`~humimic.tracking.state.TrackingState`); the simulator is reached only through a
@@ -193,7 +196,16 @@ class TrackingEnv(VecEnv):
         self._ref_np = self._reset_reference(motion, jidx, root_m)
         self._gains: torch.Tensor | None = None
         if cfg.action_base == "feedback":
-            self._setup_feedback(motion, model)
+            assert self._base is not None  # base_table gave the stored targets.
+            self._gains, self._fb_qpos, self._fb_qvel = self._feedback_setup(
+                motion, model, self._base, cfg.feedback_delay
+            )
+            self._fb_queue = torch.zeros(
+                num_envs, cfg.feedback_delay, self._gains.shape[1], device=dev
+            )
+        # Other bases of the same motion, built when first asked for (base_targets).
+        self._base_source = (motion, jidx, model)
+        self._other_bases: dict[str, tuple[torch.Tensor, tuple[torch.Tensor, ...] | None]] = {}
 
         # Robot constants.
         self.default_joint_pos = t(be.default_joint_pos)
@@ -244,6 +256,7 @@ class TrackingEnv(VecEnv):
         # Buffers (written in place: rsl_rl steps under torch.inference_mode()).
         self.episode_length_buf = torch.zeros(num_envs, dtype=torch.long, device=dev)
         self._gen = torch.Generator(device=dev).manual_seed(cfg.seed)
+        self._lin_vel_gen = torch.Generator(device=dev).manual_seed(cfg.seed + 7919)
         self._rng = np.random.default_rng(cfg.seed)
         self._dr_pool = dr_mod.SamplePool(
             cfg.dr,
@@ -281,6 +294,7 @@ class TrackingEnv(VecEnv):
         self._critic_dim = self._policy_dim + self._params_dim + 3 + 9 * B + F
         self._policy = torch.zeros(num_envs, self._policy_dim, device=dev)
         self._critic = torch.zeros(num_envs, self._critic_dim, device=dev)
+        self._base_lin_vel = torch.zeros(num_envs, 3, device=dev)
         self._history = torch.zeros(num_envs, cfg.history_length, self._policy_dim, device=dev)
         self._fresh = torch.ones(num_envs, dtype=torch.bool, device=dev)
         self._noise_scale = self._make_noise_scale()
@@ -312,13 +326,15 @@ class TrackingEnv(VecEnv):
     # ------------------------------------------------------------------------------- API
 
     def get_observations(self) -> TensorDict:
-        """Current observations: groups ``policy``, ``critic``, ``proprio_history``, ``physics``."""
+        """Current observations: groups ``policy``, ``critic``, ``proprio_history``, ``physics``,
+        ``base_lin_vel``."""
         return TensorDict(
             {
                 "policy": self._policy.clone(),
                 "critic": self._critic.clone(),
                 "proprio_history": self._history.reshape(self.num_envs, -1).clone(),
                 "physics": self._params_e.clone(),
+                "base_lin_vel": self._base_lin_vel.clone(),
             },
             batch_size=[self.num_envs],
             device=self.device,
@@ -411,6 +427,35 @@ class TrackingEnv(VecEnv):
         DR's joint offsets and delay): ``(targets - base) / scale``. Shape: (num_envs, J)."""
         return (targets - self._action_base()) / self.action_scale
 
+    def base_targets(self, base: str) -> torch.Tensor:
+        """The PD targets of the action base ``base`` (:mod:`.actions`) at every env's current
+        frame for a zero action: the env's own base or another one of the same motion (a
+        student that acts around a different base than its teacher learns the teacher's
+        actions moved by the difference, :mod:`.distill`). Shape: (num_envs, J).
+
+        Raises:
+            InputError: A base the motion cannot give (:func:`.actions.base_table`). Another
+                env's ``feedback`` base is designed for no command latency.
+        """
+        if base == self.cfg.action_base:
+            return self._action_base()
+        if base == "default":
+            return self.default_joint_pos.expand(self.num_envs, -1)
+        if base not in self._other_bases:
+            motion, jidx, model = self._base_source
+            cfg = self.cfg
+            table = torch.as_tensor(
+                base_table(base, motion, jidx, cfg.sim_dt, cfg.decimation),
+                dtype=torch.float32, device=self.device,
+            )  # fmt: skip
+            fb = self._feedback_setup(motion, model, table, 0) if base == "feedback" else None
+            self._other_bases[base] = (table, fb)
+        table, fb = self._other_bases[base]
+        f = self.state.frame
+        if fb is None:
+            return table[f]
+        return table[f] + self._feedback(f, *fb)
+
     def _action_base(self) -> torch.Tensor:
         """The action base (:mod:`.actions`) at every env's current frame."""
         if self._base is None:
@@ -420,19 +465,33 @@ class TrackingEnv(VecEnv):
             return self._base[f]
         d = self.cfg.feedback_delay
         ff = self._base[(f + d).clamp(max=self._base.shape[0] - 1)]
+        # The commands in flight, oldest first (tvlqr_gains' delayed state).
+        queue = self._fb_queue.reshape(self.num_envs, -1) if d else None
+        return ff + self._feedback(f, self._gains, self._fb_qpos, self._fb_qvel, queue)
+
+    def _feedback(
+        self,
+        f: torch.Tensor,
+        gains: torch.Tensor,
+        ref_qpos: torch.Tensor,
+        ref_qvel: torch.Tensor,
+        queue: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """The LQR correction ``K_f (x - x_f)`` at frames ``f``, clipped to the task's
+        ``feedback_limit``; ``queue``: the commands in flight of a delay design."""
         r = self.backend.read()
         qpos = torch.as_tensor(r.qpos, dtype=torch.float32, device=self.device)
         qvel = torch.as_tensor(r.qvel, dtype=torch.float32, device=self.device)
-        ref_q, ref_v = self._fb_qpos[f], self._fb_qvel[f]
+        ref_q, ref_v = ref_qpos[f], ref_qvel[f]
         # The tangent state difference as mj_differentiatePos(ref, x) and the velocities.
         dx = torch.cat([qpos[:, :3] - ref_q[:, :3],
                         quat_log(quat_conj_mul(ref_q[:, 3:7], qpos[:, 3:7])),
                         qpos[:, 7:] - ref_q[:, 7:], qvel - ref_v], dim=1)  # fmt: skip
-        if d:  # The commands in flight, oldest first (tvlqr_gains' delayed state).
-            dx = torch.cat([dx, self._fb_queue.reshape(self.num_envs, -1)], dim=1)
-        fb = torch.einsum("nij,nj->ni", self._gains[f], dx)
+        if queue is not None:
+            dx = torch.cat([dx, queue], dim=1)
+        fb = torch.einsum("nij,nj->ni", gains[f], dx)
         lim = self.cfg.feedback_limit
-        return ff + fb.clamp(-lim, lim)
+        return fb.clamp(-lim, lim)
 
     def _queue_command(self, command: torch.Tensor) -> None:
         """Remember a command the delay-aware LQR issued, as its deviation from the stored
@@ -444,15 +503,18 @@ class TrackingEnv(VecEnv):
         self._fb_queue[:, :-1] = self._fb_queue[:, 1:].clone()
         self._fb_queue[:, -1] = command - self._base[f]  # type: ignore[index]
 
-    def _setup_feedback(self, motion: Motion, model: mujoco.MjModel | None) -> None:
-        """The ``feedback`` base's time-varying LQR gains around the refined trajectory, on
-        the robot's nominal model (the one ``humimic refine`` plans on): neither DR nor a
-        physics file changes the controller, so a policy meets an unseen robot with the base
-        it trained with."""
+    def _feedback_setup(
+        self, motion: Motion, model: mujoco.MjModel | None, table: torch.Tensor, delay: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The ``feedback`` base's time-varying LQR gains around the refined trajectory (with
+        ``table`` its stored targets, designed for ``delay`` steps of latency), on the robot's
+        nominal model (the one ``humimic refine`` plans on): neither DR nor a physics file
+        changes the controller, so a policy meets an unseen robot with the base it trained
+        with. Returns the gains (Shape: (T, J, n)) and the trajectory's qpos and qvel."""
         from humimic.sim.lqr import tvlqr_gains
 
         states = stored_states(motion, self.cfg.decimation)
-        assert states is not None and self._base is not None  # base_table checked it.
+        assert states is not None  # base_table checked it.
         qpos, qvel = states
         nominal = self.cfg.physics is None
         m = (
@@ -460,15 +522,15 @@ class TrackingEnv(VecEnv):
             if model is not None and nominal
             else tracking_model(replace(self.cfg, physics=None))
         )
-        d = self.cfg.feedback_delay
-        K = tvlqr_gains(m, qpos, qvel, self._base[:-1].double().cpu().numpy(),
-                        self.cfg.decimation, self.cfg.feedback, delay=d)  # fmt: skip
+        K = tvlqr_gains(m, qpos, qvel, table[:-1].double().cpu().numpy(),
+                        self.cfg.decimation, self.cfg.feedback, delay=delay)  # fmt: skip
         K = np.concatenate([K, np.zeros_like(K[-1:])])  # The last frame: no control step.
         dev = self.device
-        self._gains = torch.as_tensor(K, dtype=torch.float32, device=dev)
-        self._fb_qpos = torch.as_tensor(qpos, dtype=torch.float32, device=dev)
-        self._fb_qvel = torch.as_tensor(qvel, dtype=torch.float32, device=dev)
-        self._fb_queue = torch.zeros(self.num_envs, d, K.shape[1], device=dev)
+        return (
+            torch.as_tensor(K, dtype=torch.float32, device=dev),
+            torch.as_tensor(qpos, dtype=torch.float32, device=dev),
+            torch.as_tensor(qvel, dtype=torch.float32, device=dev),
+        )
 
     def close(self) -> None:
         """Release the backend's threads."""
@@ -787,6 +849,15 @@ class TrackingEnv(VecEnv):
             if self._noise_scale is not None:
                 noise = torch.rand(self._policy.shape, generator=self._gen, device=self.device)
             self._observe_fn(noise)
+            # The base's linear velocity (a student's group): the critic's, noised from its
+            # own generator (the other draws stay as they were before the group existed).
+            start = self._policy_dim + self._params_dim
+            lin_vel = self._critic[:, start : start + 3]
+            obs_noise = self.cfg.dr.obs_noise
+            if obs_noise is not None and obs_noise.base_lin_vel > 0:
+                u = torch.rand(lin_vel.shape, generator=self._lin_vel_gen, device=self.device)
+                lin_vel = lin_vel + (2.0 * u - 1.0) * obs_noise.base_lin_vel
+            self._base_lin_vel.copy_(lin_vel)
 
     def _observe(self, noise: torch.Tensor | None) -> None:
         """Observations into their buffers: ``noise`` (uniform in [0, 1), or None) scaled to
