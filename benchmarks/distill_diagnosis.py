@@ -24,7 +24,6 @@ def main() -> None:
     from humimic.tracking.distill import StudentView
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.export import load_policy_runner
-    from humimic.tracking.math import quat_conj_mul, quat_log
     from humimic.tracking.runs import run_config
     from humimic.tracking.train import load_reference, task_config
 
@@ -42,7 +41,6 @@ def main() -> None:
     view = StudentView(env, args.teacher_base)
     student, teacher = runner.alg.student, runner.alg.teacher
     err, lab, off = [], [], []
-    nq = env.backend.nq
     nv = env.backend.nv
     blocks = {"root_pos": slice(0, 3), "root_rot": slice(3, 6), "joint_pos": slice(6, nv),
               "root_lin_vel": slice(nv, nv + 3), "root_ang_vel": slice(nv + 3, nv + 6),
@@ -59,12 +57,8 @@ def main() -> None:
                 _, fb = env._other_bases["feedback"]
                 assert fb is not None  # The feedback base has its gains.
                 K, ref_q, ref_v = fb
-                f, r = env.state.frame, env.backend.read()
-                q = torch.as_tensor(r.qpos[:, :nq], dtype=torch.float32)
-                v = torch.as_tensor(r.qvel, dtype=torch.float32)
-                dx = torch.cat([q[:, :3] - ref_q[f][:, :3],
-                                quat_log(quat_conj_mul(ref_q[f][:, 3:7], q[:, 3:7])),
-                                q[:, 7:] - ref_q[f][:, 7:], v - ref_v[f]], dim=1)  # fmt: skip
+                f = env.state.frame
+                dx = env._state_deviation(ref_q[f], ref_v[f])
                 for name, s in blocks.items():
                     part = torch.einsum("nij,nj->ni", K[f][:, :, s], dx[:, s]) / env.action_scale
                     parts[name].append(part.numpy())

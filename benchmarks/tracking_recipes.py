@@ -86,16 +86,15 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
 
     run = args.out / name
     t0 = time.perf_counter()
-    if args.reuse and (run / "config.yaml").is_file():
-        pass
-    elif name in DISTILLS:
+    reused = args.reuse and (run / "config.yaml").is_file()
+    if not reused and name in DISTILLS:
         teacher, flags = DISTILLS[name]
         if not (args.out / teacher / "config.yaml").is_file():
             raise SystemExit(f"{name}: its teacher's run {args.out / teacher} is missing")
         _humimic("distill", "--teacher", str(args.out / teacher), "--out", str(run),
                  "--max-minutes", str(args.minutes), "--max-iterations", "1000000", "--seed",
                  str(args.seed), "--quiet", *flags)  # fmt: skip
-    else:
+    elif not reused:
         _humimic("train", "--motion", str(args.motion), "--out", str(run), "--max-minutes",
                  str(args.minutes), "--seed", str(args.seed), "--quiet", *RECIPES[name])  # fmt: skip
     train_wall = time.perf_counter() - t0

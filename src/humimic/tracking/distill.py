@@ -174,12 +174,9 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
     if student not in STUDENT_OBS:
         raise InputError(f"--student {student!r}: expected one of {', '.join(STUDENT_OBS)}")
     steps = int(teacher_cfg["num_steps_per_env"])
-    if d.gradient_length is not None and not 0 < d.gradient_length <= steps:
-        raise InputError(f"gradient_length {d.gradient_length}: expected 1-{steps} (the rollout)")
-    if d.gradient_length is not None and steps % d.gradient_length:
-        raise InputError(
-            f"gradient_length {d.gradient_length}: does not divide the rollout of {steps} steps"
-        )
+    gl = d.gradient_length
+    if gl is not None and (gl < 1 or steps % gl):
+        raise InputError(f"gradient_length {gl}: expected a divisor of the rollout's {steps} steps")
     model: dict[str, Any] = {
         "class_name": "RNNModel" if student == "gru" else "MLPModel",
         "hidden_dims": list(d.hidden_dims),

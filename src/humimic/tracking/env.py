@@ -479,19 +479,24 @@ class TrackingEnv(VecEnv):
     ) -> torch.Tensor:
         """The LQR correction ``K_f (x - x_f)`` at frames ``f``, clipped to the task's
         ``feedback_limit``; ``queue``: the commands in flight of a delay design."""
-        r = self.backend.read()
-        qpos = torch.as_tensor(r.qpos, dtype=torch.float32, device=self.device)
-        qvel = torch.as_tensor(r.qvel, dtype=torch.float32, device=self.device)
-        ref_q, ref_v = ref_qpos[f], ref_qvel[f]
-        # The tangent state difference as mj_differentiatePos(ref, x) and the velocities.
-        dx = torch.cat([qpos[:, :3] - ref_q[:, :3],
-                        quat_log(quat_conj_mul(ref_q[:, 3:7], qpos[:, 3:7])),
-                        qpos[:, 7:] - ref_q[:, 7:], qvel - ref_v], dim=1)  # fmt: skip
+        dx = self._state_deviation(ref_qpos[f], ref_qvel[f])
         if queue is not None:
             dx = torch.cat([dx, queue], dim=1)
         fb = torch.einsum("nij,nj->ni", gains[f], dx)
         lim = self.cfg.feedback_limit
         return fb.clamp(-lim, lim)
+
+    def _state_deviation(self, ref_q: torch.Tensor, ref_v: torch.Tensor) -> torch.Tensor:
+        """The simulated state minus ``(ref_q, ref_v)`` (Shape: (num_envs, nq), (num_envs,
+        nv)) in the tangent space, as ``mj_differentiatePos(ref, x)`` and the velocities: root
+        position, root rotation vector in the body frame, joints, then the velocities (the
+        state of :func:`humimic.sim.lqr.tvlqr_gains`). Shape: (num_envs, 2 nv)."""
+        r = self.backend.read()
+        qpos = torch.as_tensor(r.qpos, dtype=torch.float32, device=self.device)
+        qvel = torch.as_tensor(r.qvel, dtype=torch.float32, device=self.device)
+        return torch.cat([qpos[:, :3] - ref_q[:, :3],
+                          quat_log(quat_conj_mul(ref_q[:, 3:7], qpos[:, 3:7])),
+                          qpos[:, 7:] - ref_q[:, 7:], qvel - ref_v], dim=1)  # fmt: skip
 
     def _queue_command(self, command: torch.Tensor) -> None:
         """Remember a command the delay-aware LQR issued, as its deviation from the stored
