@@ -9,8 +9,11 @@ machine meanwhile):
   .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \\
       --minutes 30 --recipes default beyondmimic reference feedforward-std1
   # The default's run distilled into a student without the LQR (another 30 minutes):
-  .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \
+  .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \\
       --minutes 30 --recipes dagger-ff
+  # PPO under DR from that student (another 30 minutes):
+  .venv/bin/python benchmarks/tracking_recipes.py --motion runs/walk.npz --out runs/recipes \\
+      --minutes 30 --recipes dagger-ff-ppo
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import yaml
 
 MJLAB_ANCHOR = ["--task.reward-stds", "anchor_pos", "0.3", "--task.reward-weights", "anchor_pos",
                 "0.5"]  # fmt: skip
@@ -54,6 +59,16 @@ DISTILLS: dict[str, tuple[str, list[str]]] = {
 --teacher OUT/TEACHER --out RUN --max-minutes X``): a student that acts around the stored
 targets without the LQR. Its teacher's run must be in ``--out`` (listed before it, or there
 from an earlier invocation); the minutes are the student's own."""
+
+FINETUNES: dict[str, tuple[str, list[str]]] = {
+    "dagger-ff-ppo": ("dagger-ff", ["--variant", "asymmetric", "--task.action-base",
+                                    "feedforward", "--ppo.critic-warmup-iterations", "20",
+                                    "--ppo.init-std", "0.3", "--ppo.learning-rate", "1e-4"]),
+}  # fmt: skip
+"""Recipe name -> (the student recipe it starts from, the flags it adds to ``humimic train
+--motion STUDENT'S MOTION --init-from OUT/STUDENT --out RUN --max-minutes X``): PPO under DR
+from a distilled student (its actor; a fresh critic trained alone for the first iterations).
+The student's run must be in ``--out``; the minutes are the fine-tuning's own."""
 
 UNSEEN = Path(__file__).parent / "physics"
 """Unseen robots of the same kind as the shipped ones, outside DR ``default`` (issue 25)."""
@@ -94,6 +109,15 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
         _humimic("distill", "--teacher", str(args.out / teacher), "--out", str(run),
                  "--max-minutes", str(args.minutes), "--max-iterations", "1000000", "--seed",
                  str(args.seed), "--quiet", *flags)  # fmt: skip
+    elif not reused and name in FINETUNES:
+        student, flags = FINETUNES[name]
+        config = args.out / student / "config.yaml"
+        if not config.is_file():
+            raise SystemExit(f"{name}: its student's run {args.out / student} is missing")
+        motion = yaml.safe_load(config.read_text())["settings"]["motion"]
+        _humimic("train", "--motion", motion, "--init-from", str(args.out / student), "--out",
+                 str(run), "--max-minutes", str(args.minutes), "--seed", str(args.seed),
+                 "--quiet", *flags)  # fmt: skip
     elif not reused:
         _humimic("train", "--motion", str(args.motion), "--out", str(run), "--max-minutes",
                  str(args.minutes), "--seed", str(args.seed), "--quiet", *RECIPES[name])  # fmt: skip
@@ -104,7 +128,8 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
     plot_learning_curve(progress, curve, run / "learning_curve.png",
                         f"{name}: {args.motion.name}, {args.minutes:g} min on "
                         f"{os.cpu_count()} CPU cores")  # fmt: skip
-    flags = DISTILLS[name][1] if name in DISTILLS else RECIPES[name]
+    flags = {**RECIPES, **DISTILLS, **FINETUNES}[name]
+    flags = flags if name in RECIPES else flags[1]
     result: dict = {"recipe": name, "flags": flags, "train_wall_s": train_wall,
                     "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
                     "curve": curve, **curve_summary(curve, progress)}  # fmt: skip
@@ -123,7 +148,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--minutes", type=float, default=30.0)
     parser.add_argument("--recipes", nargs="+", default=["default", "beyondmimic"],
-                        choices=sorted([*RECIPES, *DISTILLS]))  # fmt: skip
+                        choices=sorted([*RECIPES, *DISTILLS, *FINETUNES]))  # fmt: skip
     parser.add_argument("--physics", nargs="+", default=list(PHYSICS), choices=list(PHYSICS),
                         help="the physics to evaluate the last checkpoint on (default: all)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=32)

@@ -224,7 +224,9 @@ def test_fine_tune_from_a_run_on_a_physics_file(motion_file: Path, tmp_path: Pat
     assert not bad.exists()
 
 
-def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> None:
+def test_teacher_distills_into_a_student(
+    motion_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """A teacher checkpoint loads into rsl_rl's distillation runner (its actor becomes the
     teacher, weight for weight), the student's imitation loss falls, and the student run
     evaluates and exports like any run."""
@@ -249,6 +251,31 @@ def test_teacher_distills_into_a_student(motion_file: Path, tmp_path: Path) -> N
     assert main(["eval", str(student), "--episodes", "2"]) == 0
     assert main(["export", str(student), "--out", str(tmp_path / "s.onnx")]) == 0
     assert main(["distill", "--teacher", str(student), "--out", str(tmp_path / "x")]) == 2
+    # PPO goes on from the student: its actor (the variant whose actor observes its groups),
+    # the noise at --ppo.init-std, a fresh critic that trains alone first.
+    tuned, bad = tmp_path / "tuned", tmp_path / "bad"
+
+    def from_student(out: Path, variant: str, base: str = "default") -> list[str]:
+        args = _train_args(motion_file, out, 1, "--init-from", str(student), "--variant",
+                           variant, "--ppo.critic-warmup-iterations", "1", "--ppo.init-std",
+                           "0.2")  # fmt: skip
+        args[args.index("--task.action-base") + 1] = base
+        return args
+
+    assert main(from_student(tuned, "asymmetric")) == 0
+    actor = torch.load(tuned / "checkpoints" / "model_000001.pt", weights_only=True)
+    actor = actor["actor_state_dict"]
+    for k, v in s_blob["student_state_dict"].items():
+        if k.startswith("mlp."):
+            torch.testing.assert_close(actor[k], v)
+    torch.testing.assert_close(actor["distribution.std_param"], torch.full((29,), 0.2))
+    # Another variant's actor, or another action base: refused, nothing written.
+    capsys.readouterr()
+    assert main(from_student(bad, "beyondmimic")) == 2
+    assert "--variant asymmetric" in capsys.readouterr().err
+    assert main(from_student(bad, "asymmetric", "reference")) == 2
+    assert "'default' action base" in capsys.readouterr().err
+    assert not bad.exists()
     # A checkpoint of another variant does not fit the teacher's actor: refused, nothing written.
     robust = tmp_path / "robust"
     assert main(_train_args(motion_file, robust, 1, "--variant", "robust")) == 0

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+import yaml
 
 from humimic.configs.runs import TIMED_ITERATIONS, PpoConfig, TaskSettings, TrainSettings
 from humimic.errors import HumimicError, InputError
@@ -333,6 +334,7 @@ def train(
             raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
         file = s.init_from if s.init_from.is_file() else None
         init = resolve_checkpoint(s.init_from, file, "--init-from")
+        _check_init_base(init[0], task.action_base)
     device = s.device
     if ranks.distributed:
         device = distributed.start(ranks, s.device)
@@ -348,15 +350,11 @@ def train(
             runner = make_runner(env, cfg, log_dir=log_dir, device=device, ranks=ranks)
             if init is not None:
                 try:
-                    runner.load_checkpoint(init[1])
-                except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as e:
+                    _start_from(runner, init, s, ppo)
+                except InputError:
                     if created:  # Leave nothing behind for a run that never started.
                         shutil.rmtree(run, ignore_errors=True)
-                    raise InputError(
-                        f"--init-from {init[0]}: its networks do not fit this run's (variant "
-                        f"{s.variant!r}, task of {s.robot!r}): {first_line(e)}"
-                    ) from None
-                runner.current_learning_iteration = 0
+                    raise
             else:
                 scale_actor_output(runner, ppo.actor_output_gain)  # A resume loads weights.
             if ranks.main:
@@ -369,6 +367,55 @@ def train(
             env.close()
     finally:
         distributed.stop()
+
+
+def _check_init_base(checkpoint: Path, action_base: str) -> None:
+    """A checkpoint's actor acts around its run's action base: ``--init-from`` one of another
+    base would start from a policy that no longer does what it learned. Checked where the
+    checkpoint's run folder (``<run>/checkpoints/<file>``) records its base."""
+    config = checkpoint.parent.parent / "config.yaml"
+    if checkpoint.parent.name != "checkpoints" or not config.is_file():
+        return
+    try:
+        recorded = yaml.safe_load(config.read_text())["tracking"]["action_base"]
+    except (yaml.YAMLError, KeyError, TypeError, OSError, UnicodeDecodeError):
+        return  # An older or foreign run folder: the networks' shapes are still checked.
+    if recorded != action_base:
+        raise InputError(
+            f"--init-from {checkpoint}: its policy acts around the {recorded!r} action base, "
+            f"this run's is {action_base!r}; pass --task.action-base {recorded}"
+        )
+
+
+def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: PpoConfig) -> None:
+    """Load ``--init-from``'s weights into a new run's runner (its iteration count restarts).
+
+    A PPO checkpoint gives actor, critic and optimizer. A student's (``humimic distill``)
+    gives the actor alone: the critic starts fresh (``--ppo.critic-warmup-iterations`` trains
+    it before the actor moves), and the action noise starts at ``--ppo.init-std``: a
+    student's std is the fixed rollout noise of its distillation, not something it learned.
+    """
+    path, blob = init
+    student = "actor_state_dict" not in blob and "student_state_dict" in blob
+    if student:
+        blob = {"actor_state_dict": blob["student_state_dict"]}
+    try:
+        runner.alg.load(blob, {"actor": True} if student else None, True)
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError) as e:
+        hint = (
+            "; a student of kind mlp-history trains with --variant asymmetric (its actor "
+            "observes the same groups)"
+            if student
+            else ""
+        )
+        raise InputError(
+            f"--init-from {path}: its networks do not fit this run's (variant "
+            f"{s.variant!r}, task of {s.robot!r}): {first_line(e)}{hint}"
+        ) from None
+    if student:
+        with torch.no_grad():
+            runner.alg.get_policy().distribution.std_param.fill_(ppo.init_std)
+    runner.current_learning_iteration = 0
 
 
 def run_env(
