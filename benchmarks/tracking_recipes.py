@@ -27,8 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-import yaml
-
 MJLAB_ANCHOR = ["--task.reward-stds", "anchor_pos", "0.3", "--task.reward-weights", "anchor_pos",
                 "0.5"]  # fmt: skip
 """mjlab's anchor-position reward (humimic's default holds the world position tighter)."""
@@ -98,6 +96,7 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
         plot_learning_curve,
         progress_rows,
     )
+    from humimic.tracking.runs import read_run_settings
 
     run = args.out / name
     t0 = time.perf_counter()
@@ -111,10 +110,9 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
                  str(args.seed), "--quiet", *flags)  # fmt: skip
     elif not reused and name in FINETUNES:
         student, flags = FINETUNES[name]
-        config = args.out / student / "config.yaml"
-        if not config.is_file():
+        if not (args.out / student / "config.yaml").is_file():
             raise SystemExit(f"{name}: its student's run {args.out / student} is missing")
-        motion = yaml.safe_load(config.read_text())["settings"]["motion"]
+        motion = str(read_run_settings(args.out / student).motion)
         _humimic("train", "--motion", motion, "--init-from", str(args.out / student), "--out",
                  str(run), "--max-minutes", str(args.minutes), "--seed", str(args.seed),
                  "--quiet", *flags)  # fmt: skip
@@ -128,8 +126,7 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
     plot_learning_curve(progress, curve, run / "learning_curve.png",
                         f"{name}: {args.motion.name}, {args.minutes:g} min on "
                         f"{os.cpu_count()} CPU cores")  # fmt: skip
-    flags = {**RECIPES, **DISTILLS, **FINETUNES}[name]
-    flags = flags if name in RECIPES else flags[1]
+    flags = RECIPES[name] if name in RECIPES else {**DISTILLS, **FINETUNES}[name][1]
     result: dict = {"recipe": name, "flags": flags, "train_wall_s": train_wall,
                     "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
                     "curve": curve, **curve_summary(curve, progress)}  # fmt: skip
