@@ -38,6 +38,9 @@ RECIPES: dict[str, list[str]] = {
     "feedback-root10": ["--task.feedback-root-cost", "10", *MJLAB_ANCHOR],
     "wide-dr": ["--dr", "wide"],
     "kl0.1": ["--ppo.desired-kl", "0.1"],
+    # A third of the default's noise; the desired KL scaled by (0.3/0.1)^2 so that the
+    # adaptive rate lets the mean move as far per update as the default's does.
+    "low-noise": ["--ppo.init-std", "0.1", "--ppo.desired-kl", "0.09"],
     "delay1": ["--task.feedback-delay", "1"],
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],

@@ -68,6 +68,13 @@ def test_train_writes_a_run_and_refuses_to_overwrite_it(
     assert blob["iter"] == 3 and "actor_state_dict" in blob
     rows = (out / "progress.csv").read_text().splitlines()
     assert len(rows) == 4 and rows[0].startswith("iteration,")
+    # What each update did, mini-batch by mini-batch: rsl_rl's adaptive schedule computes a
+    # KL on every one (NaN here would mean the probe no longer sees it).
+    table = [dict(zip(rows[0].split(","), r.split(","), strict=True)) for r in rows[1:]]
+    for r in table:
+        kl, lr_mean, lr_max = float(r["kl"]), float(r["lr_mean"]), float(r["lr_max"])
+        assert kl > 0.0 and 1e-5 <= lr_mean <= lr_max <= 1e-2
+        assert lr_max >= float(r["learning_rate"])
     cfg = (out / "config.yaml").read_text()
     assert "settings:" in cfg and "tracking:" in cfg and "ppo:" in cfg
     assert "humimic.tracking.rewards:" in cfg  # Reward functions by import path.
@@ -519,3 +526,35 @@ def test_two_processes_train_one_policy_and_stay_in_sync(motion_file: Path, tmp_
     b = torch.load(out / "checkpoints" / "model_000003.pt", weights_only=True)
     key = next(k for k in b["actor_state_dict"] if k.endswith("weight"))
     assert not torch.equal(a["actor_state_dict"][key], b["actor_state_dict"][key])
+
+
+def test_update_probe_records_every_step_and_restores_the_methods() -> None:
+    """The probe sees the rate of each optimizer step and the KL of each mini-batch, and
+    leaves the optimizer and the actor as they were."""
+    from types import SimpleNamespace
+
+    from humimic.tracking.rsl import UpdateProbe
+
+    w = torch.nn.Parameter(torch.zeros(2))
+    opt = torch.optim.SGD([w], lr=1e-3)
+    calls = []
+
+    class Actor:
+        def get_kl_divergence(self, old: torch.Tensor, new: torch.Tensor) -> torch.Tensor:
+            calls.append(1)
+            return (new - old) ** 2
+
+    alg = SimpleNamespace(optimizer=opt, actor=Actor())
+    with UpdateProbe(alg) as probe:
+        for lr, d in ((1e-3, 0.1), (4e-3, 0.2), (2e-3, 0.3)):
+            opt.param_groups[0]["lr"] = lr
+            alg.actor.get_kl_divergence(torch.zeros(3), torch.full((3,), d))
+            w.grad = torch.ones(2)
+            opt.step()
+    s = probe.summary()
+    assert s["lr_mean"] == pytest.approx(7e-3 / 3) and s["lr_max"] == 4e-3
+    assert s["kl"] == pytest.approx(0.09) and len(calls) == 3
+    assert w.detach().tolist() == pytest.approx([-7e-3, -7e-3])
+    assert "step" not in vars(opt) and "get_kl_divergence" not in vars(alg.actor)
+    empty = UpdateProbe(SimpleNamespace(optimizer=opt)).summary()
+    assert all(np.isnan(v) for v in empty.values())

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import io
+import math
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -117,6 +118,59 @@ def torch_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(old)
 
 
+class UpdateProbe:
+    """The learning rates and KL divergences of one PPO update, mini-batch by mini-batch.
+
+    rsl_rl's adaptive schedule changes the rate after every mini-batch (up while the KL from
+    the rollout's policy is under half the desired one, down once it passes twice that); its
+    log and ``progress.csv``'s ``learning_rate`` hold only the rate the update ended at, which
+    is usually the lowest of the iteration (the KL is largest at the end). Inside the block the
+    optimizer's steps and the actor's KL computations are recorded; :meth:`summary` gives
+    ``lr_mean``, ``lr_max`` (over the update's optimizer steps) and ``kl`` (the last
+    mini-batch's KL from the rollout's policy: how far the update moved it; NaN where the
+    schedule computes none)."""
+
+    def __init__(self, alg: Any) -> None:
+        self.alg = alg
+        self.rates: list[float] = []
+        self.kls: list[float] = []
+
+    def __enter__(self) -> UpdateProbe:
+        opt, actor = self.alg.optimizer, getattr(self.alg, "actor", None)
+        step = opt.step
+
+        def step_(*args: Any, **kwargs: Any) -> Any:
+            self.rates.append(float(opt.param_groups[0]["lr"]))
+            return step(*args, **kwargs)
+
+        opt.step = step_
+        if actor is not None and hasattr(actor, "get_kl_divergence"):
+            kl = actor.get_kl_divergence
+
+            def kl_(old: Any, new: Any) -> torch.Tensor:
+                v = kl(old, new)
+                self.kls.append(float(v.mean()))
+                return v
+
+            actor.get_kl_divergence = kl_
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        # The wrappers are instance attributes: removing them restores the methods.
+        self.alg.optimizer.__dict__.pop("step", None)
+        actor = getattr(self.alg, "actor", None)
+        if actor is not None:
+            actor.__dict__.pop("get_kl_divergence", None)
+
+    def summary(self) -> dict[str, float]:
+        nan = math.nan
+        return {
+            "lr_mean": sum(self.rates) / len(self.rates) if self.rates else nan,
+            "lr_max": max(self.rates, default=nan),
+            "kl": self.kls[-1] if self.kls else nan,
+        }
+
+
 @contextlib.contextmanager
 def _critic_only(alg: Any) -> Iterator[None]:
     """Inside the block, PPO's update leaves the actor (its weights and its noise) as it is
@@ -167,6 +221,8 @@ def make_runner(
 
         critic_warmup = 0
         """Iterations whose updates train the critic alone (:attr:`PpoConfig.critic_warmup_iterations`)."""
+        update_stats: dict[str, float] | None = None
+        """The last update's :meth:`UpdateProbe.summary` (None before the first)."""
 
         def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
             """rsl_rl's loop; on the CPU, rollouts run torch on one thread and the PPO update
@@ -180,11 +236,15 @@ def make_runner(
             def wrapped(*args: Any, **kwargs: Any) -> Any:
                 warm = done[0] < self.critic_warmup
                 done[0] += 1
-                with torch_threads(full) if cpu else contextlib.nullcontext():
+                probe = UpdateProbe(self.alg)
+                with torch_threads(full) if cpu else contextlib.nullcontext(), probe:
                     if not warm:
-                        return update(*args, **kwargs)
-                    with _critic_only(self.alg):
-                        return update(*args, **kwargs)
+                        out = update(*args, **kwargs)
+                    else:
+                        with _critic_only(self.alg):
+                            out = update(*args, **kwargs)
+                self.update_stats = probe.summary()
+                return out
 
             self.alg.update = wrapped
             try:

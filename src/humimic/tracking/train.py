@@ -217,6 +217,7 @@ class _Progress:
             "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
             "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
             "learning_rate": float(learning_rate),
+            **(self.runner.update_stats or {}),
             "action_std": float(action_std.detach().mean()),
             **{f"loss_{k}": float(v) for k, v in loss_dict.items()},
         }
