@@ -59,7 +59,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
                         hide_real("sysid", report_mod.run_diagnosis))  # fmt: skip
     out = tmp_path / "loop"
     args = ["loop", "--run", str(base_run), "--real", str(real), "--out", str(out),
-            "--episodes", "1", "--iterations", "1", "--num-envs", "8",
+            "--episodes", "1", "--iterations", "1",
             "--sysid-duration", "5", "--control", "--quiet"]  # fmt: skip
     assert main(args) == 0
     assert stages == ["sysid", "train", "train"]  # Fine-tuning in the corrected and nominal models.
@@ -83,6 +83,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     tuned = read_run_settings(out / "finetune")
     assert tuned.physics == str(out / "corrected.yaml") and tuned.init_from == base_run
     assert read_run_settings(out / "finetune_nominal").physics is None
+    assert tuned.num_envs == 8  # Without --num-envs: as many as the run trained with.
     names = tuple(nominal_model(get_robot("g1")).joint(j).name for j in range(1, 30))
     log = read_robot_log(out / "before" / "robot_log.mcap", names)
     assert log.base == "floating" and len(log.t) == r["before"]["policy"]["mean_steps"] + 1

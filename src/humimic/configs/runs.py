@@ -500,8 +500,8 @@ class LoopSettings:
     """Episodes per deployment."""
     iterations: int = 100
     """Fine-tuning PPO iterations."""
-    num_envs: int = 256
-    """Fine-tuning envs."""
+    num_envs: int | None = None
+    """Fine-tuning envs (default: as many as the run trained with)."""
     sysid_duration: float = 40.0
     """Seconds of the gantry log (5 to 3600)."""
     control: bool = False
