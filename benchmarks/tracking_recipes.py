@@ -41,6 +41,8 @@ RECIPES: dict[str, list[str]] = {
     # A third of the default's noise; the desired KL scaled by (0.3/0.1)^2 so that the
     # adaptive rate lets the mean move as far per update as the default's does.
     "low-noise": ["--ppo.init-std", "0.1", "--ppo.desired-kl", "0.09"],
+    # A third of the default's noise that stays low: no entropy bonus pushing the std up.
+    "std0.1-ent0": ["--ppo.init-std", "0.1", "--ppo.entropy-coef", "0"],
     "delay1": ["--task.feedback-delay", "1"],
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],
