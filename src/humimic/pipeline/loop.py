@@ -103,7 +103,8 @@ def _finetune(s: LoopSettings, run: Any, out: Path, physics: Path | None) -> dic
 
     t0 = time.perf_counter()
     ts = TrainSettings(motion=s.motion or run.motion, out=out, robot=run.robot,
-                       num_envs=s.num_envs or run.num_envs, max_iterations=s.iterations, device=s.device,
+                       num_envs=s.num_envs or run.num_envs, max_iterations=s.iterations,
+                       device=s.device,
                        dr=run.dr, physics=None if physics is None else str(physics),
                        init_from=s.run, variant=run.variant, seed=s.seed,
                        checkpoint_every=s.iterations, num_steps_per_env=run.num_steps_per_env,

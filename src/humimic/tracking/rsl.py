@@ -133,7 +133,7 @@ class UpdateProbe:
     def __init__(self, alg: Any) -> None:
         self.alg = alg
         self.rates: list[float] = []
-        self.kls: list[float] = []
+        self.last_kl: torch.Tensor | None = None  # Read once, in summary(): no sync per batch.
 
     def __enter__(self) -> UpdateProbe:
         opt, actor = self.alg.optimizer, getattr(self.alg, "actor", None)
@@ -149,7 +149,7 @@ class UpdateProbe:
 
             def kl_(old: Any, new: Any) -> torch.Tensor:
                 v = kl(old, new)
-                self.kls.append(float(v.mean()))
+                self.last_kl = v.detach().mean()
                 return v
 
             actor.get_kl_divergence = kl_
@@ -167,7 +167,7 @@ class UpdateProbe:
         return {
             "lr_mean": sum(self.rates) / len(self.rates) if self.rates else nan,
             "lr_max": max(self.rates, default=nan),
-            "kl": self.kls[-1] if self.kls else nan,
+            "kl": float(self.last_kl) if self.last_kl is not None else nan,
         }
 
 
