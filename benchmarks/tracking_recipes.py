@@ -31,10 +31,14 @@ MJLAB_ANCHOR = ["--task.reward-stds", "anchor_pos", "0.3", "--task.reward-weight
                 "0.5"]  # fmt: skip
 """mjlab's anchor-position reward (humimic's default holds the world position tighter)."""
 
+BEYONDMIMIC_PPO = ["--ppo.actor-hidden-dims", "512", "256", "128", "--ppo.critic-hidden-dims",
+                   "512", "256", "128", "--ppo.num-learning-epochs", "5"]  # fmt: skip
+"""BeyondMimic's networks and epochs (humimic's default halves the widths, 3 epochs)."""
+
 RECIPES: dict[str, list[str]] = {
     "default": [],
     "beyondmimic": ["--task.action-base", "default", "--ppo.init-std", "1.0",
-                    "--ppo.actor-output-gain", "1.0", *MJLAB_ANCHOR],
+                    "--ppo.actor-output-gain", "1.0", *MJLAB_ANCHOR, *BEYONDMIMIC_PPO],
     "feedback-root10": ["--task.feedback-root-cost", "10", *MJLAB_ANCHOR],
     "wide-dr": ["--dr", "wide"],
     "kl0.1": ["--ppo.desired-kl", "0.1"],
@@ -44,6 +48,9 @@ RECIPES: dict[str, list[str]] = {
     # A third of the default's noise that stays low: no entropy bonus pushing the std up.
     "std0.1-ent0": ["--ppo.init-std", "0.1", "--ppo.entropy-coef", "0"],
     "delay1": ["--task.feedback-delay", "1"],
+    # The default before 2026-12-03: BeyondMimic's networks and epochs (the update took ~40 %
+    # of an iteration on the CPU).
+    "wide-ppo": BEYONDMIMIC_PPO,
     "reference": ["--task.action-base", "reference"],
     "feedforward": ["--task.action-base", "feedforward"],
     "feedforward-std1": ["--task.action-base", "feedforward", "--ppo.init-std", "1.0",

@@ -210,8 +210,11 @@ class PpoConfig:
     """PPO and its actor-critic networks (``--ppo.*``): BeyondMimic's / mjlab's G1 tracking
     values (``mjlab/tasks/tracking/config/g1/rl_cfg.py``), except where a residual policy
     starts (``init_std`` 0.3 instead of 1.0 and ``actor_output_gain`` 0.01: the policy
-    starts at its action base, BENCHMARKS.md, issue 25). Turned into rsl_rl's config dict by
-    :func:`humimic.tracking.rsl.train_cfg`.
+    starts at its action base) and where the update's cost per sample counts on a CPU
+    (networks of 256-128-64 instead of 512-256-128 and 3 epochs instead of 5: the update
+    took ~40 % of an iteration, and the walk's policy under DR got better with the 40-75 %
+    more env steps that fit in 30 minutes; BENCHMARKS.md, issue 25). Turned into rsl_rl's
+    config dict by :func:`humimic.tracking.rsl.train_cfg`.
 
     Attributes:
         actor_hidden_dims: Hidden layer sizes of the actor MLP.
@@ -226,6 +229,9 @@ class PpoConfig:
             critic alone, at a fixed learning rate: the actor (a residual policy that starts
             at its action base) keeps its initial weights until the critic's advantages mean
             something (residual RL's critic burn-in; BENCHMARKS.md, issue 25).
+        rma_latent_dim: The ``rma`` variant's latent size: its actor's encoder turns the
+            physics parameters e into z = mu(e) of this size (RMA's: 8).
+        rma_encoder_hidden_dims: Hidden layer sizes of the ``rma`` variant's encoder mu.
         learning_rate: Adam learning rate (adapted to ``desired_kl``).
         schedule: ``adaptive`` or ``fixed``.
         desired_kl: Target KL divergence of the adaptive schedule.
@@ -241,18 +247,22 @@ class PpoConfig:
         num_steps_per_env: Rollout length per env and iteration (``--num-steps-per-env``).
         save_interval: Iterations between checkpoints (``--checkpoint-every``).
         obs_groups: Observation sets -> env observation groups (``--variant``).
+        encoder_groups: The actor's groups that an encoder turns into a latent before its
+            MLP (``--variant rma``: ``physics``); empty: a plain MLP actor.
         logger: rsl_rl log writer (``tensorboard``).
         run_name: Suffix of the run folder.
         check_for_nan: Check observations and rewards for NaN every step.
     """
 
-    actor_hidden_dims: tuple[int, ...] = (512, 256, 128)
-    critic_hidden_dims: tuple[int, ...] = (512, 256, 128)
+    actor_hidden_dims: tuple[int, ...] = (256, 128, 64)
+    critic_hidden_dims: tuple[int, ...] = (256, 128, 64)
     activation: tyro.conf.Suppress[str] = "elu"
     obs_normalization: bool = True
     init_std: float = 0.3
     actor_output_gain: float = 0.01
     critic_warmup_iterations: int = 0
+    rma_latent_dim: int = 8
+    rma_encoder_hidden_dims: tuple[int, ...] = (256, 128)
     learning_rate: float = 1e-3
     schedule: Literal["adaptive", "fixed"] = "adaptive"
     desired_kl: float = 0.01
@@ -260,7 +270,7 @@ class PpoConfig:
     value_loss_coef: float = 1.0
     use_clipped_value_loss: bool = True
     clip_param: float = 0.2
-    num_learning_epochs: int = 5
+    num_learning_epochs: int = 3
     num_mini_batches: int = 4
     gamma: float = 0.99
     lam: float = 0.95
@@ -270,6 +280,7 @@ class PpoConfig:
     obs_groups: tyro.conf.Suppress[dict[str, tuple[str, ...]]] = field(
         default_factory=lambda: {"actor": ("policy",), "critic": ("critic",)}
     )
+    encoder_groups: tyro.conf.Suppress[tuple[str, ...]] = ()
     logger: tyro.conf.Suppress[str] = "tensorboard"
     run_name: tyro.conf.Suppress[str] = ""
     check_for_nan: tyro.conf.Suppress[bool] = True
@@ -292,7 +303,11 @@ class PpoConfig:
             v = getattr(self, name)
             if not 1 <= v <= MAX_EPOCHS:
                 raise InputError(f"--ppo.{_flag(name)[2:]} {v}: must be in 1 to {MAX_EPOCHS}")
-        for name in ("actor_hidden_dims", "critic_hidden_dims"):
+        if not 1 <= self.rma_latent_dim <= MAX_HIDDEN:
+            raise InputError(
+                f"--ppo.rma-latent-dim {self.rma_latent_dim}: must be in 1 to {MAX_HIDDEN}"
+            )
+        for name in ("actor_hidden_dims", "critic_hidden_dims", "rma_encoder_hidden_dims"):
             dims = getattr(self, name)
             if not dims or not all(1 <= d <= MAX_HIDDEN for d in dims):
                 raise InputError(
@@ -332,12 +347,14 @@ class TrainSettings:
     init_from: Path | None = None
     """Start from another run's weights (its newest checkpoint, or a checkpoint file):
     fine-tuning. Actor and critic must have the same inputs (same variant and task)."""
-    variant: Literal["beyondmimic", "robust", "asymmetric", "teacher"] = "beyondmimic"
+    variant: Literal["beyondmimic", "robust", "asymmetric", "teacher", "rma"] = "beyondmimic"
     """What actor and critic observe (docs/tracking.md, "Variants"): ``beyondmimic`` (actor:
     deployable observations; critic: privileged), ``robust`` (both deployable only),
     ``asymmetric`` (actor: deployable plus the proprioceptive history; critic: privileged),
     ``teacher`` (actor: deployable plus the physics parameters e; critic: privileged; distill
-    it with ``humimic distill``)."""
+    it with ``humimic distill``), ``rma`` (Rapid Motor Adaptation's phase 1: actor pi(deployable,
+    z) with z = mu(e) a small latent of the physics parameters, ``--ppo.rma-latent-dim``;
+    critic: privileged; distill it with ``humimic distill --student rma``)."""
     resume: bool = False
     """Continue the run in ``--out`` from its newest checkpoint."""
     seed: int = 0
@@ -384,13 +401,17 @@ class DistillSettings:
     Distillation: the student acts, the teacher labels every visited state)."""
 
     teacher: Path
-    """Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one)."""
+    """Run folder of ``humimic train`` (any variant; ``teacher`` is the usual one, ``rma``
+    for ``--student rma``)."""
     out: Path
     """The student's run folder."""
-    student: Literal["mlp-history", "mlp-velocity", "gru"] = "mlp-history"
+    student: Literal["mlp-history", "mlp-velocity", "gru", "rma"] = "mlp-history"
     """``mlp-history`` (an MLP on the policy observations and their history),
-    ``mlp-velocity`` (the same plus the base's linear velocity, which a robot estimates) or
-    ``gru`` (a recurrent network on the policy observations)."""
+    ``mlp-velocity`` (the same plus the base's linear velocity, which a robot estimates),
+    ``gru`` (a recurrent network on the policy observations) or ``rma`` (RMA's phase 2, for
+    a ``--variant rma`` teacher: the teacher's base policy, frozen, with an adaptation module
+    that estimates the teacher's latent z from the policy observations and their history,
+    trained on the latent's MSE)."""
     student_base: ActionBaseName | None = None
     """The action base the student acts around (default: the teacher's). ``feedforward``
     under a ``feedback`` teacher gives a student that needs no LQR and no simulator state:

@@ -85,9 +85,9 @@ def _check(s: LoopSettings) -> Any:
     if config.get("kind") == "student":
         raise InputError(f"{s.run}: a distilled student; the loop fine-tunes PPO runs (fine-tune "
                          "its teacher, then distill again)")  # fmt: skip
-    if run.variant == "teacher":
-        raise InputError(f"{s.run}: a teacher reads simulator parameters and cannot be "
-                         "deployed; run the loop on a deployable variant")  # fmt: skip
+    if run.variant in ("teacher", "rma"):
+        raise InputError(f"{s.run}: a {run.variant} run reads simulator parameters and cannot "
+                         "be deployed; run the loop on a deployable variant")  # fmt: skip
     if s.motion is not None and not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     if s.out.exists() and not s.out.is_dir():

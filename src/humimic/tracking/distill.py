@@ -16,22 +16,30 @@ from rsl_rl.env import VecEnv
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from humimic.configs.runs import DistillSettings
+from humimic.configs.runs import DistillSettings, PpoConfig
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable
+from humimic.tracking.rsl import RMA_ACTOR
 
 STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),
     "mlp-velocity": ("policy", "proprio_history", "base_lin_vel"),
     "gru": ("policy",),
+    "rma": ("policy", "proprio_history"),
 }
 """Observation groups of each student kind: only deployable groups.
 
 * ``mlp-history``: an MLP on ``policy`` and ``proprio_history``;
 * ``mlp-velocity``: the same plus the base's linear velocity (a robot's state estimate, as
   BeyondMimic's policy reads it; the LQR of a ``feedback`` teacher feeds it back);
-* ``gru``: a GRU on ``policy``.
+* ``gru``: a GRU on ``policy``;
+* ``rma``: an ``rma`` teacher's base policy on ``policy`` and the latent that an adaptation
+  module estimates from ``policy`` and ``proprio_history``
+  (:class:`~humimic.tracking.rma.RmaStudent`).
 """
+
+RMA_STUDENT = "humimic.tracking.rma:RmaStudent"
+RMA_DISTILLATION = "humimic.tracking.rma:RmaDistillation"
 
 
 TEACHER_PREFIX = "teacher_"
@@ -144,8 +152,11 @@ class DistillConfig:
         learning_rate: Adam step size.
         max_grad_norm: Gradient clipping.
         loss_type: ``mse`` or ``huber``.
-        hidden_dims: Student MLP layers.
-        activation: Student activation.
+        hidden_dims: Student MLP layers (an ``rma`` student's: its adaptation module's); by
+            default a PPO actor's (:class:`~humimic.configs.runs.PpoConfig`), so that PPO can
+            start from the student (``humimic train --init-from``).
+        activation: Student activation (an ``rma`` student's adaptation module's; its base
+            policy's is the teacher's).
         init_std: Std of the student's exploration noise during rollouts.
         rnn_hidden_dim: GRU width (``gru`` students).
     """
@@ -155,7 +166,7 @@ class DistillConfig:
     learning_rate: float = 1e-3
     max_grad_norm: float = 1.0
     loss_type: str = "mse"
-    hidden_dims: tuple[int, ...] = (512, 256, 128)
+    hidden_dims: tuple[int, ...] = PpoConfig.actor_hidden_dims
     activation: str = "elu"
     init_std: float = 0.05
     rnn_hidden_dim: int = 256
@@ -170,9 +181,21 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
     rollouts; a small fixed std), and the teacher's model config must be the trained actor's
     exactly (it is copied from the teacher run, with the actor's observation groups as the
     ``teacher`` set).
+
+    An ``rma`` student (:class:`~humimic.tracking.rma.RmaStudent`) takes the teacher's base
+    policy configuration (its weights: :meth:`~humimic.tracking.rma.RmaDistillation.load`)
+    and an adaptation module of ``d.hidden_dims``; the algorithm is
+    :class:`~humimic.tracking.rma.RmaDistillation` (the latent's regression).
     """
     if student not in STUDENT_OBS:
         raise InputError(f"--student {student!r}: expected one of {', '.join(STUDENT_OBS)}")
+    actor = teacher_cfg["actor"]
+    rma = student == "rma"
+    if rma and actor.get("class_name") != RMA_ACTOR:
+        raise InputError(
+            "--student rma: the teacher's actor has no latent to estimate; an RMA student "
+            "needs a teacher trained with --variant rma"
+        )
     steps = int(teacher_cfg["num_steps_per_env"])
     gl = d.gradient_length
     if gl is not None and (gl < 1 or steps % gl):
@@ -190,6 +213,18 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
     }
     if student == "gru":
         model.update(rnn_type="gru", rnn_hidden_dim=d.rnn_hidden_dim, rnn_num_layers=1)
+    if rma:
+        encoded = actor["encoder_groups"]
+        model.update(
+            class_name=RMA_STUDENT,
+            hidden_dims=list(actor["hidden_dims"]),
+            activation=actor["activation"],
+            obs_normalization=actor["obs_normalization"],
+            base_groups=[g for g in teacher_cfg["obs_groups"]["actor"] if g not in encoded],
+            latent_dim=actor["latent_dim"],
+            adapter_hidden_dims=list(d.hidden_dims),
+            adapter_activation=d.activation,
+        )
     return copy.deepcopy(
         {
             "num_steps_per_env": steps,
@@ -202,7 +237,7 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
             "run_name": "",
             "check_for_nan": True,
             "algorithm": {
-                "class_name": "Distillation",
+                "class_name": RMA_DISTILLATION if rma else "Distillation",
                 "num_learning_epochs": d.num_learning_epochs,
                 "gradient_length": d.gradient_length or steps,
                 "learning_rate": d.learning_rate,
@@ -210,7 +245,7 @@ def distill_cfg(teacher_cfg: dict[str, Any], student: str, d: DistillConfig) -> 
                 "loss_type": d.loss_type,
             },
             "student": model,
-            "teacher": teacher_cfg["actor"],
+            "teacher": actor,
         }
     )
 
@@ -226,7 +261,13 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     into the teacher model.
 
     The student's run folder is a run like any other: ``humimic eval`` and ``humimic export``
-    (``mlp-history``) take it.
+    take it.
+
+    ``--student rma`` (RMA's phase 2, for an ``rma`` teacher) regresses the student's
+    estimated latent onto the teacher's ``z = mu(e)`` instead of its actions, with the
+    teacher's base policy copied into the student and frozen
+    (:class:`~humimic.tracking.rma.RmaDistillation`); ``progress.csv`` has ``loss_latent``
+    (trained on) and ``loss_behavior`` (the actions' MSE, not trained on).
     """
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
@@ -250,6 +291,12 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     teacher_cfg = run_rsl_cfg(s.teacher, recorded)
     if teacher_cfg["algorithm"]["class_name"] != "PPO":
         raise InputError(f"--teacher {s.teacher}: not a PPO run (a student cannot teach)")
+    if s.student == "rma" and teacher.variant != "rma":
+        raise InputError(
+            f"--student rma: the teacher {s.teacher} was trained with --variant "
+            f"{teacher.variant}; an RMA student estimates the latent of a --variant rma "
+            "teacher's encoder"
+        )
     inputs: dict[str, Any] = {**run_files(s.teacher), "the teacher's motion": teacher.motion}
     for name in ("config.yaml", "progress.csv"):
         check_not_input(s.out / name, inputs, "--out")
@@ -265,6 +312,11 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     student_base = s.student_base or teacher_base
     moved = student_base != teacher_base
     if moved:
+        if teacher.variant == "rma":
+            raise InputError(
+                f"--student-base {student_base}: an rma teacher labels states around its own "
+                f"base ({teacher_base}) only; drop --student-base"
+            )
         if task.feedback_delay:
             raise InputError(
                 f"--student-base {student_base}: the teacher's feedback base is designed for "

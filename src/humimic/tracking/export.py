@@ -96,11 +96,13 @@ def export(settings: ExportSettings) -> Path:
     refined motion's stored targets with or without LQR feedback, docs/tracking.md). A recurrent student (``humimic
     distill --student gru``) also takes its GRU state ``h_in`` (Shape: (layers, batch,
     hidden); zeros at the start of an episode) and returns the next one as ``h_out``: feed it
-    back at every policy step. The file is self-contained (the weights inside it, no
+    back at every policy step. An ``rma`` student's graph holds its adaptation module and the
+    teacher's base policy: input ``obs`` (``policy`` then ``proprio_history``), output
+    ``actions``. The file is self-contained (the weights inside it, no
     external-data side file: :func:`onnx_bytes`) and written atomically.
 
     Raises:
-        InputError: Bad settings, a teacher run, an output that would overwrite one of the
+        InputError: Bad settings, a teacher or rma run, an output that would overwrite one of the
             run's files, the motion or the checkpoint, or a checkpoint that does not load;
             nothing is written.
     """
@@ -116,9 +118,11 @@ def export(settings: ExportSettings) -> Path:
     check_writable(out)
     cfg = run_rsl_cfg(settings.run, recorded)
     if "physics" in cfg["obs_groups"].get("actor", ()):
+        student = " --student rma" if run.variant == "rma" else ""
         raise InputError(
-            f"{settings.run}: a teacher's actor reads the simulator's physics parameters, which "
-            "a robot does not have; distill it (humimic distill) and export the student"
+            f"{settings.run}: the actor of a --variant {run.variant} run reads the simulator's "
+            "physics parameters, which a robot does not have; distill it (humimic distill"
+            f"{student}) and export the student"
         )
     runner, env, _ = load_policy_runner(settings.run, settings.checkpoint)
     try:

@@ -1,7 +1,7 @@
 """The one boundary module to rsl_rl (pinned: rsl-rl-lib 5.5.1).
 
-:func:`train_cfg` turns a :class:`~humimic.configs.runs.PpoConfig` (BeyondMimic's / mjlab's G1
-tracking values, ``humimic train --ppo.*``) into the dict ``OnPolicyRunner`` reads.
+:func:`train_cfg` turns a :class:`~humimic.configs.runs.PpoConfig` (mjlab's G1 tracking values
+where they fit a CPU, ``humimic train --ppo.*``) into the dict ``OnPolicyRunner`` reads.
 """
 
 from __future__ import annotations
@@ -30,23 +30,36 @@ VARIANT_OBS_GROUPS: dict[str, dict[str, tuple[str, ...]]] = {
     "robust": {"actor": ("policy",), "critic": ("policy",)},
     "asymmetric": {"actor": ("policy", "proprio_history"), "critic": ("critic",)},
     "teacher": {"actor": ("policy", "physics"), "critic": ("critic",)},
+    "rma": {"actor": ("policy", "physics"), "critic": ("critic",)},
 }
 """Training variants: the observation groups (:class:`~humimic.tracking.env.TrackingEnv`) of
 rsl_rl's actor and critic."""
 
+VARIANT_ENCODER_GROUPS: dict[str, tuple[str, ...]] = {"rma": ("physics",)}
+"""Variants whose actor encodes some of its groups into a latent first
+(:class:`~humimic.tracking.rma.RmaActor`): those groups."""
+
+RMA_ACTOR = "humimic.tracking.rma:RmaActor"
+"""rsl_rl's ``class_name`` of the ``rma`` variant's actor."""
+
 
 def tracking_ppo(variant: str = "beyondmimic", base: PpoConfig | None = None) -> PpoConfig:
     """PPO for whole-body tracking for a training variant (:data:`VARIANT_OBS_GROUPS`): the
-    settings of ``base`` (default: BeyondMimic's / mjlab's G1 values), the variant's
-    observation groups."""
+    settings of ``base`` (default: :class:`~humimic.configs.runs.PpoConfig`'s), the variant's
+    observation groups and encoded groups (:data:`VARIANT_ENCODER_GROUPS`)."""
     if variant not in VARIANT_OBS_GROUPS:
         raise InputError(f"variant {variant!r}: expected one of {', '.join(VARIANT_OBS_GROUPS)}")
-    return replace(base or PpoConfig(), obs_groups=dict(VARIANT_OBS_GROUPS[variant]))
+    return replace(
+        base or PpoConfig(),
+        obs_groups=dict(VARIANT_OBS_GROUPS[variant]),
+        encoder_groups=VARIANT_ENCODER_GROUPS.get(variant, ()),
+    )
 
 
 def train_cfg(cfg: PpoConfig) -> dict[str, Any]:
     """The ``train_cfg`` dict of ``rsl_rl.runners.OnPolicyRunner`` (a new deep copy each call:
-    the runner mutates it)."""
+    the runner mutates it). With ``encoder_groups`` the actor is an
+    :class:`~humimic.tracking.rma.RmaActor` (the ``rma`` variant)."""
     out: dict[str, Any] = {
         "num_steps_per_env": cfg.num_steps_per_env,
         "save_interval": cfg.save_interval,
@@ -88,6 +101,13 @@ def train_cfg(cfg: PpoConfig) -> dict[str, Any]:
             "obs_normalization": cfg.obs_normalization,
         },
     }
+    if cfg.encoder_groups:
+        out["actor"].update(
+            class_name=RMA_ACTOR,
+            encoder_groups=list(cfg.encoder_groups),
+            latent_dim=cfg.rma_latent_dim,
+            encoder_hidden_dims=list(cfg.rma_encoder_hidden_dims),
+        )
     return copy.deepcopy(out)
 
 

@@ -216,7 +216,8 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
     data["task"] = TaskSettings(**task)
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])
-        for key in ("actor_hidden_dims", "critic_hidden_dims"):
+        for key in ("actor_hidden_dims", "critic_hidden_dims", "rma_encoder_hidden_dims",
+                    "encoder_groups"):  # fmt: skip
             if key in ppo:
                 ppo[key] = tuple(ppo[key])
         if "obs_groups" in ppo:
