@@ -48,6 +48,10 @@ RECIPES: dict[str, list[str]] = {
     # A third of the default's noise that stays low: no entropy bonus pushing the std up.
     "std0.1-ent0": ["--ppo.init-std", "0.1", "--ppo.entropy-coef", "0"],
     "delay1": ["--task.feedback-delay", "1"],
+    # The actor also reads its proprioceptive history: under DR `default` the policy fell
+    # mostly on draws with one step of action delay and low friction, which the history
+    # may reveal and the current observation does not.
+    "asymmetric": ["--variant", "asymmetric"],
     # The default before 2026-12-03: BeyondMimic's networks and epochs (the update took ~40 %
     # of an iteration on the CPU).
     "wide-ppo": BEYONDMIMIC_PPO,

@@ -317,6 +317,36 @@ def test_sample_pool_serves_fresh_rows_with_their_normalization() -> None:
         assert smp.physics.mass_scale.shape == (len(e), 5) and smp.joint_offset.shape == (len(e), 3)
 
 
+def test_param_layout_names_each_quantity_of_e() -> None:
+    """Each block of the layout holds its quantity, normalized by hand here: linear for
+    friction, CoM, joint offsets and delay, logarithmic for the scales."""
+    dr = replace(dr_default(), com_mass_scale=(1.0, 1.0))
+    smp = dr_mod.sample(dr, 7, num_bodies=5, num_joints=3, rng=np.random.default_rng(1))
+    e = dr_mod.normalize(dr, smp)
+    lay = dr_mod.param_layout(5, 3)
+    assert sum(sl.stop - sl.start for sl in lay.values()) == e.shape[1] == dr_mod.param_dim(5, 3)
+
+    def lin(x: np.ndarray, r: tuple[float, float]) -> np.ndarray:
+        return (x - r[0]) / (r[1] - r[0]) * 2.0 - 1.0
+
+    def log(x: np.ndarray, r: tuple[float, float]) -> np.ndarray:
+        return lin(np.log(x), (math.log(r[0]), math.log(r[1])))
+
+    p = smp.physics
+    np.testing.assert_allclose(e[:, lay["friction"]], lin(p.friction, dr.friction)[:, None])
+    np.testing.assert_allclose(e[:, lay["mass_scale"]], log(p.mass_scale, dr.mass_scale))
+    com = np.stack([lin(p.com_offset[:, k], dr.com_offset[k]) for k in range(3)], -1)
+    np.testing.assert_allclose(e[:, lay["com_offset"]], com)
+    np.testing.assert_allclose(e[:, lay["kp_scale"]], log(p.kp_scale, dr.kp_scale))
+    np.testing.assert_allclose(e[:, lay["kd_scale"]], log(p.kd_scale, dr.kd_scale))
+    np.testing.assert_allclose(
+        e[:, lay["armature_scale"]], log(p.armature_scale, dr.armature_scale)
+    )
+    np.testing.assert_allclose(e[:, lay["joint_offset"]], lin(smp.joint_offset, dr.joint_offset))
+    delay = lin(smp.action_delay.astype(float), dr.action_delay)[:, None]
+    np.testing.assert_allclose(e[:, lay["action_delay"]], delay)
+
+
 def test_wide_profile_contains_default_and_widens_the_robot_axes() -> None:
     wide, default = dr_mod.dr_profile("wide"), dr_default()
     wide.validate("wide")

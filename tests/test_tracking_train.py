@@ -429,6 +429,18 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     # is small, so the clip's reference and the env agree on joint order.
     assert r["open_loop"]["joint_error_rad"] < 0.5
 
+    # Per episode, beside the metrics: the DR draw it ran under and whether it failed.
+    from humimic.configs.runs import EvalSettings
+    from humimic.tracking.evaluate import run_evaluation
+
+    ev = run_evaluation(EvalSettings(run=out, episodes=6, dr="default"), open_loop=False)
+    e, failed = ev.episodes["physics_e"], ev.episodes["failed"]
+    assert e.shape[0] == 6 and failed.shape == (6,) and failed.dtype == bool
+    assert e.shape[1] == ev.param_layout["action_delay"].stop
+    assert 1.0 - failed.mean() == pytest.approx(ev.results["policy"]["success_rate"])
+    friction = e[:, ev.param_layout["friction"]]
+    assert np.abs(friction).max() <= 1.0 and friction.std() > 0.05  # Six different floors.
+
     # The first episode, beside the JSON, with the reference: what `humimic view` plays.
     from humimic.formats.mcap import qpos_from_log, read_mcap
     from humimic.pipeline.files import load_rollout, read_any_motion

@@ -273,9 +273,24 @@ class DrSample:
     action_delay: np.ndarray
 
 
+def param_layout(num_bodies: int, num_joints: int) -> dict[str, slice]:
+    """Where each randomized quantity lies in the normalized parameter vector ``e``
+    (:func:`normalize`): ``friction``, ``mass_scale`` (one per body), ``com_offset`` (x, y,
+    z), ``kp_scale``, ``kd_scale``, ``armature_scale``, ``joint_offset`` (one per joint each)
+    and ``action_delay``, in that order."""
+    sizes = {"friction": 1, "mass_scale": num_bodies, "com_offset": 3, "kp_scale": num_joints,
+             "kd_scale": num_joints, "armature_scale": num_joints, "joint_offset": num_joints,
+             "action_delay": 1}  # fmt: skip
+    out, start = {}, 0
+    for name, size in sizes.items():
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
 def param_dim(num_bodies: int, num_joints: int) -> int:
     """Length of the normalized parameter vector ``e``."""
-    return 1 + num_bodies + 3 + 4 * num_joints + 1
+    return param_layout(num_bodies, num_joints)["action_delay"].stop
 
 
 def _uniform(
@@ -341,8 +356,9 @@ def _norm(x: np.ndarray, r: tuple[float, float], log: bool = False) -> np.ndarra
 
 
 def normalize(dr: DomainRandomization, s: DrSample, com_column: int = -1) -> np.ndarray:
-    """The critic's parameter vector ``e`` in [-1, 1]. Shape: (n, :func:`param_dim`). The
-    anchor body's mass (``com_column``) is normalized over the product of its two ranges."""
+    """The critic's parameter vector ``e`` in [-1, 1]. Shape: (n, :func:`param_dim`); its
+    layout: :func:`param_layout`. The anchor body's mass (``com_column``) is normalized over
+    the product of its two ranges."""
     p = s.physics
     mass = _norm(p.mass_scale, dr.mass_scale, log=True)
     if dr.com_mass_scale != (1.0, 1.0) and 0 <= com_column < mass.shape[1]:

@@ -17,6 +17,7 @@ import torch
 from humimic.configs.runs import EvalSettings
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
+from humimic.sim.randomization import param_layout
 from humimic.tracking.actions import stored_targets
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
 
@@ -38,8 +39,16 @@ class _Trace:
         self.reward.append(reward)
 
 
-def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) -> dict:
-    """Run one episode per env; returns the metrics. ``trace`` records env 0.
+def _episodes(
+    env: Any,
+    act: Any,
+    episodes: int,
+    trace: _Trace | None = None,
+    record: dict[str, np.ndarray] | None = None,
+) -> dict:
+    """Run one episode per env; returns the metrics. ``trace`` records env 0; ``record``
+    gets each episode's physics (``physics_e``, the normalized DR parameters ``e`` it ran
+    under, :func:`~humimic.sim.randomization.param_layout`) and whether it ``failed``.
 
     An episode succeeds if no tracking failure (a termination other than the clip's end)
     happens. Errors are averaged over the steps each episode lived:
@@ -61,6 +70,7 @@ def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) ->
     from humimic.tracking.rsl import torch_threads
 
     obs = env.get_observations()
+    e0 = env.physics_params.clone()  # Each env plays one episode: the draw of its reset.
     if trace is not None:
         trace.add(env, 0.0)
     threads = 1 if dev.type == "cpu" else torch.get_num_threads()  # As in training rollouts.
@@ -85,6 +95,9 @@ def _episodes(env: Any, act: Any, episodes: int, trace: _Trace | None = None) ->
             alive &= ~dones
     k = torch.arange(n, device=dev) < episodes
     st = steps.clamp(min=1)[k]
+    if record is not None:
+        record["physics_e"] = e0[k].cpu().numpy()
+        record["failed"] = failed[k].cpu().numpy()
     return {
         "episodes": int(k.sum()),
         "success_rate": float((~failed[k]).float().mean()),
@@ -108,6 +121,11 @@ class Evaluation:
     joint_names: tuple[str, ...]
     motion: Any
     step_dt: float
+    episodes: dict[str, np.ndarray] = field(default_factory=dict)
+    """The policy's episodes: ``physics_e`` (episodes, D) and ``failed`` (episodes,)."""
+    param_layout: dict[str, slice] = field(default_factory=dict)
+    """Where each DR quantity lies in ``physics_e``
+    (:func:`~humimic.sim.randomization.param_layout`)."""
 
 
 def eval_inputs(s: EvalSettings) -> dict[str, Any]:
@@ -216,13 +234,16 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
         load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
         policy = runner.get_inference_policy(device=s.device)
         policy_trace = _Trace()
-        results["policy"] = _episodes(env, policy, s.episodes, policy_trace)
+        record: dict[str, np.ndarray] = {}
+        results["policy"] = _episodes(env, policy, s.episodes, policy_trace, record)
         joint_names = env.joint_names
+        layout = param_layout(env.backend.num_bodies_total, len(joint_names))
     finally:
         env.close()
     open_trace = _Trace()
     if not open_loop:
-        return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
+        return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
+                          record, layout)  # fmt: skip
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
         st = env.state
@@ -245,7 +266,8 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
         results["open_loop"] = _episodes(env, replay, s.episodes, open_trace)
     finally:
         env.close()
-    return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt)
+    return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
+                      record, layout)  # fmt: skip
 
 
 def write_eval_mcap(
