@@ -21,3 +21,22 @@ def shared_data() -> Path:
             "holosoma_climb/ there (the 'shared' folder beside the repository)"
         )
     return SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def motion_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The G1 standing, one arm swinging: 1.5 s at 30 fps (the trainer resamples to 50).
+    Test modules that need another motion define their own ``motion_file``."""
+    import numpy as np
+
+    from humimic.motion import motion_from_qpos, save_motion
+    from humimic.robots import get_robot, nominal_model
+
+    m = nominal_model(get_robot("g1"))
+    fps, T = 30.0, 46
+    q = np.tile(m.key_qpos[0], (T, 1))
+    adr = m.jnt_qposadr[m.joint("left_shoulder_pitch_joint").id]
+    q[:, adr] += 0.3 * np.sin(2 * np.pi * np.arange(T) / fps)
+    path = tmp_path_factory.mktemp("motion") / "stand.npz"
+    save_motion(motion_from_qpos(m, q, fps, "g1"), path)
+    return path

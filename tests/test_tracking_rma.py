@@ -16,23 +16,8 @@ from rsl_rl.modules import EmpiricalNormalization
 from tensordict import TensorDict
 
 from humimic.cli.main import main
-from humimic.motion import motion_from_qpos, save_motion
-from humimic.robots import get_robot, nominal_model
 
 GAUSS = {"class_name": "GaussianDistribution", "init_std": 0.1, "std_type": "scalar"}
-
-
-@pytest.fixture(scope="module")
-def motion_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The G1 standing, one arm swinging: 1.5 s at 30 fps."""
-    m = nominal_model(get_robot("g1"))
-    fps, T = 30.0, 46
-    q = np.tile(m.key_qpos[0], (T, 1))
-    adr = m.jnt_qposadr[m.joint("left_shoulder_pitch_joint").id]
-    q[:, adr] += 0.3 * np.sin(2 * np.pi * np.arange(T) / fps)
-    path = tmp_path_factory.mktemp("motion") / "stand.npz"
-    save_motion(motion_from_qpos(m, q, fps, "g1"), path)
-    return path
 
 
 def _train_args(motion: Path, out: Path, iterations: int, *extra: str) -> list[str]:
