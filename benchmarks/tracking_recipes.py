@@ -52,6 +52,9 @@ RECIPES: dict[str, list[str]] = {
     # mostly on draws with one step of action delay and low friction, which the history
     # may reveal and the current observation does not.
     "asymmetric": ["--variant", "asymmetric"],
+    # A quarter of the resets replay the physics draw of a recently failed episode (the
+    # failures concentrate on low friction with a delayed command).
+    "dr-replay": ["--task.dr-replay", "0.25"],
     # The default before 2026-12-03: BeyondMimic's networks and epochs (the update took ~40 %
     # of an iteration on the CPU).
     "wide-ppo": BEYONDMIMIC_PPO,

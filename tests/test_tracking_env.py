@@ -403,6 +403,61 @@ def test_adaptive_sampling_favours_failing_bins(model: mujoco.MjModel, motion: M
     assert after[1] > after[0] and after[1] > 1.2 * before[1]
 
 
+def test_failed_draws_replay_a_share_of_resets_from_a_ring() -> None:
+    rng = np.random.default_rng(0)
+    fresh = (np.arange(10.0), np.arange(10)[:, None] * np.ones((1, 3)))
+    idle = dr_mod.FailedDraws(0.5, 4, np.random.default_rng(1))
+    assert idle.mix(fresh) is fresh  # Nothing failed yet: the fresh draws, untouched.
+    ring = dr_mod.FailedDraws(1.0, 4, np.random.default_rng(1))
+    ring.record((np.array([100.0, 101, 102]), np.full((3, 3), 7.0)))
+    ring.record((np.array([103.0, 104]), np.full((2, 3), 8.0)))  # 100 is pushed out.
+    assert len(ring) == 4
+    mixed = ring.mix(fresh)
+    assert set(mixed[0]) <= {101.0, 102, 103, 104} and len(set(mixed[0])) > 1
+    assert np.array_equal(mixed[1][:, 0], np.where(mixed[0] <= 102, 7.0, 8.0))  # Whole rows.
+    assert np.array_equal(fresh[0], np.arange(10.0))  # The input is not changed.
+    half = dr_mod.FailedDraws(0.3, 4, rng)
+    half.record((np.array([-1.0]), np.zeros((1, 3))))
+    share = np.mean([np.mean(half.mix(fresh)[0] == -1.0) for _ in range(400)])
+    assert abs(share - 0.3) < 0.03
+
+
+def test_a_failed_episodes_physics_comes_back_at_its_reset(
+    model: mujoco.MjModel, motion: Motion
+) -> None:
+    """With the replay on, the draw of an episode that fails is kept and a reset takes it
+    again (the share is 1 here: every reset replays); without it, a reset draws anew."""
+
+    def fail_env_0(env: TrackingEnv) -> tuple[torch.Tensor, torch.Tensor]:
+        before = env.physics_params.clone()
+        r = env.backend.read()
+        qpos, qvel = r.qpos.copy(), r.qvel.copy()
+        qpos[0, 2] += 0.6  # Lift env 0 well above its reference: it fails this step.
+        env.backend.reset_to(np.arange(2), qpos, qvel)
+        with torch.inference_mode():
+            _, _, dones, extras = env.step(torch.zeros(2, 29))
+        assert bool(dones[0]) and not bool(extras["time_outs"][0]) and not bool(dones[1])
+        return before, env.physics_params.clone()
+
+    fresh = make_env(model, motion, n=2, dr="default")
+    before, after = fail_env_0(fresh)
+    assert not torch.equal(after[0], before[0]) and torch.equal(after[1], before[1])
+
+    env = make_env(model, motion, n=2, dr="default", adaptive=AdaptiveSampling(dr_replay=0.5))
+    assert env._replay is not None and len(env._replay) == 0
+    env._replay.share = 1.0
+    floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    be = env.backend
+    assert isinstance(be, MujocoCpuBackend)
+    friction = be.model_of(0).geom_friction[floor, 0]
+    before, after = fail_env_0(env)
+    assert len(env._replay) == 1
+    assert torch.equal(after, before)  # Env 0 has its failed draw again; env 1 kept its own.
+    assert be.model_of(0).geom_friction[floor, 0] == friction
+    with pytest.raises(InputError, match="dr_replay"):
+        replace(g1_tracking("default"), adaptive=AdaptiveSampling(dr_replay=1.0)).validate()
+
+
 def test_reset_state_is_the_noisy_reference(model: mujoco.MjModel, motion: Motion) -> None:
     """The reset states built from block-drawn noise (rotation matrices, quaternion product as
     a matrix) against the quaternion formulas of reference state initialization."""

@@ -168,12 +168,20 @@ class TaskSettings:
     """Policy steps (20 ms each on the G1) of command latency the ``feedback`` base's LQR is
     designed for: it issues the stored target of the step its command will act on and feeds
     back the commands still in flight (0: none, the default)."""
+    dr_replay: Annotated[float | None, _TASKS] = None
+    """Share of episode resets that replay the domain-randomization draw of a recently
+    failed episode instead of a fresh one, so that training visits the physics the policy
+    falls on more often (0: none; below 1)."""
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the flag."""
         _check_reals(
             self, "task", ("episode_length_s", "action_scale", "feedback_root_cost"), positive=True
         )
+        if self.dr_replay is not None and not (
+            math.isfinite(self.dr_replay) and 0 <= self.dr_replay < 1
+        ):
+            raise InputError(f"--task.dr-replay {self.dr_replay}: expected a share in [0, 1)")
         if self.feedback_delay is not None and not 0 <= self.feedback_delay <= 10:
             raise InputError(
                 f"--task.feedback-delay {self.feedback_delay}: expected 0-10 policy steps"

@@ -431,6 +431,71 @@ class SamplePool:
 
     def take(self, n: int) -> tuple[DrSample, np.ndarray]:
         """The next ``n`` envs' parameters and their normalized vectors ``e``."""
-        *physics, joint_offset, action_delay, e = self._blocks.take(n)
+        return self.as_sample(self.take_rows(n))
+
+    def take_rows(self, n: int) -> tuple[np.ndarray, ...]:
+        """The next ``n`` draws as rows (first axis ``n``) of plain arrays, which
+        :class:`FailedDraws` keeps and :meth:`as_sample` turns into parameters."""
+        return self._blocks.take(n)
+
+    def as_sample(self, rows: tuple[np.ndarray, ...]) -> tuple[DrSample, np.ndarray]:
+        """The parameters of :meth:`take_rows`' rows and their normalized vectors ``e``."""
+        *physics, joint_offset, action_delay, e = rows
         params = PhysicsParams(**dict(zip(self._fields, physics, strict=True)))
         return DrSample(physics=params, joint_offset=joint_offset, action_delay=action_delay), e
+
+
+class FailedDraws:
+    """The draws (:meth:`SamplePool.take_rows`) of recently failed episodes, replayed at a
+    share of later resets: the domain-randomization analogue of BeyondMimic's adaptive
+    start frames, which train more where the policy falls. A failure's draw stays until
+    ``capacity`` newer failures have replaced it (a ring).
+
+    Args:
+        share: Probability that a reset takes a failed draw instead of a fresh one, while
+            any is kept; 0 replays nothing and leaves the fresh draws untouched.
+        capacity: Failed draws kept.
+        rng: Chooses which resets replay and which draw; its own generator, so that the
+            fresh draws' sequence does not depend on the share.
+    """
+
+    def __init__(self, share: float, capacity: int, rng: np.random.Generator) -> None:
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"share must be in [0, 1], got {share}")
+        if capacity < 1:
+            raise ValueError(f"capacity must be at least 1, got {capacity}")
+        self.share, self.capacity, self._rng = float(share), int(capacity), rng
+        self._rows: list[np.ndarray] = []
+        self._size = self._next = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def record(self, rows: tuple[np.ndarray, ...]) -> None:
+        """Keep these draws (rows of a failed episode each)."""
+        rows = tuple(a[-self.capacity :] for a in rows)  # Only the newest survive.
+        n = len(rows[0])
+        if n == 0:
+            return
+        if not self._rows:
+            self._rows = [np.zeros((self.capacity, *a.shape[1:]), a.dtype) for a in rows]
+        slots = (self._next + np.arange(n)) % self.capacity
+        for buf, a in zip(self._rows, rows, strict=True):
+            buf[slots] = a
+        self._next = (self._next + n) % self.capacity
+        self._size = min(self._size + n, self.capacity)
+
+    def mix(self, rows: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+        """Fresh draws with a ``share`` of them replaced by kept failed draws (new arrays;
+        the input is not changed). Without kept draws or share, the input itself."""
+        if self.share == 0.0 or self._size == 0:
+            return rows
+        n = len(rows[0])
+        pick = np.flatnonzero(self._rng.random(n) < self.share)
+        if pick.size == 0:
+            return rows
+        src = self._rng.integers(0, self._size, size=pick.size)
+        out = tuple(a.copy() for a in rows)
+        for o, buf in zip(out, self._rows, strict=True):
+            o[pick] = buf[src]
+        return out

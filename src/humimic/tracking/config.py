@@ -92,6 +92,11 @@ class AdaptiveSampling:
         uniform_ratio: Uniform share of the sampling weights.
         kernel_size: Smoothing kernel length (bins).
         kernel_lambda: Smoothing kernel decay.
+        dr_replay: Share of resets that replay the domain-randomization draw of a recently
+            failed episode (:class:`~humimic.sim.randomization.FailedDraws`) instead of a
+            fresh one: training visits the physics the policy falls on more often. 0: none.
+            Independent of ``enabled``; evaluation never replays.
+        dr_replay_size: Failed draws kept for the replay.
     """
 
     enabled: bool = True
@@ -100,6 +105,8 @@ class AdaptiveSampling:
     uniform_ratio: float = 0.1
     kernel_size: int = 3
     kernel_lambda: float = 0.8
+    dr_replay: float = 0.0
+    dr_replay_size: int = 256
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -230,6 +237,16 @@ class TrackingConfig:
             raise InputError(
                 "tracking.feedback_delay: only the 'feedback' action base has an LQR to "
                 f"design for a delay (the action base is {self.action_base!r})"
+            )
+        if not (math.isfinite(self.adaptive.dr_replay) and 0 <= self.adaptive.dr_replay < 1):
+            raise InputError(
+                f"tracking.adaptive.dr_replay: expected a share in [0, 1), got "
+                f"{self.adaptive.dr_replay}"
+            )
+        if self.adaptive.dr_replay_size < 1:
+            raise InputError(
+                f"tracking.adaptive.dr_replay_size: must be at least 1, got "
+                f"{self.adaptive.dr_replay_size}"
             )
         if self.backend not in ("cpu", "warp"):
             raise InputError(f"tracking.backend: expected 'cpu' or 'warp', got {self.backend!r}")

@@ -266,6 +266,15 @@ class TrackingEnv(VecEnv):
             com_column=be.layout.com_column,
         )
         self._reset_noise = dr_mod.Blocks(self._draw_reset_noise)
+        # Replay of failed episodes' draws: each env's current draw, kept to be recorded.
+        self._replay: dr_mod.FailedDraws | None = None
+        self._env_rows: list[np.ndarray] = []
+        if cfg.adaptive.dr_replay > 0:
+            self._replay = dr_mod.FailedDraws(
+                cfg.adaptive.dr_replay,
+                cfg.adaptive.dr_replay_size,
+                np.random.default_rng([cfg.seed, 0x5EED]),
+            )
         max_delay = int(cfg.dr.action_delay[1])
         self._cmd_hist = torch.zeros(num_envs, max_delay + 1, J, device=dev)
         self._delay = torch.zeros(num_envs, dtype=torch.long, device=dev)
@@ -381,7 +390,10 @@ class TrackingEnv(VecEnv):
         done_ids = dones.nonzero(as_tuple=False).flatten()
         reset = done_ids.numel() > 0
         if reset:
-            self._reset_idx(done_ids)
+            failed = (
+                None if self._replay is None else (self._terminated & ~self._time_outs)[done_ids]
+            )
+            self._reset_idx(done_ids, failed)
         pushed = self._apply_pushes()
         if reset or pushed:  # One read of the new states for resets and pushes together.
             self._read_backend()
@@ -665,16 +677,31 @@ class TrackingEnv(VecEnv):
         h = -(p * (p + 1e-12).log()).sum()
         return h / math.log(self._bin_count) if self._bin_count > 1 else h * 0 + 1
 
-    def _reset_idx(self, ids: torch.Tensor) -> None:
+    def _reset_idx(self, ids: torch.Tensor, failed: torch.Tensor | None = None) -> None:
         """Reset some envs in the backend and in the env's buffers. The caller reads the
-        backend's new state (:meth:`_read_backend`, :meth:`_update_reference`) afterwards."""
+        backend's new state (:meth:`_read_backend`, :meth:`_update_reference`) afterwards.
+
+        Args:
+            failed: Which of ``ids`` ended by failing (their draws are kept for the replay,
+                :attr:`~humimic.tracking.config.AdaptiveSampling.dr_replay`). Shape: (len(ids),), bool.
+        """
         cfg, s, n = self.cfg, self.state, int(ids.numel())
         frames = self._sample_frames(n)
         s.frame[ids] = frames
 
         # Domain randomization.
-        smp, e = self._dr_pool.take(n)
         ids_np = ids.cpu().numpy()
+        rows = self._dr_pool.take_rows(n)
+        if self._replay is not None:
+            if not self._env_rows:  # The first reset (every env): the arrays to keep.
+                self._env_rows = [np.zeros((self.num_envs, *a.shape[1:]), a.dtype) for a in rows]
+            elif failed is not None:
+                lost = ids_np[failed.cpu().numpy()]
+                self._replay.record(tuple(a[lost] for a in self._env_rows))
+            rows = self._replay.mix(rows)
+            for kept, a in zip(self._env_rows, rows, strict=True):
+                kept[ids_np] = a
+        smp, e = self._dr_pool.as_sample(rows)
         if cfg.dr.randomizes_model:
             self.backend.set_params(ids_np, smp.physics)
         dev = self.device

@@ -170,9 +170,10 @@ def resolved_settings(s: TrainSettings) -> TrainSettings:
 
 
 def _resolved_task(robot: str, t: TaskSettings) -> TaskSettings:
-    """The task settings with the action base and the feedback's root cost and delay the
-    run trains with (an unset flag: the robot's registered task's value), so that a later change of the
-    defaults does not change what ``eval`` rebuilds."""
+    """The task settings with the action base, the feedback's root cost and delay and the
+    DR replay share the run trains with (an unset flag: the robot's registered task's
+    value), so that a later change of the defaults does not change what ``eval`` rebuilds
+    or ``--resume`` continues."""
     from humimic.tracking.config import tracking_task
 
     task = tracking_task(robot, "none")
@@ -181,6 +182,7 @@ def _resolved_task(robot: str, t: TaskSettings) -> TaskSettings:
         action_base=t.action_base or task.action_base,
         feedback_root_cost=t.feedback_root_cost or task.feedback.base_position,
         feedback_delay=task.feedback_delay if t.feedback_delay is None else t.feedback_delay,
+        dr_replay=task.adaptive.dr_replay if t.dr_replay is None else t.dr_replay,
     )
 
 
@@ -213,6 +215,7 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
         task["reward_stds"] = {"anchor_pos": 0.3, **(task.get("reward_stds") or {})}
         task["reward_weights"] = {"anchor_pos": 0.5, **(task.get("reward_weights") or {})}
     task.setdefault("feedback_delay", 0)  # Recorded before the delay-aware LQR: none.
+    task.setdefault("dr_replay", 0.0)  # Recorded before the replay of failed draws: none.
     data["task"] = TaskSettings(**task)
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])

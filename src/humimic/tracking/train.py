@@ -121,6 +121,8 @@ def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> Trackin
         changes["feedback"] = replace(task.feedback, base_position=settings.feedback_root_cost)
     if settings.feedback_delay is not None:
         changes["feedback_delay"] = int(settings.feedback_delay)
+    if settings.dr_replay is not None:
+        changes["adaptive"] = replace(task.adaptive, dr_replay=float(settings.dr_replay))
     return replace(task, **changes)
 
 
