@@ -9,6 +9,7 @@ editing the simulated robot, which the diagnosis never sees.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from functools import cache
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from humimic.real2sim import LogSettings, RobotLog, simulate_log
 from humimic.real2sim.diagnose import (
     FIT_END,
     Diagnosis,
+    Finding,
     apply_effect,
     backlash_models,
     diagnose_log,
@@ -212,6 +214,37 @@ def test_diagnosis_finds_two_effects_at_once(pair: tuple[str, str]) -> None:
         assert found[(inj.effect, inj.targets[0])] == pytest.approx(inj.value, rel=0.3)
     before, after = _held(log, model), _held(log, d.correction or model)
     assert after.kstep_rmse_rad < 0.5 * before.kstep_rmse_rad
+
+
+def test_a_latency_of_the_whole_bus_is_one_shared_delay() -> None:
+    """Every command acts 25 ms after the log says it was sent. The latency is made by moving
+    the log's command stamps (not by the vocabulary's delay): the diagnosis claims one delay
+    shared by all joints, not a delay joint by joint."""
+    clean = _clean(3)
+    latency = 0.025
+    log = replace(clean, t_cmd=clean.t_cmd - latency)
+    model = _model(log)
+    d = _diagnose(log)
+    assert [(f.effect, f.target) for f in d.claimed] == [("delay", "all_joints")], d.findings[:4]
+    (f,) = d.claimed
+    assert f.value == pytest.approx(latency, rel=0.1)
+    assert f.acts_on == log.joint_names
+    before, after = _held(log, model), _held(log, d.correction or model)
+    assert after.kstep_rmse_rad < 0.25 * before.kstep_rmse_rad
+
+
+def test_a_group_finding_acts_on_its_joints_in_the_report_and_the_physics() -> None:
+    from humimic.real2sim.report import _effect_entry, physics_from_sysid
+
+    legs = ("left_knee_joint", "right_knee_joint")
+    f = Finding(effect="delay", target="limbs_of_left_hip_pitch_joint+right_hip_pitch_joint",
+                joints=legs, value=0.03, confidence=0.9, error_reduction=0.8, targets=legs)  # fmt: skip
+    entry = _effect_entry(f)
+    assert entry["joints"] == list(legs) and entry["group"] == f.target
+    physics = physics_from_sysid({"effects": [entry]}, name="x", robot="g1")
+    assert [(i.effect, i.targets, i.value) for i in physics.effects] == [("delay", legs, 0.03)]
+    one = _effect_entry(replace(f, target="left_knee_joint", joints=legs[:1], targets=()))
+    assert one["joints"] == ["left_knee_joint"] and "group" not in one
 
 
 def test_an_offset_the_log_cannot_reveal_is_declared_not_guessed() -> None:

@@ -49,7 +49,9 @@ class Finding:
 
     Attributes:
         effect: Vocabulary name.
-        target: Joint name, or body name for ``payload_mass``.
+        target: Joint name, or body name for ``payload_mass``, or the name of a group of
+            joints that share one value (``limb_of_J``: the joints of the limb that starts at
+            joint J; ``limbs_of_J+K``; ``all_joints``), whose joints are ``targets``.
         joints: The joints whose error it was scored on.
         value: Identified parameter: the amount added to the nominal model (friction N m,
             damping N m s/rad, armature kg m^2, payload kg), the delay or filter time constant
@@ -57,6 +59,7 @@ class Finding:
             gain ratio.
         confidence: In [0, 1]; >= 0.5 is a claim.
         error_reduction: Share of its joints' k-step error removed on unseen fit data (B).
+        targets: The joints of a group effect (empty for one joint or body).
     """
 
     effect: str
@@ -65,6 +68,12 @@ class Finding:
     value: float
     confidence: float
     error_reduction: float
+    targets: tuple[str, ...] = ()
+
+    @property
+    def acts_on(self) -> tuple[str, ...]:
+        """The joints (or the body) the effect acts on: its group's, or its target."""
+        return self.targets or (self.target,)
 
     @property
     def on_body(self) -> bool:
@@ -110,6 +119,13 @@ class _Pair:
     hi: float
     none: float  # The value that adds nothing.
     probe: float  # A first, typical value.
+    group: tuple[int, ...] = ()  # Joints one shared value acts on (empty: ``index`` alone).
+    label: str = ""  # The group's name in a finding.
+
+    def apply(self, c: Correction, value: float) -> None:
+        """Add the effect at ``value`` to ``c`` in place (on every joint of its group)."""
+        for i in self.group or (self.index,):
+            apply_effect(c, self.effect, i, value)
 
 
 def _chain(model: mujoco.MjModel, body: int) -> np.ndarray:
@@ -140,6 +156,21 @@ def _peak_torque(log: RobotLog) -> np.ndarray:
     return np.abs(tau + log.cmd_tau[idx]).max(axis=0)
 
 
+PAYLOAD_MAX = 15.0
+"""Largest payload searched [kg]: a backpack or a tool on a link (5 before 2026-12-03,
+which a 6 kg backpack passed)."""
+
+_SINGLE: dict[str, tuple[float, float, float, float]] = {
+    "coulomb_friction": (0.0, 20.0, 0.0, 1.0),
+    "viscous_damping": (0.0, 10.0, 0.0, 0.5),
+    "armature": (0.0, 0.5, 0.0, 0.02),
+    "gain_mismatch": (0.3, 3.0, 1.0, 0.85),
+    "delay": (0.0, 0.05, 0.0, 0.01),
+    "lag": (0.0, 0.1, 0.0, 0.01),
+}
+"""Search interval, "no effect" value and first probe of each joint effect."""
+
+
 def _pairs(
     model: mujoco.MjModel, joints: list[int], peak: np.ndarray, reach: np.ndarray
 ) -> list[_Pair]:
@@ -150,14 +181,7 @@ def _pairs(
     offsets: set[int] = set()
     for j in joints:
         one = np.array([j])
-        spec = {
-            "coulomb_friction": (0.0, 20.0, 0.0, 1.0),
-            "viscous_damping": (0.0, 10.0, 0.0, 0.5),
-            "armature": (0.0, 0.5, 0.0, 0.02),
-            "gain_mismatch": (0.3, 3.0, 1.0, 0.85),
-            "delay": (0.0, 0.05, 0.0, 0.01),
-            "lag": (0.0, 0.1, 0.0, 0.01),
-        }
+        spec = dict(_SINGLE)
         if peak[j] > 0:  # A drive that never pushes has no torque limit to find.
             spec["torque_limit"] = (0.05 * peak[j], peak[j], peak[j], 0.8 * peak[j])
         for effect, (lo, hi, none, probe) in spec.items():
@@ -176,7 +200,40 @@ def _pairs(
             if b not in bodies:
                 bodies.add(b)
                 out.append(_Pair(effect="payload_mass", index=b, joints=_chain(model, b),
-                                 lo=0.0, hi=5.0, none=0.0, probe=0.5))  # fmt: skip
+                                 lo=0.0, hi=PAYLOAD_MAX, none=0.0, probe=0.5))  # fmt: skip
+    return out
+
+
+GROUPED = ("delay",)
+"""Effects also searched as one value shared by a group of joints (a latency of the whole
+robot's bus, or of one limb's): one hypothesis for many joints, which the error reduction
+prefers when the joints share it, instead of the same effect claimed joint by joint."""
+
+
+def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...]) -> list[_Pair]:
+    """Group candidates for the standing-out joints: each one's limb (the joints of the
+    chain from the base that starts at the limb's first joint), the limbs of all of them
+    together, and every joint; groups of one joint are the single candidates already."""
+    jmap = JointMap.of(model)
+    chains = [_chain(model, int(model.jnt_bodyid[jmap.jid[j]])) for j in range(len(names))]
+    root = np.array([c[0] if c.size else j for j, c in enumerate(chains)])
+    limb_of = {int(j): tuple(int(i) for i in np.flatnonzero(root == root[j])) for j in joints}
+    groups: dict[tuple[int, ...], str] = {}
+    for j in joints:
+        groups.setdefault(limb_of[j], f"limb_of_{names[root[j]]}")
+    starts = sorted({int(root[j]) for j in joints})
+    if len(starts) > 1:
+        both = tuple(sorted({i for j in joints for i in limb_of[j]}))
+        groups.setdefault(both, "limbs_of_" + "+".join(names[i] for i in starts))
+    groups.setdefault(tuple(range(len(names))), "all_joints")
+    out = []
+    for group, label in groups.items():
+        if len(group) < 2:
+            continue
+        for effect in GROUPED:
+            lo, hi, none, probe = _SINGLE[effect]
+            out.append(_Pair(effect=effect, index=group[0], joints=np.array(group), lo=lo,
+                             hi=hi, none=none, probe=probe, group=group, label=label))  # fmt: skip
     return out
 
 
@@ -210,7 +267,7 @@ def _fit(
         cs = []
         for b, p, v in zip(bases, pairs, values, strict=True):
             c = b.copy()
-            apply_effect(c, p.effect, p.index, v)
+            p.apply(c, v)
             cs.append(c)
         res = predictor.run(cs)
         return [res[i][..., p.joints, :].ravel() for i, p in enumerate(pairs)]
@@ -320,7 +377,7 @@ def _grid_fit(
         for b, p, vs in zip(bases, pairs, value(xs), strict=True):
             for v in vs:
                 c = b.copy()
-                apply_effect(c, p.effect, p.index, float(v))
+                p.apply(c, float(v))
                 cs.append(c)
         res = predictor.run(cs)
         return np.array([[float(np.sum(res[i * k + j][..., p.joints, :] ** 2)) for j in range(k)]
@@ -371,7 +428,7 @@ def _refit(
     def correction(v: np.ndarray) -> Correction:
         c = start.copy()
         for (p, _), x in zip(kept, v, strict=True):
-            apply_effect(c, p.effect, p.index, float(x))
+            p.apply(c, float(x))
         return c
 
     step = np.maximum(0.1 * np.abs(values - none), 0.01 * (hi - lo))
@@ -563,7 +620,7 @@ def diagnose_log(
         """``c0`` with the kept effects at their current values."""
         c = c0.copy()
         for q, v in kept:
-            apply_effect(c, q.effect, q.index, v)
+            q.apply(c, v)
         return c
 
     start = base
@@ -578,12 +635,13 @@ def diagnose_log(
         order = np.argsort(-err_a)
         # A joint that carries an effect already must stand out more: what an imperfect fit
         # leaves is more likely than a second effect there.
-        busy = {int(j) for q, _ in kept for j in q.joints}
+        # A group's shared value is no reason to doubt a joint of it.
+        busy = {int(j) for q, _ in kept if not q.group for j in q.joints}
         joints = [int(j) for j in order[:candidates_per_round]
                   if err_a[j] > (3.0 if j in busy else 2.0)]  # fmt: skip
         if not joints:
             break
-        pairs = _pairs(model, joints, peak, reach)
+        pairs = _pairs(model, joints, peak, reach) + _group_pairs(model, joints, names)
         bases = [base] * len(pairs)
         if backlash_model is not None:  # Play in a joint: a model with one more hinge.
             for j in joints:
@@ -599,15 +657,18 @@ def diagnose_log(
         for i, p in enumerate(pairs):
             if p.effect == "backlash":
                 c = bases[i].copy()
-                apply_effect(c, p.effect, p.index, values[i])
+                p.apply(c, values[i])
                 cs.append(c)
                 continue
-            shared = [k for k, (q, _) in enumerate(kept) if np.intersect1d(q.joints, p.joints).size]
+            # (Not with a group: its one value spreads over many joints, and refitting it
+            # with every candidate on any of them would cost a search per candidate.)
+            shared = [k for k, (q, _) in enumerate(kept)
+                      if not q.group and np.intersect1d(q.joints, p.joints).size]  # fmt: skip
             if shared:
                 others = start.copy()
                 for k, (q, v) in enumerate(kept):
                     if k not in shared:
-                        apply_effect(others, q.effect, q.index, v)
+                        q.apply(others, v)
                 group = [kept[k] for k in shared] + [(p, values[i])]
                 fitted = _refit(fit_a, others, group)
                 for k, v in zip(shared, fitted[:-1], strict=True):
@@ -615,8 +676,8 @@ def diagnose_log(
                 values[i] = fitted[-1]
             c = start.copy()
             for (q, _), v in zip(kept, revised[i], strict=True):
-                apply_effect(c, q.effect, q.index, v)
-            apply_effect(c, p.effect, p.index, values[i])
+                q.apply(c, v)
+            p.apply(c, values[i])
             cs.append(c)
         res_b = score_b.run([base, *cs])
         sse0 = np.sum(res_b[0] ** 2, axis=(0, 1, 3))  # Per joint, before.
@@ -642,9 +703,10 @@ def diagnose_log(
         ) -> Finding:
             p = pairs[i]
             target = model.body(p.index).name if p.effect == "payload_mass" else names[p.index]
-            return Finding(effect=p.effect, target=target,
+            return Finding(effect=p.effect, target=p.label or target,
                            joints=tuple(names[j] for j in p.joints), value=values[i],
-                           confidence=confidence, error_reduction=reds[i])  # fmt: skip
+                           confidence=confidence, error_reduction=reds[i],
+                           targets=tuple(names[j] for j in p.group))  # fmt: skip
 
         for i in order_p[1:4]:  # The best rivals, for the record.
             rival_conf = min(conf, float(np.clip(reds[i] / (2 * MIN_REDUCTION), 0, 1)))
@@ -684,7 +746,7 @@ def diagnose_log(
             base = start_for(tuple(names[p.index] for _, p, _ in claimed if p.effect == "backlash"))
             base = base.copy()
             for _, p, v in claimed:
-                apply_effect(base, p.effect, p.index, v)
+                p.apply(base, v)
         findings = [g for g, _, _ in claimed]
         rejected += [
             replace(g, confidence=min(g.confidence, CLAIM - 0.01)) for g, _, _ in unclaimed

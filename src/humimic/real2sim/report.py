@@ -66,7 +66,9 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
 
 
 def _effect_entry(f: Finding) -> dict:
-    where = {"body": f.target} if f.on_body else {"joints": [f.target]}
+    where = {"body": f.target} if f.on_body else {"joints": list(f.acts_on)}
+    if f.targets:
+        where["group"] = f.target
     return {
         "effect": f.effect,
         **where,
@@ -182,7 +184,7 @@ def run_diagnosis(
             "and positions at the state rate",
         }
     injections = [
-        Injection(effect=f.effect, targets=(f.target,), value=f.value) for f in diagnosis.claimed
+        Injection(effect=f.effect, targets=f.acts_on, value=f.value) for f in diagnosis.claimed
     ]
     export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
     plots = _plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
