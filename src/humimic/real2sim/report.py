@@ -66,7 +66,7 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
 
 
 def _effect_entry(f: Finding) -> dict:
-    where = {"body": f.target} if f.on_body else {"joints": list(f.acts_on)}
+    where: dict[str, Any] = {"body": f.target} if f.on_body else {"joints": list(f.acts_on)}
     if f.targets:
         where["group"] = f.target
     return {
