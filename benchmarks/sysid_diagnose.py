@@ -12,12 +12,13 @@ import json
 import os
 import platform
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from humimic.real2sim import LogSettings, simulate_log, write_robot_log
+from humimic.real2sim import LogSettings, RobotLog, simulate_log, write_robot_log
 from humimic.real2sim.report import run_diagnosis
 from humimic.robots import get_robot
 from humimic.sim.effects import parse_injection
@@ -29,6 +30,15 @@ def _cable(spec: mujoco.MjSpec) -> None:
     j.stiffness = np.array([0.0, 0.0, 300.0])
     j.springref = 0.8
 
+
+def _bus_latency(log: RobotLog) -> RobotLog:
+    """Outside the effect code: every command acts 25 ms after the log's stamp says it was
+    sent (the command stamps moved earlier), a latency of the whole bus."""
+    return replace(log, t_cmd=log.t_cmd - 0.025)
+
+
+LEGS = ",".join(f"{side}_{j}_joint" for side in ("left", "right")
+                for j in ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll"))  # fmt: skip
 
 CASES: dict[str, tuple[list[str], object]] = {
     "clean": ([], None),
@@ -47,6 +57,8 @@ CASES: dict[str, tuple[list[str], object]] = {
     "delay+payload": (["delay:right_knee_joint=0.0187", "payload_mass:left_wrist_yaw_link=0.8"], None),
     "encoder_offset, wrist yaw (not identifiable)": (["encoder_offset:left_wrist_yaw_joint=0.05"], None),
     "cable spring (outside the vocabulary)": ([], _cable),
+    "leg latency 30 ms (12 drives)": ([f"delay:{LEGS}=0.03"], None),
+    "bus latency 25 ms (command stamps moved)": ([], _bus_latency),
 }  # fmt: skip
 
 
@@ -65,17 +77,23 @@ def main() -> None:
             if args.only and name != args.only:
                 continue
             injections = [parse_injection(x) for x in texts]
+            retime = edit if edit is _bus_latency else None
             log = simulate_log(robot, injections, LogSettings(duration=args.duration,
-                               seed=args.seed), edit=edit)  # type: ignore[arg-type]  # fmt: skip
+                               seed=args.seed), edit=None if retime else edit)  # type: ignore[arg-type]  # fmt: skip
+            if retime is not None:
+                log = retime(log)
             path = write_robot_log(log, Path(tmp) / "log.mcap")
             r = run_diagnosis(path, Path(tmp) / name.replace(" ", "_"))
             net = r["residual_model"]
             case = {
                 "case": name,
-                "injected": [{"effect": i.effect, "target": i.targets[0], "value": i.value}
+                "injected": [{"effect": i.effect, "target": ",".join(i.targets), "value": i.value}
                              for i in injections] + ([{"effect": "cable spring (hidden)",
-                                                      "target": "left_knee_joint"}] if edit else []),
-                "claimed": [{"effect": e["effect"], "target": e.get("body") or e["joints"][0],
+                                                      "target": "left_knee_joint"}] if edit is _cable else [])
+                            + ([{"effect": "bus latency (stamps)", "target": "all joints",
+                                 "value": 0.025}] if retime else []),
+                "claimed": [{"effect": e["effect"],
+                             "target": e.get("group") or e.get("body") or e["joints"][0],
                              "value": e["params"]["value"], "confidence": round(e["confidence"], 2)}
                             for e in r["effects"] if e["confidence"] >= 0.5],
                 "not_identifiable": [{"effect": s["effect"], "joints": len(s["joints"])}
