@@ -77,11 +77,11 @@ def main() -> None:
             if args.only and name != args.only:
                 continue
             injections = [parse_injection(x) for x in texts]
-            retime = edit if edit is _bus_latency else None
+            retime = edit is _bus_latency
             log = simulate_log(robot, injections, LogSettings(duration=args.duration,
                                seed=args.seed), edit=None if retime else edit)  # type: ignore[arg-type]  # fmt: skip
-            if retime is not None:
-                log = retime(log)
+            if retime:
+                log = _bus_latency(log)
             path = write_robot_log(log, Path(tmp) / "log.mcap")
             r = run_diagnosis(path, Path(tmp) / name.replace(" ", "_"))
             net = r["residual_model"]
