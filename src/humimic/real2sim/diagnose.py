@@ -237,6 +237,16 @@ def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...
     return out
 
 
+NONE_SHARE = 0.01
+"""An effect whose value lies within this share of its search interval from "no effect" has
+no size and is not claimed."""
+
+
+def _sized(p: _Pair, value: float) -> bool:
+    """Whether ``value`` is an effect at all (see :data:`NONE_SHARE`)."""
+    return abs(value - p.none) > NONE_SHARE * (p.hi - p.lo)
+
+
 def _fit(
     predictor: _Scorer,
     bases: list[Correction],
@@ -740,6 +750,8 @@ def diagnose_log(
             noise = float(final[0][..., p.joints, :].size)  # One floor squared per sample.
             left = max(sse1 - noise, 0.0) / max(sse0 - noise, 1e-30)
             conf = f.confidence * float(np.clip(1.0 - 1.5 * left, 0.0, 1.0))
+            if not _sized(p, v):  # Refitted to nothing: the others explain its joints.
+                conf = min(conf, CLAIM - 0.01)
             g = replace(f, confidence=conf)
             (claimed if conf >= CLAIM else unclaimed).append((g, p, v))
         if unclaimed:  # Rebuild the correction from the claimed effects only.
