@@ -16,7 +16,9 @@ from humimic.io import atomic_write_text, check_not_input, check_writable, json_
 
 @dataclass(frozen=True, kw_only=True)
 class SysidSimulate:
-    """Write a realistic fixed-base robot log (MCAP) from the nominal model plus injected effects."""
+    """Write a realistic robot log (MCAP) from the nominal model plus injected effects: hanging
+    in a gantry (fixed base), or standing on the floor and swaying under a balance controller
+    (floating base: a deployment log with an IMU and, optionally, motion capture)."""
 
     robot: RobotName = "g1"
     """Robot name from the registry (`humimic robots list`)."""
@@ -27,13 +29,18 @@ class SysidSimulate:
     """Seconds."""
     seed: int = 0
     """Seed of the excitation signal and the sensor noise."""
+    base: Literal["fixed", "floating"] = "fixed"
+    """fixed: a gantry; floating: on the floor (IMU on /imu)."""
+    mocap: bool = True
+    """Floating base: log the root body's pose from motion capture (/base_pose)."""
     out: Path
     """Output .mcap file."""
 
 
 @dataclass(frozen=True, kw_only=True)
 class SysidResidual:
-    """The nominal model's k-step open-loop prediction error on a robot log, per joint."""
+    """The nominal model's k-step open-loop prediction error on a robot log, per joint (fixed
+    base, or floating: predicted with the floor from the IMU's base state)."""
 
     log: Annotated[Path, tyro.conf.Positional]
     """Robot log (.mcap): /joint_states, /joint_commands, metadata 'robot'."""
@@ -83,7 +90,8 @@ def run_simulate(cmd: SysidSimulate) -> None:
     if not 1.0 <= cmd.duration <= 3600.0:
         raise InputError(f"--duration {cmd.duration}: choose 1 to 3600 s")
     check_writable(cmd.out)
-    log = simulate_log(robot, injections, LogSettings(duration=cmd.duration, seed=cmd.seed))
+    settings = LogSettings(duration=cmd.duration, seed=cmd.seed, base=cmd.base, mocap=cmd.mocap)
+    log = simulate_log(robot, injections, settings)
     write_robot_log(log, cmd.out)
     print(f"wrote {cmd.out}: {log.q.shape[0]} states, {log.t_cmd.size} commands, "
           f"{len(log.joint_names)} joints")  # fmt: skip
@@ -91,16 +99,22 @@ def run_simulate(cmd: SysidSimulate) -> None:
 
 def run_residual(cmd: SysidResidual) -> None:
     """Run ``humimic sysid residual``."""
-    from humimic.real2sim import kstep_error
-    from humimic.real2sim.report import load_fixed_base_log
+    from humimic.real2sim.report import load_robot_log
+    from humimic.real2sim.residual import Predictor
+    from humimic.sim.effects import Correction
 
     if cmd.report is not None:
         check_not_input(cmd.report, {"the log": cmd.log}, "--report")
         check_writable(cmd.report)
-    robot, model, log = load_fixed_base_log(cmd.log)
+    robot, model, log = load_robot_log(cmd.log)
     names = log.joint_names
-    err = kstep_error(model, log, horizon=cmd.horizon)
-    result = {"robot": robot.name, "log": str(cmd.log), "error_nominal": err.as_report(names)}
+    predictor = Predictor(model, log, horizon=cmd.horizon)
+    err = predictor.error(Correction.of(model))
+    result = {"robot": robot.name, "log": str(cmd.log), "base": log.base,
+              "error_nominal": err.as_report(names)}  # fmt: skip
+    if predictor.base is not None:
+        result["base_estimate"] = predictor.base.source
+        print(f"floating base: {predictor.base.source}")
     worst = sorted(result["error_nominal"]["per_joint"].items(), key=lambda kv: -kv[1])[:5]
     print(f"{cmd.log.name}: nominal k-step RMSE {err.kstep_rmse_rad * 1e3:.2f} mrad over "
           f"{err.horizon_s} s windows; worst joints: "

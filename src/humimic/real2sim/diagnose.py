@@ -354,7 +354,7 @@ def offset_reach(predictor: Predictor, base: Correction) -> np.ndarray:
     A hanging robot's drives track the encoder, so an offset moves the limb only through
     gravity: where every change is below the noise, the log cannot reveal that offset.
     """
-    J = base.model.njnt
+    J = len(JointMap.of(base.model).names)
     cs = []
     for j in range(J):
         c = base.copy()

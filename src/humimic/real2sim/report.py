@@ -34,6 +34,7 @@ from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
 from humimic.sim.effects import EFFECTS, Correction, Injection, apply_to_spec
+from humimic.sim.joints import JointMap
 from humimic.sim.models import prediction_spec
 from humimic.sim.physics import Physics
 
@@ -57,12 +58,39 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
     if meta.get("base") != "fixed":
         raise InputError(
             f"{path}: only fixed-base logs (a robot hanging in a gantry) can be diagnosed so "
-            f"far (base={meta.get('base')!r}); floating-base logs are on the plan"
+            f"far (base={meta.get('base')!r}); `humimic sysid residual` predicts floating-base "
+            "logs, their diagnosis is on the plan"
         )
     base_pose = parse_base_pose(meta, Path(path))
     model = prediction_spec(robot, base_pose).compile()
     names = tuple(model.joint(j).name for j in range(model.njnt))
     return robot, model, read_robot_log(path, names)
+
+
+def load_robot_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotLog]:
+    """Robot, compiled prediction model and log of a robot log file, fixed base (a gantry) or
+    floating (a robot on the floor, with ``/imu``).
+
+    Raises:
+        InputError: The file is not a robot log of a registered robot, or a floating-base
+            log without ``/imu``, naming the file.
+    """
+    from humimic.formats.mcap import read_mcap
+    from humimic.robots import get_robot
+    from humimic.sim.models import floating_prediction_spec
+
+    meta = read_mcap(path, topics=[]).meta("robot")
+    if meta.get("base") != "floating":
+        return load_fixed_base_log(path)
+    robot = get_robot(meta.get("name", ""), f"{path}: metadata robot.name")
+    model = floating_prediction_spec(robot).compile()
+    log = read_robot_log(path, JointMap.of(model).names)
+    if log.imu is None:
+        raise InputError(
+            f"{path}: a floating-base log needs topic /imu (the base's orientation and angular "
+            'velocity) and metadata robot.imu_site for predictions (docs/real2sim.md, "Logs")'
+        )
+    return robot, model, log
 
 
 def _effect_entry(f: Finding) -> dict:

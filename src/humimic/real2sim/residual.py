@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
+from humimic.real2sim.floating import BaseEstimate, estimate_base, free_joint
 from humimic.real2sim.robotlog import RobotLog
 from humimic.sim import rollout
 from humimic.sim.effects import Correction
@@ -95,8 +96,16 @@ class Predictor:
             raise InputError(
                 f"{where}: the model's joints are not the log's joints (order matters)"
             )
-        if model.nv != model.njnt or model.nq != model.njnt:
-            raise InputError("predictions need a fixed-base model of hinge and slide joints")
+        fj = free_joint(model)
+        n_free = 0 if fj is None else 1
+        if model.nv != model.njnt + 5 * n_free or model.nq != model.njnt + 6 * n_free:
+            raise InputError("predictions need a model of hinge and slide joints (and a free base)")
+        if fj is not None and log.base != "floating":
+            raise InputError(f"{where}: a floating-base model needs a floating-base log "
+                             f"(metadata robot.base is {log.base!r})")  # fmt: skip
+        if fj is None and log.base != "fixed":
+            raise InputError(f"{where}: a floating-base log (robot on the floor) needs a "
+                             "floating-base model")  # fmt: skip
         if abs(model.opt.timestep - PHYSICS_DT) > 1e-12:
             raise InputError(
                 f"predictions step at {PHYSICS_DT} s; the model steps at {model.opt.timestep}"
@@ -152,6 +161,11 @@ class Predictor:
         # window (its command is the one in force at the last sample).
         self.clock = log.t[self.starts][:, None] + PHYSICS_DT * np.arange(steps + 1)[None, :]
         self._act_log = JointMap.of(model).act_log
+        self.base: BaseEstimate | None = None
+        """The floating base's state at each window's start (``None``: a fixed base)."""
+        if fj is not None:
+            self.base = estimate_base(model, log, log.t[self.starts], log.q[self.starts],
+                                      log.qd[self.starts])  # fmt: skip
         self.nthread = nthread or os.cpu_count() or 1
         self._datas: dict[tuple[int, ...], list[mujoco.MjData]] = {}
         self._index_cache: dict[float, np.ndarray] = {}
@@ -204,6 +218,12 @@ class Predictor:
         qpos, qvel = s[:, lay["qpos"]], s[:, lay["qvel"]]
         qpos[:, jm.qadr] = q
         qvel[:, jm.dadr] = log.qd[self.starts]
+        if self.base is not None:
+            fj = free_joint(m)
+            assert fj is not None
+            qa, da = int(m.jnt_qposadr[fj]), int(m.jnt_dofadr[fj])
+            qpos[:, qa : qa + 7] = self.base.qpos
+            qvel[:, da : da + 6] = self.base.qvel
         for j in np.flatnonzero(jm.play_q >= 0):
             # The play sits at the end the drive pushes against: the motor leads the link.
             a = int(np.flatnonzero(jm.act_log == j)[0])

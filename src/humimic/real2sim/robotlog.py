@@ -14,13 +14,51 @@ from humimic.formats.mcap import McapFormatError, McapWriter, read_mcap, stamp
 
 
 @dataclass(frozen=True, kw_only=True)
+class ImuLog:
+    """IMU samples of a floating-base log (topic ``/imu``). Times in seconds on the log's clock.
+
+    Attributes:
+        site: The model site the IMU sits at (metadata ``robot.imu_site``), e.g.
+            ``imu_in_pelvis``; it must sit on the root body.
+        t: Sample times. Shape: (N,).
+        quat_w: Orientation, world from IMU (w x y z, unit length). Shape: (N, 4).
+        gyro_b: Angular velocity in the IMU frame [rad/s]. Shape: (N, 3).
+        acc_b: Specific force in the IMU frame [m/s^2] (gravity included: +9.81 up when
+            still), or ``None`` when not logged. Shape: (N, 3).
+    """
+
+    site: str
+    t: np.ndarray
+    quat_w: np.ndarray
+    gyro_b: np.ndarray
+    acc_b: np.ndarray | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseTrack:
+    """The root body's pose from motion capture (topic ``/base_pose``).
+
+    Attributes:
+        t: Sample times [s]. Shape: (N,).
+        pos_w: Position in the world [m]. Shape: (N, 3).
+        quat_w: Orientation, world from root body (w x y z). Shape: (N, 4).
+    """
+
+    t: np.ndarray
+    pos_w: np.ndarray
+    quat_w: np.ndarray
+
+
+@dataclass(frozen=True, kw_only=True)
 class RobotLog:
     """A robot log in the model's joint order. Times in seconds from the first message.
 
     The file's schema (docs/viewer.md lists the topics): a metadata record ``robot``
     (``name``, ``base`` = ``fixed`` or ``floating``, ``base_pose`` for a fixed base),
     ``/joint_states`` (position, velocity, optional effort) and ``/joint_commands`` (position,
-    velocity, effort, kp, kd), each stamped; MCAP log time is the time base.
+    velocity, effort, kp, kd), each stamped; MCAP log time is the time base. A floating-base
+    log of a robot on the floor adds ``/imu`` (with metadata ``robot.imu_site``) and, when a
+    motion-capture system tracked the root body, ``/base_pose`` (docs/real2sim.md, "Logs").
 
     Attributes:
         robot: Registry name. base: ``fixed`` or ``floating``.
@@ -29,6 +67,8 @@ class RobotLog:
         t: State times. Shape: (N,). q, qd: Shape: (N, J). effort: Shape: (N, J) or None.
         t_cmd: Command times. Shape: (M,). Commands (M, J): cmd_q, cmd_qd, cmd_tau, kp, kd.
         source: The file it was read from (empty when made in code), for messages.
+        imu: The IMU of a floating base (``None``: not logged).
+        mocap: The root body's pose from motion capture (``None``: not logged).
     """
 
     robot: str
@@ -46,6 +86,8 @@ class RobotLog:
     kp: np.ndarray
     kd: np.ndarray
     source: str = ""
+    imu: ImuLog | None = None
+    mocap: PoseTrack | None = None
 
     @property
     def where(self) -> str:
@@ -64,16 +106,32 @@ class RobotLog:
 def write_robot_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
     """Write a robot log as MCAP (atomically)."""
     names = list(log.joint_names)
-    t0 = min(log.t[0], log.t_cmd[0])
+    t0 = min(log.t[0], log.t_cmd[0], *(x.t[0] for x in (log.imu, log.mocap) if x is not None))
+    meta = {
+        "name": log.robot,
+        "base": log.base,
+        "base_pose": " ".join(repr(float(x)) for x in log.base_pose),
+    }
+    if log.imu is not None:
+        meta["imu_site"] = log.imu.site
     with McapWriter(path) as w:
-        w.add_metadata(
-            "robot",
-            {
-                "name": log.robot,
-                "base": log.base,
-                "base_pose": " ".join(repr(float(x)) for x in log.base_pose),
-            },
-        )
+        w.add_metadata("robot", meta)
+        if log.imu is not None:
+            imu = log.imu
+            for i, ti in enumerate(imu.t):
+                ns = round((ti - t0) * 1e9)
+                msg = {"header": {"stamp": stamp(ns)}, "orientation": _wxyz(imu.quat_w[i]),
+                       "angular_velocity": _xyz(imu.gyro_b[i])}  # fmt: skip
+                if imu.acc_b is not None:
+                    msg["linear_acceleration"] = _xyz(imu.acc_b[i])
+                w.write("/imu", ns, msg)
+        if log.mocap is not None:
+            mc = log.mocap
+            for i, ti in enumerate(mc.t):
+                ns = round((ti - t0) * 1e9)
+                w.write("/base_pose", ns, {"header": {"stamp": stamp(ns)},
+                                           "position": _xyz(mc.pos_w[i]),
+                                           "orientation": _wxyz(mc.quat_w[i])})  # fmt: skip
         for i, ti in enumerate(log.t_cmd):
             ns = round((ti - t0) * 1e9)
             w.write("/joint_commands", ns, {
@@ -91,6 +149,57 @@ def write_robot_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:
                 msg["effort"] = log.effort[i].tolist()
             w.write("/joint_states", ns, msg)
     return Path(path)
+
+
+def _xyz(v: np.ndarray) -> dict[str, float]:
+    return {"x": float(v[0]), "y": float(v[1]), "z": float(v[2])}
+
+
+def _wxyz(q: np.ndarray) -> dict[str, float]:
+    return {"w": float(q[0]), "x": float(q[1]), "y": float(q[2]), "z": float(q[3])}
+
+
+def _vectors(log_path: Path, topic: str, msgs: list, field: str, keys: str) -> np.ndarray:
+    """One vector field (``{x, y, z}`` or ``{w, x, y, z}``) of a topic's messages.
+    Shape: (len(msgs), len(keys)).
+
+    Raises:
+        McapFormatError: The field missing or not finite (naming topic, message and field).
+    """
+    out = np.empty((len(msgs), len(keys)))
+    for i, (_, m) in enumerate(msgs):
+        v = m.get(field)
+        if not isinstance(v, dict) or any(k not in v for k in keys):
+            raise McapFormatError(
+                f"{log_path}: topic {topic}, message {i}: field {field} missing (expected "
+                f"{', '.join(keys)})"
+            )
+        out[i] = [v[k] for k in keys]
+    bad = np.argwhere(~np.isfinite(out))
+    if bad.size:
+        i, k = (int(x) for x in bad[0])
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: field {field}.{keys[k]} is {out[i, k]}, "
+            "expected a finite number"
+        )
+    return out
+
+
+def _unit_quats(log_path: Path, topic: str, q: np.ndarray, field: str) -> np.ndarray:
+    """Quaternions normalized; refuses ones far from unit length (a wrong field, not noise).
+
+    Raises:
+        McapFormatError: Naming the topic, message and field.
+    """
+    norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > 0.1)
+    if bad.size:
+        i = int(bad[0])
+        raise McapFormatError(
+            f"{log_path}: topic {topic}, message {i}: field {field} has length {norm[i]:.3g}, "
+            "expected a unit quaternion (w, x, y, z)"
+        )
+    return q / norm[:, None]
 
 
 def _matrix(
@@ -205,7 +314,7 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
             value, a negative gain, log times or stamps that do not increase, naming the file,
             the topic, the message and the field.
     """
-    log = read_mcap(path, topics=["/joint_states", "/joint_commands"],
+    log = read_mcap(path, topics=["/joint_states", "/joint_commands", "/imu", "/base_pose"],
                     require=["/joint_states", "/joint_commands"])  # fmt: skip
     meta = log.meta("robot")
     base = meta.get("base", "")
@@ -218,9 +327,47 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
     cmds = log.topic("/joint_commands")
     ts_states = _times(log.path, "/joint_states", states)
     ts_cmds = _times(log.path, "/joint_commands", cmds)
-    t_all0 = min(ts_states[0], ts_cmds[0])
+    imu_msgs, pose_msgs = log.messages.get("/imu", []), log.messages.get("/base_pose", [])
+    ts_imu = _times(log.path, "/imu", imu_msgs) if imu_msgs else None
+    ts_pose = _times(log.path, "/base_pose", pose_msgs) if pose_msgs else None
+    t_all0 = min(ts_states[0], ts_cmds[0],
+                 *(x[0] for x in (ts_imu, ts_pose) if x is not None))  # fmt: skip
     t = (ts_states - t_all0).astype(np.float64) * 1e-9
     t_cmd = (ts_cmds - t_all0).astype(np.float64) * 1e-9
+    imu = mocap = None
+    if ts_imu is not None:
+        site = meta.get("imu_site", "")
+        if not site:
+            raise McapFormatError(
+                f"{log.path}: topic /imu is logged but metadata robot.imu_site is missing "
+                "(the model site the IMU sits at, e.g. imu_in_pelvis)"
+            )
+        acc = None
+        if all("linear_acceleration" in m for _, m in imu_msgs):
+            acc = _vectors(log.path, "/imu", imu_msgs, "linear_acceleration", "xyz")
+        imu = ImuLog(
+            site=site,
+            t=(ts_imu - t_all0).astype(np.float64) * 1e-9,
+            quat_w=_unit_quats(
+                log.path,
+                "/imu",
+                _vectors(log.path, "/imu", imu_msgs, "orientation", "wxyz"),
+                "orientation",
+            ),
+            gyro_b=_vectors(log.path, "/imu", imu_msgs, "angular_velocity", "xyz"),
+            acc_b=acc,
+        )
+    if ts_pose is not None:
+        mocap = PoseTrack(
+            t=(ts_pose - t_all0).astype(np.float64) * 1e-9,
+            pos_w=_vectors(log.path, "/base_pose", pose_msgs, "position", "xyz"),
+            quat_w=_unit_quats(
+                log.path,
+                "/base_pose",
+                _vectors(log.path, "/base_pose", pose_msgs, "orientation", "wxyz"),
+                "orientation",
+            ),
+        )
     has_effort = all("effort" in m for _, m in states)
     zero = np.zeros((len(cmds), len(joint_names)))
 
@@ -260,4 +407,6 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
         kp=gains["kp"],
         kd=gains["kd"],
         source=str(log.path),
+        imu=imu,
+        mocap=mocap,
     )

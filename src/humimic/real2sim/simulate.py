@@ -1,9 +1,11 @@
 """Realistic robot logs from the nominal model plus injected effects (test data for real2sim).
 
 A fixed-base robot (hanging in a gantry) follows multi-sine PD targets inside its joint limits,
-with a still period, commands at 50 Hz, states at 200 Hz, sensor noise. The effects are added
-to the model the log is simulated with; the log itself records only what a robot would: joint
-states and the commands sent. Nothing in the log names the effects.
+with a still period, commands at 50 Hz, states at 200 Hz, sensor noise. A floating-base robot
+stands on the floor and sways about its standing pose (a deployment log: IMU and, optionally,
+motion capture). The effects are added to the model the log is simulated with; the log itself
+records only what a robot would: joint states, the commands sent, and on the floor the IMU
+and the mocap pose. Nothing in the log names the effects.
 """
 
 from __future__ import annotations
@@ -15,13 +17,15 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.robotlog import RobotLog
+from humimic.real2sim.robotlog import ImuLog, PoseTrack, RobotLog
 from humimic.robots.collision import tree_path
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
 from humimic.sim.effects import Injection, apply_to_spec, value_problem
 from humimic.sim.joints import JointMap
-from humimic.sim.models import PHYSICS_DT, fixed_base_spec
+from humimic.sim.lqr import LqrWeights, control_step_jacobians, riccati
+from humimic.sim.models import PHYSICS_DT, fixed_base_spec, floating_prediction_spec
+from humimic.transforms import quat_mul
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -34,6 +38,15 @@ class LogSettings:
         amplitude: Excitation amplitude as a fraction of each joint's range.
         q_noise, qd_noise, effort_noise: Sensor noise (standard deviations).
         base_height: Height of the fixed base (the pelvis hangs free of the floor) [m].
+        base: ``fixed`` (a gantry) or ``floating`` (standing on the floor, swaying).
+        mocap: Log the root body's pose from motion capture (floating base).
+        imu_site: The IMU's site (floating base; default: the root body's site named
+            ``*imu*``).
+        sway: On the floor, the excitation amplitude of the arms and the waist as a fraction
+            of each joint's range (the robot falls at about twice it).
+        sway_legs: On the floor, the leg joints' amplitude [rad] (the feet stay planted).
+        gyro_noise, acc_noise, quat_noise, mocap_noise: IMU and mocap noise (standard
+            deviations: rad/s, m/s^2, rad, m).
     """
 
     duration: float = 40.0
@@ -46,6 +59,15 @@ class LogSettings:
     effort_noise: float = 0.05
     base_height: float = 1.0
     seed: int = 0
+    base: str = "fixed"
+    mocap: bool = True
+    imu_site: str = ""
+    sway: float = 0.05
+    sway_legs: float = 0.04
+    gyro_noise: float = 0.005
+    acc_noise: float = 0.05
+    quat_noise: float = 0.002
+    mocap_noise: float = 0.001
 
 
 def _tree_distance(model: mujoco.MjModel, a: int, b: int) -> int:
@@ -136,6 +158,10 @@ def simulate_log(
         edit: Any further change to the simulated robot's spec (tests use it for effects
             outside the vocabulary).
     """
+    if settings.base == "floating":
+        return _simulate_floating(robot, injections, settings, edit)
+    if settings.base != "fixed":
+        raise InputError(f"--base {settings.base!r}: expected fixed or floating")
     rng = np.random.default_rng(settings.seed)
     base_pose = np.array([0.0, 0.0, settings.base_height, 1.0, 0.0, 0.0, 0.0])
     spec = fixed_base_spec(robot, base_pose)
@@ -147,16 +173,7 @@ def simulate_log(
     model = spec.compile()
     jm = JointMap.of(model)  # Backlash adds a hidden joint per affected joint.
     names = jm.names
-    offset = np.zeros(len(names))
-    for inj in injections:
-        if inj.effect == "encoder_offset":
-            problem = value_problem(inj.effect, inj.value)
-            if problem is not None:
-                raise InputError(f"{inj.where}: {problem}")
-            for j in inj.targets:
-                if j not in names:
-                    raise InputError(f"{inj.where}: no joint {j!r} in the robot")
-                offset[names.index(j)] += inj.value
+    offset = _encoder_offsets(injections, names)
     if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")
     act = jm.act_log
@@ -214,4 +231,239 @@ def simulate_log(
         cmd_tau=np.zeros((M, len(names))),
         kp=np.tile(kp, (M, 1)),
         kd=np.tile(kd, (M, 1)),
+    )
+
+
+def _encoder_offsets(injections: list[Injection], names: tuple[str, ...]) -> np.ndarray:
+    offset = np.zeros(len(names))
+    for inj in injections:
+        if inj.effect == "encoder_offset":
+            problem = value_problem(inj.effect, inj.value)
+            if problem is not None:
+                raise InputError(f"{inj.where}: {problem}")
+            for j in inj.targets:
+                if j not in names:
+                    raise InputError(f"{inj.where}: no joint {j!r} in the robot")
+                offset[names.index(j)] += inj.value
+    return offset
+
+
+def _imu_site(model: mujoco.MjModel, root: int, asked: str) -> str:
+    if asked:
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, asked) < 0:
+            raise InputError(f"--imu-site {asked!r}: no such site in the robot")
+        return asked
+    for s in range(model.nsite):
+        if model.site_bodyid[s] == root and "imu" in model.site(s).name.lower():
+            return model.site(s).name
+    raise InputError(
+        f"the robot has no site named *imu* on its root body {model.body(root).name!r}; "
+        "name the IMU's site with --imu-site"
+    )
+
+
+def _sway(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    stand: np.ndarray,
+    legs: np.ndarray,
+    settings: LogSettings,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """PD targets about the standing pose inside the joint ranges ``lo``-``hi``: slow
+    multi-sines, small on the legs (the feet stay planted), larger on the arms and the waist.
+    Returns command times (M,) and targets (M, J)."""
+    centre = np.clip(stand, lo, hi)
+    room = np.minimum(centre - lo, hi - centre)
+    amp = np.where(legs, settings.sway_legs, settings.sway * (hi - lo))
+    amp = np.minimum(amp, 0.8 * room)
+    t = np.arange(0.0, settings.duration, 1.0 / settings.command_rate)
+    J = centre.size
+    freqs = rng.uniform(0.1, 1.0, size=(J, 3))
+    phases = rng.uniform(0, 2 * np.pi, size=(J, 3))
+    weights = rng.dirichlet(np.ones(3), size=J)
+    ramp = np.clip((t - settings.still) / 2.0, 0.0, 1.0)
+    sines = np.einsum(
+        "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
+    )
+    return t, np.clip(centre + ramp[:, None] * amp * sines, lo, hi)
+
+
+def _standing_gain(
+    model: mujoco.MjModel, qpos: np.ndarray, ctrl: np.ndarray, decimation: int
+) -> np.ndarray:
+    """The steady-state LQR gain of the robot standing at ``qpos`` (commands held for
+    ``decimation`` physics steps). Shape: (nu, 2 nv)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    A, B = control_step_jacobians(model, data, ctrl, decimation, 1e-6)
+    H = 400  # Control steps of the backward pass: enough for the gain to settle.
+    w = LqrWeights()
+    nx = A.shape[0]
+    lxx = np.broadcast_to(np.diag(w.state_diagonal(model.nv)), (H + 1, nx, nx)).copy()
+    luu = np.broadcast_to(w.control * np.eye(model.nu), (H, model.nu, model.nu)).copy()
+    out = riccati(np.zeros((H + 1, nx)), lxx, np.zeros((H, model.nu)), luu,
+                  np.broadcast_to(A, (H, nx, nx)), np.broadcast_to(B, (H, *B.shape)), 0.0)  # fmt: skip
+    if out is None:
+        raise InputError("the standing robot's linearization is not finite")
+    return out[1][0]
+
+
+def _simulate_floating(
+    robot: RobotConfig,
+    injections: list[Injection],
+    settings: LogSettings,
+    edit: Callable[[mujoco.MjSpec], None] | None,
+) -> RobotLog:
+    """A deployment log: the robot stands on the floor and sways under PD targets."""
+    rng = np.random.default_rng(settings.seed)
+    spec = floating_prediction_spec(robot, filters=False)
+    apply_to_spec(spec, [inj for inj in injections if inj.effect != "encoder_offset"])
+    if edit is not None:
+        edit(spec)
+    probe = spec.compile()
+    root = int(probe.body(robot.root_body).id)
+    site = _imu_site(probe, root, settings.imu_site)
+    # The IMU as a robot's driver reports it: MuJoCo's own sensors at the site.
+    site_obj = mujoco.mjtObj.mjOBJ_SITE
+    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEQUAT, objtype=site_obj, objname=site)
+    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_GYRO, objtype=site_obj, objname=site)
+    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_ACCELEROMETER, objtype=site_obj, objname=site)
+    model = spec.compile()
+    jm = JointMap.of(model)
+    names = jm.names
+    if model.nu != len(names):
+        raise InputError(f"{robot.name}: expected one actuator per joint")
+    offset = _encoder_offsets(injections, names)
+    act = jm.act_log
+    nominal_robot, drives = nominal_spec(robot)
+    nominal = nominal_robot.compile()
+    kp = np.array([drives[n].kp for n in names])
+    kd = np.array([drives[n].kd for n in names])
+    # The standing pose: the robot's first keyframe (its joints by name), else zero.
+    stand = np.zeros(len(names))
+    if nominal.nkey:
+        for i, n in enumerate(names):
+            j = nominal.joint(n)
+            stand[i] = nominal.key_qpos[0, nominal.jnt_qposadr[j.id]]
+    feet = [probe.body(b).id for b in robot.feet.values()]
+    legs = np.zeros(len(names), dtype=bool)
+    for f in feet:
+        b = f
+        while b != root and b != 0:
+            j0, nj = model.body_jntadr[b], model.body_jntnum[b]
+            for j in range(j0, j0 + nj):
+                if model.joint(j).name in names:
+                    legs[names.index(model.joint(j).name)] = True
+            b = model.body_parentid[b]
+    ranges = np.array([nominal.jnt_range[nominal.joint(n).id] for n in names])
+    t_cmd, cmd_q = _sway(ranges[:, 0], ranges[:, 1], stand, legs, settings, rng)
+
+    data = mujoco.MjData(model)
+    fj = int(np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)[0])
+    qa = int(model.jnt_qposadr[fj])
+    data.qpos[jm.qadr] = cmd_q[0] - offset
+    data.qpos[qa : qa + 7] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
+    mujoco.mj_kinematics(model, data)
+    lowest = min(float(data.geom_xpos[g, 2] - model.geom_rbound[g])
+                 for g in range(model.ngeom) if model.geom_bodyid[g] != 0)  # fmt: skip
+    data.qpos[qa + 2] = -lowest + 0.002  # Dropped from 2 mm above the floor.
+    for a in range(model.nu):  # The drives have been holding the first command.
+        n = int(model.actuator_history[a, 0])
+        if n > 0:
+            values = np.full((n, 1), cmd_q[0][act[a]] - offset[act[a]])
+            times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
+            mujoco.mj_initCtrlHistory(model, data, a, times, values)
+    for a in np.flatnonzero(model.actuator_actadr >= 0):
+        data.act[model.actuator_actadr[a]] = cmd_q[0][act[a]] - offset[act[a]]
+    data.ctrl[:] = (cmd_q[0] - offset)[act]
+    # A balance controller (a robot on the floor needs one: joint PD alone tips over): the
+    # LQR of the standing robot, its reference the commanded joint pose with the base upright.
+    cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
+    for _ in range(round(0.3 / PHYSICS_DT)):  # Land on the feet (PD alone tips over later).
+        mujoco.mj_step(model, data)
+    ref_q = data.qpos.copy()
+    gain = _standing_gain(model, ref_q, (cmd_q[0] - offset)[act], cmd_every)
+    dq = np.zeros(2 * model.nv)
+
+    def balanced(target: np.ndarray) -> np.ndarray:
+        """PD targets (per actuator) for joint targets ``target`` (per joint), balanced."""
+        ref = ref_q.copy()
+        ref[jm.qadr] = target
+        mujoco.mj_differentiatePos(model, dq[: model.nv], 1.0, ref, data.qpos)
+        dq[model.nv :] = data.qvel
+        return target[act] + gain @ dq
+
+    settle = round(1.5 / PHYSICS_DT)  # Land and come to rest before the log starts.
+    for step in range(settle):
+        if step % cmd_every == 0:
+            data.ctrl[:] = balanced(cmd_q[0] - offset)
+        mujoco.mj_step(model, data)
+    height0 = float(data.xpos[root, 2])
+    n_steps = round(settings.duration / PHYSICS_DT)
+    state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
+    n_states = n_steps // state_every
+    q = np.zeros((n_states, len(names)))
+    qd, effort = np.zeros_like(q), np.zeros_like(q)
+    sent = np.zeros_like(cmd_q)  # The commands as sent: the balanced ones.
+    quat, pose_q = np.zeros((n_states, 4)), np.zeros((n_states, 4))
+    gyro, acc, pos = np.zeros((n_states, 3)), np.zeros((n_states, 3)), np.zeros((n_states, 3))
+    for step in range(n_steps):
+        if step % cmd_every == 0 and step // cmd_every < len(t_cmd):
+            k = step // cmd_every
+            data.ctrl[:] = balanced(cmd_q[k] - offset)
+            sent[k, act] = data.ctrl + offset[act]
+        if step % state_every == 0 and step // state_every < n_states:
+            mujoco.mj_forward(model, data)
+            i = step // state_every
+            if data.xpos[root, 2] < 0.6 * height0:
+                raise InputError(
+                    f"the robot fell {step * PHYSICS_DT:.2f} s into the log while standing "
+                    "with these effects; choose smaller effects or a shorter log"
+                )
+            q[i] = jm.link(data.qpos, jm.play_q, jm.qadr)
+            qd[i] = jm.link(data.qvel, jm.play_d, jm.dadr)
+            effort[i, act] = data.actuator_force
+            quat[i], gyro[i], acc[i] = (
+                data.sensordata[:4],
+                data.sensordata[4:7],
+                data.sensordata[7:10],
+            )
+            pos[i], pose_q[i] = data.xpos[root], data.xquat[root]
+        mujoco.mj_step(model, data)
+    t = np.arange(n_states) * state_every * PHYSICS_DT
+    M = len(t_cmd)
+
+    def tilt(qs: np.ndarray, sigma: float) -> np.ndarray:
+        """Quaternions turned by small random rotations (sensor noise)."""
+        dq = np.concatenate([np.ones((len(qs), 1)), rng.normal(0.0, sigma / 2.0, (len(qs), 3))],
+                            axis=1)  # fmt: skip
+        out = quat_mul(qs, dq / np.linalg.norm(dq, axis=1, keepdims=True))
+        return out * np.where(out[:, :1] < 0, -1.0, 1.0)
+
+    imu = ImuLog(site=site, t=t, quat_w=tilt(quat, settings.quat_noise),
+                 gyro_b=gyro + rng.normal(0, settings.gyro_noise, gyro.shape),
+                 acc_b=acc + rng.normal(0, settings.acc_noise, acc.shape))  # fmt: skip
+    mocap = None
+    if settings.mocap:
+        mocap = PoseTrack(t=t, pos_w=pos + rng.normal(0, settings.mocap_noise, pos.shape),
+                          quat_w=tilt(pose_q, settings.quat_noise))  # fmt: skip
+    return RobotLog(
+        robot=robot.name,
+        base="floating",
+        base_pose=np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
+        joint_names=names,
+        t=t,
+        q=q + offset + rng.normal(0, settings.q_noise, q.shape),
+        qd=qd + rng.normal(0, settings.qd_noise, qd.shape),
+        effort=effort + rng.normal(0, settings.effort_noise, effort.shape),
+        t_cmd=t_cmd,
+        cmd_q=sent,
+        cmd_qd=np.zeros((M, len(names))),
+        cmd_tau=np.zeros((M, len(names))),
+        kp=np.tile(kp, (M, 1)),
+        kd=np.tile(kd, (M, 1)),
+        imu=imu,
+        mocap=mocap,
     )

@@ -1,4 +1,4 @@
-"""Where a log's joints live in a fixed-base model (which may carry backlash joints)."""
+"""Where a log's joints live in a model (fixed or floating base; it may carry backlash joints)."""
 
 from __future__ import annotations
 
@@ -17,10 +17,12 @@ the link sits at the sum of both, and the log reports the link."""
 
 @dataclass(frozen=True, kw_only=True)
 class JointMap:
-    """Where a log's joints live in a fixed-base model, which may carry backlash joints.
+    """Where a log's joints live in a model, which may carry backlash joints and, for a robot
+    on the floor, a free joint (its base, not one of the log's joints).
 
     Attributes:
-        names: The log's joints: the model's joints without the play joints, in model order.
+        names: The log's joints: the model's joints without the play joints and the free
+            joint, in model order.
         jid, qadr, dadr: Model joint id, qpos and dof address of each (its motor side).
         play_q, play_d: qpos and dof address of its play joint, or -1. Shape: (J,).
         act_log: The log joint each actuator drives. Shape: (nu,).
@@ -37,7 +39,9 @@ class JointMap:
     @classmethod
     def of(cls, model: mujoco.MjModel) -> JointMap:
         all_names = [model.joint(j).name for j in range(model.njnt)]
-        jid = np.array([j for j, n in enumerate(all_names) if not n.endswith(PLAY_SUFFIX)])
+        free = mujoco.mjtJoint.mjJNT_FREE
+        jid = np.array([j for j, n in enumerate(all_names)
+                        if not n.endswith(PLAY_SUFFIX) and model.jnt_type[j] != free])  # fmt: skip
         names = tuple(all_names[j] for j in jid)
         play = {
             n[: -len(PLAY_SUFFIX)]: j for j, n in enumerate(all_names) if n.endswith(PLAY_SUFFIX)

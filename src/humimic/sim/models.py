@@ -25,44 +25,14 @@ PHYSICS_DT = 0.001
 """Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
 
 
-def training_model(
-    robot: RobotConfig,
-    *,
-    body_names: Sequence[str],
-    contact_body_names: Sequence[str] = (),
-    foot_body_names: Sequence[str] = (),
-    timestep: float = 0.005,
-    menagerie_root: str | os.PathLike[str] | None = None,
-    edit: Callable[[mujoco.MjSpec], None] | None = None,
-) -> mujoco.MjModel:
-    """The mesh-free training model of a robot, with the read-out sensors compiled in.
-
-    Stepping with mesh colliders is slow and a per-env copy of a model with meshes is large, so
-    the model has none: visual mesh geoms are removed, each collision mesh becomes the box of its
-    bounding box (``geom_aabb``) at the same pose, primitive colliders (the G1's foot spheres)
-    stay, and robot geoms collide with the floor only (mjlab's G1 tracking penalizes
-    self-collision rather than simulating it). Solver settings follow mjlab's tracking task:
-    implicitfast, pyramidal cone, 10 solver and 20 line-search iterations.
-
-    Args:
-        robot: The robot.
-        body_names: Bodies whose pose and velocity are read (frame sensors).
-        contact_body_names: Bodies whose floor contacts are counted.
-        foot_body_names: Bodies whose net floor contact force is read.
-        timestep: Physics step [s].
-        menagerie_root: Where the robot files are (see :func:`humimic.robots.nominal_spec`).
-        edit: Changes to the model, applied last (e.g. a physics file's
-            :meth:`~humimic.sim.physics.Physics.edit`).
-
-    Raises:
-        UnknownNameError: If a body name is not in the model.
-    """
+def _mesh_free_spec(
+    robot: RobotConfig, timestep: float, menagerie_root: str | os.PathLike[str] | None = None
+) -> tuple[mujoco.MjSpec, mujoco.MjModel]:
+    """The nominal spec with mesh colliders as boxes, robot geoms colliding with the floor
+    only, no textures, and the tracking solver settings (see :func:`training_model`); and the
+    compiled nominal model it was made from."""
     spec, _ = nominal_spec(robot, menagerie_root=menagerie_root)
     full = spec.compile()
-    known = {full.body(b).name for b in range(full.nbody)}
-    for name in (*body_names, *contact_body_names, *foot_body_names):
-        if name not in known:
-            raise UnknownNameError(f"body {name!r} is not in robot {robot.name!r}")
     floor_id = mujoco.mj_name2id(full, mujoco.mjtObj.mjOBJ_GEOM, robot.floor_geom)
     if floor_id < 0:
         raise UnknownNameError(f"robot {robot.name!r}: no floor geom {robot.floor_geom!r}")
@@ -103,7 +73,46 @@ def training_model(
     spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
     spec.option.iterations = 10
     spec.option.ls_iterations = 20
+    return spec, full
 
+
+def training_model(
+    robot: RobotConfig,
+    *,
+    body_names: Sequence[str],
+    contact_body_names: Sequence[str] = (),
+    foot_body_names: Sequence[str] = (),
+    timestep: float = 0.005,
+    menagerie_root: str | os.PathLike[str] | None = None,
+    edit: Callable[[mujoco.MjSpec], None] | None = None,
+) -> mujoco.MjModel:
+    """The mesh-free training model of a robot, with the read-out sensors compiled in.
+
+    Stepping with mesh colliders is slow and a per-env copy of a model with meshes is large, so
+    the model has none: visual mesh geoms are removed, each collision mesh becomes the box of its
+    bounding box (``geom_aabb``) at the same pose, primitive colliders (the G1's foot spheres)
+    stay, and robot geoms collide with the floor only (mjlab's G1 tracking penalizes
+    self-collision rather than simulating it). Solver settings follow mjlab's tracking task:
+    implicitfast, pyramidal cone, 10 solver and 20 line-search iterations.
+
+    Args:
+        robot: The robot.
+        body_names: Bodies whose pose and velocity are read (frame sensors).
+        contact_body_names: Bodies whose floor contacts are counted.
+        foot_body_names: Bodies whose net floor contact force is read.
+        timestep: Physics step [s].
+        menagerie_root: Where the robot files are (see :func:`humimic.robots.nominal_spec`).
+        edit: Changes to the model, applied last (e.g. a physics file's
+            :meth:`~humimic.sim.physics.Physics.edit`).
+
+    Raises:
+        UnknownNameError: If a body name is not in the model.
+    """
+    spec, full = _mesh_free_spec(robot, timestep, menagerie_root)
+    known = {full.body(b).name for b in range(full.nbody)}
+    for name in (*body_names, *contact_body_names, *foot_body_names):
+        if name not in known:
+            raise UnknownNameError(f"body {name!r} is not in robot {robot.name!r}")
     for sensor in list(spec.sensors):  # The robot's own sensors (IMU...) are not read here.
         spec.delete(sensor)
     xbody = mujoco.mjtObj.mjOBJ_XBODY
@@ -179,6 +188,29 @@ def fixed_base_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
     return spec
 
 
+def floating_prediction_spec(robot: RobotConfig, *, filters: bool = True) -> mujoco.MjSpec:
+    """The robot on the floor as the predictions of a floating-base log simulate it: the
+    training model's mesh-free colliders and solver (:func:`training_model`) stepped at
+    :data:`PHYSICS_DT`, without sensors, and (``filters``) with each actuator's
+    zero-time-constant filter of :func:`prediction_spec`."""
+    spec, _ = _mesh_free_spec(robot, PHYSICS_DT)
+    for sensor in list(spec.sensors):
+        spec.delete(sensor)
+    for key in list(spec.keys):
+        spec.delete(key)
+    if filters:
+        _add_filters(spec)
+    return spec
+
+
+def _add_filters(spec: mujoco.MjSpec) -> None:
+    for a in spec.actuators:
+        a.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
+        a.dynprm = np.zeros(10)
+        a.actearly = True
+        a.actdim = 1
+
+
 def prediction_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
     """The fixed-base robot as the predictions simulate it.
 
@@ -193,9 +225,5 @@ def prediction_spec(robot: RobotConfig, base_pose: np.ndarray) -> mujoco.MjSpec:
         spec.delete(m)
     for g in list(spec.geoms):
         spec.delete(g)
-    for a in spec.actuators:
-        a.dyntype = mujoco.mjtDyn.mjDYN_FILTEREXACT
-        a.dynprm = np.zeros(10)
-        a.actearly = True
-        a.actdim = 1
+    _add_filters(spec)
     return spec

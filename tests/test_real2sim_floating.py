@@ -1,0 +1,160 @@
+"""Deployment logs: a robot standing on the floor (floating base, IMU, optional mocap).
+
+The logs are simulated by a standing balance controller (an LQR at the command rate) with
+MuJoCo's own IMU sensors; the predictions read only the log and rebuild the base's state from
+the IMU and the contact (:mod:`humimic.real2sim.floating`), not from the simulator's state.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.cli.main import main
+from humimic.real2sim import LogSettings, RobotLog, read_robot_log, simulate_log, write_robot_log
+from humimic.real2sim.floating import MOCAP, STANCE
+from humimic.real2sim.residual import Predictor, kstep_error
+from humimic.robots import get_robot
+from humimic.sim.effects import Correction, parse_injection
+from humimic.sim.models import floating_prediction_spec
+
+DURATION = 6.0
+
+
+@cache
+def _model():
+    return floating_prediction_spec(get_robot("g1")).compile()
+
+
+@cache
+def _log(mocap: bool = True, inject: str = "", noise: bool = True) -> RobotLog:
+    settings = LogSettings(duration=DURATION, base="floating", mocap=mocap, seed=2)
+    if not noise:
+        settings = replace(settings, q_noise=0.0, qd_noise=0.0, effort_noise=0.0, gyro_noise=0.0,
+                           acc_noise=0.0, quat_noise=0.0, mocap_noise=0.0)  # fmt: skip
+    injections = [parse_injection(inject)] if inject else []
+    return simulate_log(get_robot("g1"), injections, settings)
+
+
+def test_a_deployment_log_round_trips_with_its_imu_and_mocap(tmp_path: Path) -> None:
+    log = _log()
+    assert log.base == "floating" and log.imu is not None and log.mocap is not None
+    assert log.imu.site == "imu_in_pelvis"
+    back = read_robot_log(write_robot_log(log, tmp_path / "d.mcap"), log.joint_names)
+    assert back.imu is not None and back.mocap is not None and back.imu.site == "imu_in_pelvis"
+    np.testing.assert_allclose(back.imu.t, log.imu.t, atol=1e-9)
+    np.testing.assert_allclose(back.imu.quat_w, log.imu.quat_w, atol=1e-12)
+    np.testing.assert_allclose(back.imu.gyro_b, log.imu.gyro_b)
+    assert back.imu.acc_b is not None and log.imu.acc_b is not None
+    np.testing.assert_allclose(back.imu.acc_b, log.imu.acc_b)
+    np.testing.assert_allclose(back.mocap.pos_w, log.mocap.pos_w)
+    np.testing.assert_allclose(back.q, log.q)
+    # Standing still, the accelerometer reads gravity's reaction: +9.81 m/s^2 up.
+    assert 9.6 < np.linalg.norm(log.imu.acc_b.mean(axis=0)) < 10.0
+
+
+def test_the_robot_stands_and_sways_on_its_balance_controller() -> None:
+    log = _log()
+    assert log.mocap is not None
+    z = log.mocap.pos_w[:, 2]
+    assert z.max() - z.min() < 0.03  # It stands (the pelvis at ~0.79 m) ...
+    moved = np.ptp(log.q, axis=0)
+    arms = [i for i, n in enumerate(log.joint_names) if "shoulder" in n or "elbow" in n]
+    assert np.all(moved[arms] > 0.05)  # ... and sways its arms (0.05 of their range).
+
+
+def test_the_base_state_is_rebuilt_from_the_imu_and_the_contact() -> None:
+    """Noise-free log: the height and linear velocity the contact implies agree with motion
+    capture (the truth here), which the estimate does not read for either."""
+    log = _log(noise=False)
+    assert log.mocap is not None
+    p = Predictor(_model(), log, horizon=0.5)
+    assert p.base is not None and p.base.source == MOCAP and p.base.world
+    truth = log.mocap.pos_w[p.starts]
+    np.testing.assert_allclose(p.base.qpos[:, :2], truth[:, :2], atol=1e-9)  # Read from mocap.
+    assert np.max(np.abs(p.base.qpos[:, 2] - truth[:, 2])) < 0.003  # Contact: within 3 mm.
+    vel = np.gradient(log.mocap.pos_w, log.mocap.t, axis=0)[p.starts]
+    assert np.max(np.abs(p.base.qvel[:, :3] - vel)) < 0.02  # [m/s]
+    # The IMU's orientation, its site's rotation in the pelvis undone: the pelvis's.
+    dots = np.abs(np.sum(p.base.qpos[:, 3:] * log.mocap.quat_w[p.starts], axis=1))
+    assert np.all(dots > 1 - 1e-9)
+
+
+@pytest.mark.parametrize("mocap", [True, False])
+def test_the_nominal_model_predicts_a_clean_deployment_log(mocap: bool) -> None:
+    log = _log(mocap=mocap)
+    p = Predictor(_model(), log, horizon=0.5)
+    assert p.base is not None and p.base.source == (MOCAP if mocap else STANCE)
+    err = p.error(Correction.of(_model()))
+    assert err.kstep_rmse_rad < 0.004  # 1.7-2.1 mrad measured; the sensor noise is 0.2.
+
+
+def test_a_payload_shows_in_the_prediction_error_of_a_deployment_log() -> None:
+    clean = kstep_error(_model(), _log())
+    heavy = kstep_error(_model(), _log(inject="payload_mass:torso_link=5.0"))
+    names = _log().joint_names
+    waist = names.index("waist_pitch_joint")
+    assert heavy.kstep_rmse_rad > 3 * clean.kstep_rmse_rad
+    assert heavy.per_joint[waist] > 5 * clean.per_joint[waist]
+
+
+def test_cli_simulates_and_predicts_a_deployment_log(tmp_path: Path, capsys) -> None:
+    log = tmp_path / "walk.mcap"
+    assert main(["sysid", "simulate", "--base", "floating", "--no-mocap", "--duration", "3",
+                 "--out", str(log)]) == 0  # fmt: skip
+    assert main(["sysid", "residual", str(log), "--report", str(tmp_path / "r.json")]) == 0
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["base"] == "floating" and report["base_estimate"] == STANCE
+    assert report["error_nominal"]["kstep_rmse_rad"] < 0.004
+    assert "floating base:" in capsys.readouterr().out
+
+
+def _rewrite(src: Path, dst: Path, topic: str, edit) -> None:
+    """Copy a log, passing each message of ``topic`` through ``edit`` (or dropping the topic
+    when ``edit`` is None)."""
+    from humimic.formats.mcap import McapWriter, read_mcap
+
+    log = read_mcap(src)
+    with McapWriter(dst) as w:
+        for name, meta in log.metadata.items():
+            w.add_metadata(name, meta)
+        for t, msgs in log.messages.items():
+            for i, (ns, m) in enumerate(msgs):
+                if t != topic:
+                    w.write(t, ns, m)
+                elif edit is not None:
+                    w.write(t, ns, edit(i, m))
+
+
+@pytest.mark.parametrize(
+    ("topic", "edit", "expect"),
+    [
+        ("/imu", None, "needs topic /imu"),
+        (
+            "/imu",
+            lambda i, m: (
+                {**m, "orientation": {"w": 0.0, "x": 0.0, "y": 0.0, "z": 0.0}} if i == 5 else m
+            ),
+            "message 5: field orientation has length 0",
+        ),
+        (
+            "/imu",
+            lambda i, m: {k: v for k, v in m.items() if k != "angular_velocity"} if i == 7 else m,
+            "message 7: field angular_velocity missing",
+        ),
+    ],
+)
+def test_a_broken_deployment_log_exits_2_naming_the_field(
+    tmp_path: Path, topic: str, edit, expect: str, capsys
+) -> None:
+    good = write_robot_log(_log(), tmp_path / "good.mcap")
+    bad = tmp_path / "bad.mcap"
+    _rewrite(good, bad, topic, edit)
+    assert main(["sysid", "residual", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and expect in err
