@@ -87,6 +87,13 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     names = tuple(nominal_model(get_robot("g1")).joint(j).name for j in range(1, 30))
     log = read_robot_log(out / "before" / "robot_log.mcap", names)
     assert log.base == "floating" and len(log.t) == r["before"]["policy"]["mean_steps"] + 1
+    # A deployment log with the IMU and mocap a robot on the floor reports, which the
+    # predictions read (the base's state rebuilt from them, not from the simulator).
+    assert log.imu is not None and log.imu.site == "imu_in_pelvis" and log.mocap is not None
+    assert main(["sysid", "residual", str(out / "before" / "robot_log.mcap"), "--horizon",
+                 "0.1", "--report", str(tmp_path / "res.json")]) == 0  # fmt: skip
+    res = json.loads((tmp_path / "res.json").read_text())
+    assert res["base"] == "floating" and res["error_nominal"]["kstep_rmse_rad"] > 0
     assert json.loads((out / "before" / "eval.json").read_text())["physics"]["name"] == "real"
 
 

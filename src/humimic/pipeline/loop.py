@@ -27,7 +27,7 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
     Returns:
         The evaluation results (policy and open loop).
     """
-    from humimic.real2sim.robotlog import RobotLog, write_robot_log
+    from humimic.real2sim.robotlog import PoseTrack, RobotLog, write_robot_log
     from humimic.robots import get_robot
     from humimic.robots.model import nominal_spec
     from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
@@ -50,15 +50,37 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
     zeros = np.zeros_like(q)
     # A floating base has no fixed pose: the identity (a unit quaternion) stands in for it.
     identity = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    qpos, qvel = np.stack(tr.qpos), np.stack(tr.qvel)
     log = RobotLog(robot=robot.name, base="floating", base_pose=identity, joint_names=names,
-                   t=t, q=q, qd=np.stack(tr.qvel)[:, 6:], effort=None, t_cmd=t,
+                   t=t, q=q, qd=qvel[:, 6:], effort=None, t_cmd=t,
                    cmd_q=np.stack(tr.targets), cmd_qd=zeros, cmd_tau=zeros,
-                   kp=np.tile(kp, (len(t), 1)), kd=np.tile(kd, (len(t), 1)))  # fmt: skip
+                   kp=np.tile(kp, (len(t), 1)), kd=np.tile(kd, (len(t), 1)),
+                   imu=_imu(robot, t, qpos, qvel),
+                   mocap=PoseTrack(t=t, pos_w=qpos[:, :3], quat_w=qpos[:, 3:7]))  # fmt: skip
     write_robot_log(log, out / "robot_log.mcap")
     results = dict(ev.results)
     results["robot_log"] = str(out / "robot_log.mcap")
     atomic_write_text(out / "eval.json", json.dumps(json_ready(results), indent=2) + "\n")
     return results
+
+
+def _imu(robot: Any, t: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> Any:
+    """The IMU a deployed robot logs, from its simulated base state (orientation and gyro at
+    the root body's ``*imu*`` site), or ``None`` when the root body has no such site."""
+    from humimic.real2sim.robotlog import ImuLog
+    from humimic.sim.models import floating_prediction_spec
+    from humimic.transforms import quat_mul, quat_to_matrix
+
+    m = floating_prediction_spec(robot).compile()
+    root = m.body(robot.root_body).id
+    sites = [s for s in range(m.nsite)
+             if m.site_bodyid[s] == root and "imu" in m.site(s).name.lower()]  # fmt: skip
+    if not sites:
+        return None
+    q_bs = m.site_quat[sites[0]] / np.linalg.norm(m.site_quat[sites[0]])
+    return ImuLog(site=m.site(sites[0]).name, t=t,
+                  quat_w=quat_mul(qpos[:, 3:7], np.broadcast_to(q_bs, (len(t), 4))),
+                  gyro_b=qvel[:, 3:6] @ quat_to_matrix(q_bs), acc_b=None)  # fmt: skip
 
 
 def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
