@@ -32,7 +32,7 @@ CASES = {
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--duration", type=float, default=12.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--diagnose", action="store_true")
@@ -63,6 +63,7 @@ def main() -> None:
             if args.diagnose and mocap:
                 d = diagnose_log(model, log)
                 held = Predictor(model, log, horizon=0.5, span=(0.7, 1.0))
+                assert d.correction is not None
                 row["diagnose_s"] = round(time.perf_counter() - t2, 1)
                 row["claimed"] = [
                     f"{f.effect} {f.target} {f.value:.4g} ({f.confidence:.2f})"
