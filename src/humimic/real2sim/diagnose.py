@@ -247,6 +247,18 @@ def _sized(p: _Pair, value: float) -> bool:
     return abs(value - p.none) > NONE_SHARE * (p.hi - p.lo)
 
 
+def _at_bound(p: _Pair, value: float) -> bool:
+    """Whether ``value`` sits on the far end of its search interval (within
+    :data:`NONE_SHARE` of it): the data want more of the effect than any plausible robot has,
+    so it stands in for something else (an effect outside the vocabulary, or a base state the
+    log cannot pin down), and it is not claimed. On floating-base logs a hip's armature
+    pinned at its bound of 0.5 kg m^2 was claimed (confidence 0.53-0.67) beside a torso
+    payload and in place of an ankle's friction; on the backpack's gantry log the torso
+    payload at its bound of 15 kg stood in for a 6 kg backpack with its CoM 8 cm behind."""
+    span = NONE_SHARE * (p.hi - p.lo)
+    return any(abs(value - b) <= span and abs(b - p.none) > span for b in (p.lo, p.hi))
+
+
 def _fit(
     predictor: _Scorer,
     bases: list[Correction],
@@ -750,7 +762,7 @@ def diagnose_log(
             noise = float(final[0][..., p.joints, :].size)  # One floor squared per sample.
             left = max(sse1 - noise, 0.0) / max(sse0 - noise, 1e-30)
             conf = f.confidence * float(np.clip(1.0 - 1.5 * left, 0.0, 1.0))
-            if not _sized(p, v):  # Refitted to nothing: the others explain its joints.
+            if not _sized(p, v) or _at_bound(p, v):  # Nothing, or a proxy (see the two).
                 conf = min(conf, CLAIM - 0.01)
             g = replace(f, confidence=conf)
             (claimed if conf >= CLAIM else unclaimed).append((g, p, v))
