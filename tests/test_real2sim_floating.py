@@ -158,3 +158,33 @@ def test_a_broken_deployment_log_exits_2_naming_the_field(
     assert main(["sysid", "residual", str(bad)]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and expect in err
+
+
+def test_a_payload_is_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
+    """The diagnosis of a robot on the floor, told nothing but the log: the payload on the
+    right body, sized within 30 %, the held-out error at least halved, nothing else claimed."""
+    log = tmp_path / "deploy.mcap"
+    assert main(["sysid", "simulate", "--base", "floating", "--duration", "8", "--seed", "3",
+                 "--inject", "payload_mass:torso_link=4.0", "--out", str(log)]) == 0  # fmt: skip
+    out = tmp_path / "diag"
+    assert main(["sysid", "diagnose", str(log), "--out-dir", str(out)]) == 0
+    r = json.loads((out / "report.json").read_text())
+    assert r["base"] == "floating" and r["base_estimate"] == MOCAP
+    assert "backlash" in r["not_searched_effects"]
+    claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
+    assert [(e["effect"], e.get("body")) for e in claimed] == [("payload_mass", "torso_link")]
+    assert claimed[0]["params"]["value"] == pytest.approx(4.0, rel=0.3)
+    assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
+    assert "Floating base" in (out / "report.md").read_text()
+    assert main(["sysid", "diagnose", str(log), "--out-dir", str(tmp_path / "d2"),
+                 "--residual-net", "always"]) == 2  # fmt: skip
+    assert not (tmp_path / "d2").exists()
+
+
+def test_a_clean_deployment_log_yields_no_confident_claim() -> None:
+    from humimic.real2sim import diagnose_log
+    from humimic.real2sim.diagnose import CLAIM
+
+    log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=5))
+    d = diagnose_log(_model(), log)
+    assert [f for f in d.findings if f.confidence >= CLAIM] == []

@@ -57,10 +57,10 @@ def load_fixed_base_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotL
     robot = get_robot(meta.get("name", ""), f"{path}: metadata robot.name")
     if meta.get("base") != "fixed":
         raise InputError(
-            f"{path}: only fixed-base logs (a robot hanging in a gantry) can be diagnosed so "
-            f"far (base={meta.get('base')!r}); `humimic sysid residual` predicts floating-base "
-            "logs, their diagnosis is on the plan"
-        )
+            f"{path}: metadata robot.base is {meta.get('base')!r}, expected fixed (a robot "
+            "hanging in a gantry)" + ("" if meta.get("base") == "floating" else
+                                      " or floating (on the floor)")
+        )  # fmt: skip
     base_pose = parse_base_pose(meta, Path(path))
     model = prediction_spec(robot, base_pose).compile()
     names = tuple(model.joint(j).name for j in range(model.njnt))
@@ -170,7 +170,14 @@ def run_diagnosis(
     t0 = time.perf_counter()
     if residual_net not in ("auto", "always", "never"):
         raise InputError(f"--residual-net {residual_net!r}: choose auto, always or never")
-    robot, model, log = load_fixed_base_log(log_path)
+    robot, model, log = load_robot_log(log_path)
+    floating = log.base == "floating"
+    if floating and residual_net == "always":
+        raise InputError(
+            f"--residual-net always: {log_path} is a floating-base log, and the residual "
+            "actuator network is trained on inverse dynamics, which on the floor needs the "
+            "contact forces the log lacks (gantry logs only so far)"
+        )
     # Every check on the log and the horizon comes before the output folder is made.
     held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
     fit_predictors(model, log, horizon)
@@ -181,14 +188,16 @@ def run_diagnosis(
         check_writable(out / name)
     nominal = Correction.of(model)
     before = held.error(nominal)
-    diagnosis = diagnose_log(nominal, log, horizon=horizon,
-                             backlash_model=backlash_models(robot, log.base_pose))  # fmt: skip
+    # Backlash needs a second hinge per joint in the prediction model; on the floor that
+    # model is not built yet, so backlash is searched on gantry logs only.
+    plays = None if floating else backlash_models(robot, log.base_pose)
+    diagnosis = diagnose_log(nominal, log, horizon=horizon, backlash_model=plays)
     corrected = diagnosis.correction or nominal
     after = held.error(corrected)
     # The second estimate of each claimed payload, before anything is written.
     effects = [_effect_entry(f) for f in diagnosis.findings]
     for f, entry in zip(diagnosis.findings, effects, strict=True):
-        if f.effect == "payload_mass" and f.confidence >= CLAIM:
+        if f.effect == "payload_mass" and f.confidence >= CLAIM and not floating:
             entry["regression"] = payload_regression(robot, log, f.target)
     names = log.joint_names
     share, standout = _unexplained(before, after)
@@ -197,7 +206,7 @@ def run_diagnosis(
     unexplained = share > UNEXPLAINED and bool(standout.any())
 
     net_entry, net_error = None, None
-    if residual_net == "always" or (residual_net == "auto" and unexplained):
+    if not floating and (residual_net == "always" or (residual_net == "auto" and unexplained)):
         from humimic.real2sim.actuator_net import fit_residual_net
 
         net, info = fit_residual_net(corrected, log, (0.0, FIT_END))
@@ -230,8 +239,10 @@ def run_diagnosis(
             {"effect": s.effect, "joints": list(s.joints), "reason": s.reason}
             for s in diagnosis.not_identifiable
         ],
-        "searched_effects": list(SEARCHED),
-        "not_searched_effects": list(NOT_SEARCHED),
+        "base": log.base,
+        "base_estimate": held.base.source if held.base is not None else None,
+        "searched_effects": [e for e in SEARCHED if not (floating and e == "backlash")],
+        "not_searched_effects": [*NOT_SEARCHED, *(["backlash"] if floating else [])],
         "plots": [p.name for p in plots],
         "seconds": time.perf_counter() - t0,
     }
@@ -252,6 +263,13 @@ def _markdown(
         f"{after['kstep_rmse_rad'] * 1e3:.2f} mrad with the effects below.",
         "",
     ]
+    if report["base"] == "floating":
+        lines += [
+            f"Floating base (a robot on the floor): each window starts from {report['base_estimate']}. "
+            "Not on the floor yet: backlash, the signature plots and the residual network "
+            "(they need the contact forces or a play joint in the floor model).",
+            "",
+        ]
     claimed = diagnosis.claimed
     if claimed:
         lines += ["Claimed (confidence >= 0.5):", ""]
@@ -435,10 +453,13 @@ def _plots(
     # 3. The signature that convinced the tool, per claimed effect.
     from humimic.real2sim.actuator_net import residual_torque
 
-    if diagnosis.claimed:  # Residual torques once, for every signature plot.
+    # (Inverse dynamics of the logged motion: on the floor it needs the contact forces, which
+    # the log lacks, so a floating-base log gets no signature plot.)
+    claimed = diagnosis.claimed if log.base == "fixed" else []
+    if claimed:  # Residual torques once, for every signature plot.
         idx = _fit_samples(log)
         res_nom, res_cor = residual_torque(nominal, log, idx), residual_torque(corrected, log, idx)
-    for f in diagnosis.claimed:
+    for f in claimed:
         label, x, r0, r1, joint = _signature(f, log, nominal, res_nom, res_cor)
         fig, ax = plt.subplots(figsize=(5.5, 3.6))
         ax.plot(x, r0, ".", ms=2, alpha=0.5, label="nominal model")
