@@ -204,16 +204,28 @@ def _pairs(
     return out
 
 
-GROUPED = ("delay",)
+GROUPED = ("delay", "gain_mismatch")
 """Effects also searched as one value shared by a group of joints (a latency of the whole
-robot's bus, or of one limb's): one hypothesis for many joints, which the error reduction
-prefers when the joints share it, instead of the same effect claimed joint by joint."""
+robot's bus, or of one limb's; drives of one kind weaker on both sides): one hypothesis for
+many joints, which the error reduction prefers when the joints share it, instead of the same
+effect claimed joint by joint."""
+
+
+def _mirror(name: str, names: tuple[str, ...]) -> int | None:
+    """The joint on the other side (``left`` and ``right`` swapped in the name), if any."""
+    import re
+
+    swap = {"left": "right", "right": "left", "Left": "Right", "Right": "Left", "LEFT": "RIGHT",
+            "RIGHT": "LEFT", "l_": "r_", "r_": "l_", "L_": "R_", "R_": "L_"}  # fmt: skip
+    other = re.sub(r"left|right|Left|Right|LEFT|RIGHT|^[lLrR]_", lambda m: swap[m.group(0)], name)
+    return names.index(other) if other != name and other in names else None
 
 
 def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...]) -> list[_Pair]:
     """Group candidates for the standing-out joints: each one's limb (the joints of the
     chain from the base that starts at the limb's first joint), the limbs of all of them
-    together, and every joint; groups of one joint are the single candidates already."""
+    together, each one with its mirror joint (:func:`_mirror`), and every joint; groups of one
+    joint are the single candidates already."""
     jmap = JointMap.of(model)
     chains = [_chain(model, int(model.jnt_bodyid[jmap.jid[j]])) for j in range(len(names))]
     root = np.array([c[0] if c.size else j for j, c in enumerate(chains)])
@@ -225,6 +237,10 @@ def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...
     if len(starts) > 1:
         both = tuple(sorted({i for j in joints for i in limb_of[j]}))
         groups.setdefault(both, "limbs_of_" + "+".join(names[i] for i in starts))
+    for j in joints:  # The same joint on both sides (both knees' drives).
+        k = _mirror(names[j], names)
+        if k is not None:
+            groups.setdefault(tuple(sorted((j, k))), f"both_{names[min(j, k)]}")
     groups.setdefault(tuple(range(len(names))), "all_joints")
     out = []
     for group, label in groups.items():
