@@ -5,6 +5,7 @@ with ``--diagnose``, the diagnosis search (Python API; the CLI refuses floating 
 on each. Prints one JSON line per case and a summary object.
 
 Usage: .venv/bin/python benchmarks/sysid_deployment.py [--duration 12] [--seed 1] [--diagnose]
+       [--only knee]
 """
 
 from __future__ import annotations
@@ -36,11 +37,14 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=12.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--diagnose", action="store_true")
+    ap.add_argument("--only", default="", help="run the cases whose name contains this")
     args = ap.parse_args()
     robot = get_robot("g1")
     model = floating_prediction_spec(robot).compile()
     rows = []
     for name, texts in CASES.items():
+        if args.only not in name:
+            continue
         injections = [parse_injection(t) for t in texts]
         for mocap in (True, False):
             t0 = time.perf_counter()
