@@ -188,3 +188,14 @@ def test_a_clean_deployment_log_yields_no_confident_claim() -> None:
     log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=5))
     d = diagnose_log(_model(), log)
     assert [f for f in d.findings if f.confidence >= CLAIM] == []
+
+
+@pytest.mark.parametrize(
+    "inject", ["delay:left_knee_joint,right_knee_joint=0.03", "backlash:left_knee_joint=0.02"]
+)
+def test_a_deployment_log_with_a_delay_or_play_is_simulated(inject: str) -> None:
+    """The balance controller is designed on the nominal robot, so effects that MuJoCo's
+    derivatives do not support (delays) or that add joints (play) still give a log."""
+    log = simulate_log(get_robot("g1"), [parse_injection(inject)],
+                       LogSettings(duration=3.0, base="floating"))  # fmt: skip
+    assert log.mocap is not None and np.ptp(log.mocap.pos_w[:, 2]) < 0.03

@@ -185,14 +185,7 @@ def simulate_log(
 
     data = mujoco.MjData(model)
     data.qpos[jm.qadr] = cmd_q[0]
-    for a in range(model.nu):  # The drives have been holding the first command.
-        n = int(model.actuator_history[a, 0])
-        if n > 0:
-            values = np.full((n, 1), cmd_q[0][act[a]] - offset[act[a]])
-            times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
-            mujoco.mj_initCtrlHistory(model, data, a, times, values)
-    for a in np.flatnonzero(model.actuator_actadr >= 0):  # ... and their filters settled on it.
-        data.act[model.actuator_actadr[a]] = cmd_q[0][act[a]] - offset[act[a]]
+    _hold(model, data, (cmd_q[0] - offset)[act])
     mujoco.mj_forward(model, data)
     n_steps = round(settings.duration / PHYSICS_DT)
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
@@ -216,15 +209,16 @@ def simulate_log(
         mujoco.mj_step(model, data)
     t = np.arange(n_states) * state_every * PHYSICS_DT
     M = len(t_cmd)
+    q_s, qd_s, effort_s = _sensed(q + offset, qd, effort, settings, rng)
     return RobotLog(
         robot=robot.name,
         base="fixed",
         base_pose=base_pose,
         joint_names=names,
         t=t,
-        q=q + offset + rng.normal(0, settings.q_noise, q.shape),
-        qd=qd + rng.normal(0, settings.qd_noise, qd.shape),
-        effort=effort + rng.normal(0, settings.effort_noise, effort.shape),
+        q=q_s,
+        qd=qd_s,
+        effort=effort_s,
         t_cmd=t_cmd,
         cmd_q=cmd_q,
         cmd_qd=np.zeros((M, len(names))),
@@ -232,6 +226,32 @@ def simulate_log(
         kp=np.tile(kp, (M, 1)),
         kd=np.tile(kd, (M, 1)),
     )
+
+
+def _hold(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> None:
+    """The drives have been holding ``target`` (per actuator): their delay lines are full of
+    it and their filters settled on it."""
+    for a in range(model.nu):
+        n = int(model.actuator_history[a, 0])
+        if n > 0:
+            values = np.full((n, 1), target[a])
+            times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
+            mujoco.mj_initCtrlHistory(model, data, a, times, values)
+    for a in np.flatnonzero(model.actuator_actadr >= 0):
+        data.act[model.actuator_actadr[a]] = target[a]
+
+
+def _sensed(
+    q: np.ndarray,
+    qd: np.ndarray,
+    effort: np.ndarray,
+    settings: LogSettings,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint positions, velocities and drive torques as the sensors report them (noise)."""
+    return (q + rng.normal(0, settings.q_noise, q.shape),
+            qd + rng.normal(0, settings.qd_noise, qd.shape),
+            effort + rng.normal(0, settings.effort_noise, effort.shape))  # fmt: skip
 
 
 def _encoder_offsets(injections: list[Injection], names: tuple[str, ...]) -> np.ndarray:
@@ -369,30 +389,37 @@ def _simulate_floating(
     lowest = min(float(data.geom_xpos[g, 2] - model.geom_rbound[g])
                  for g in range(model.ngeom) if model.geom_bodyid[g] != 0)  # fmt: skip
     data.qpos[qa + 2] = -lowest + 0.002  # Dropped from 2 mm above the floor.
-    for a in range(model.nu):  # The drives have been holding the first command.
-        n = int(model.actuator_history[a, 0])
-        if n > 0:
-            values = np.full((n, 1), cmd_q[0][act[a]] - offset[act[a]])
-            times = -PHYSICS_DT * np.arange(n - 1, -1, -1, dtype=np.float64).reshape(n, 1)
-            mujoco.mj_initCtrlHistory(model, data, a, times, values)
-    for a in np.flatnonzero(model.actuator_actadr >= 0):
-        data.act[model.actuator_actadr[a]] = cmd_q[0][act[a]] - offset[act[a]]
+    _hold(model, data, (cmd_q[0] - offset)[act])
     data.ctrl[:] = (cmd_q[0] - offset)[act]
     # A balance controller (a robot on the floor needs one: joint PD alone tips over): the
     # LQR of the standing robot, its reference the commanded joint pose with the base upright.
     cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
     for _ in range(round(0.3 / PHYSICS_DT)):  # Land on the feet (PD alone tips over later).
         mujoco.mj_step(model, data)
-    ref_q = data.qpos.copy()
-    gain = _standing_gain(model, ref_q, (cmd_q[0] - offset)[act], cmd_every)
-    dq = np.zeros(2 * model.nv)
+    # The controller is designed on the nominal robot (its designer does not know the
+    # effects; MuJoCo's derivatives do not support actuator delays either) and reads the
+    # robot's base and its link-side joints.
+    design = floating_prediction_spec(robot, filters=False).compile()
+    jd = JointMap.of(design)
+    fd = int(np.flatnonzero(design.jnt_type == mujoco.mjtJoint.mjJNT_FREE)[0])
+    qd0, dd0 = int(design.jnt_qposadr[fd]), int(design.jnt_dofadr[fd])
+    da = int(model.jnt_dofadr[fj])
+    ref_q = design.qpos0.copy()
+    ref_q[qd0 : qd0 + 7] = data.qpos[qa : qa + 7]
+    ref_q[jd.qadr] = jm.link(data.qpos, jm.play_q, jm.qadr)
+    row = np.argsort(jd.act_log)  # Design actuator of each joint.
+    gain = _standing_gain(design, ref_q, (cmd_q[0] - offset)[jd.act_log], cmd_every)[row[act]]
+    now_q, dq = design.qpos0.copy(), np.zeros(2 * design.nv)
 
     def balanced(target: np.ndarray) -> np.ndarray:
         """PD targets (per actuator) for joint targets ``target`` (per joint), balanced."""
         ref = ref_q.copy()
-        ref[jm.qadr] = target
-        mujoco.mj_differentiatePos(model, dq[: model.nv], 1.0, ref, data.qpos)
-        dq[model.nv :] = data.qvel
+        ref[jd.qadr] = target
+        now_q[qd0 : qd0 + 7] = data.qpos[qa : qa + 7]
+        now_q[jd.qadr] = jm.link(data.qpos, jm.play_q, jm.qadr)
+        mujoco.mj_differentiatePos(design, dq[: design.nv], 1.0, ref, now_q)
+        dq[design.nv + dd0 : design.nv + dd0 + 6] = data.qvel[da : da + 6]
+        dq[design.nv + jd.dadr] = jm.link(data.qvel, jm.play_d, jm.dadr)
         return target[act] + gain @ dq
 
     settle = round(1.5 / PHYSICS_DT)  # Land and come to rest before the log starts.
@@ -449,15 +476,16 @@ def _simulate_floating(
     if settings.mocap:
         mocap = PoseTrack(t=t, pos_w=pos + rng.normal(0, settings.mocap_noise, pos.shape),
                           quat_w=tilt(pose_q, settings.quat_noise))  # fmt: skip
+    q_s, qd_s, effort_s = _sensed(q + offset, qd, effort, settings, rng)
     return RobotLog(
         robot=robot.name,
         base="floating",
         base_pose=np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
         joint_names=names,
         t=t,
-        q=q + offset + rng.normal(0, settings.q_noise, q.shape),
-        qd=qd + rng.normal(0, settings.qd_noise, qd.shape),
-        effort=effort + rng.normal(0, settings.effort_noise, effort.shape),
+        q=q_s,
+        qd=qd_s,
+        effort=effort_s,
         t_cmd=t_cmd,
         cmd_q=sent,
         cmd_qd=np.zeros((M, len(names))),
