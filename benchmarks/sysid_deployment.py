@@ -1,8 +1,8 @@
 """Deployment logs (a G1 standing on the floor, swaying under its balance controller): the
 nominal model's k-step prediction error, with the base state rebuilt from the IMU and the
 contact, with and without motion capture, on a clean log and on logs with undeclared effects;
-with ``--diagnose``, the diagnosis search (Python API; the CLI refuses floating logs so far)
-on each. Prints one JSON line per case and a summary object.
+with ``--diagnose``, the diagnosis search (the Python API ``humimic sysid diagnose`` runs) on
+each. Prints one JSON line per case and a summary object.
 
 Usage: .venv/bin/python benchmarks/sysid_deployment.py [--duration 12] [--seed 1] [--diagnose]
        [--only knee]

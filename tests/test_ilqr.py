@@ -234,3 +234,49 @@ def test_delayed_gains_equal_the_batch_optimum_of_the_delayed_plant() -> None:
     # No delay: the plant itself.
     A0, B0 = delayed_system(A, B, 0)
     assert A0 is A and B0 is B
+
+
+FLOATING = """
+<mujoco>
+  <option timestep="0.005"/>
+  <worldbody>
+    <geom type="plane" size="5 5 0.1"/>
+    <body name="torso" pos="0 0 0.3"><freejoint/>
+      <geom type="box" size="0.1 0.1 0.1" mass="{mass}"/>
+      <body name="arm" pos="0.1 0 0">
+        <joint name="j" type="hinge" axis="0 1 0" damping="0.1"/>
+        <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02" mass="0.3"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><position joint="j" kp="20" kv="1"/></actuator>
+</mujoco>
+"""
+
+
+def test_tvlqr_gains_are_remembered_by_the_models_content_and_the_plans() -> None:
+    """The gains are cached (training and every evaluation physics ask for the same ones):
+    the same request gives equal gains that the caller may change, and a model that differs
+    in one mass, or another plan, gets its own."""
+    from humimic.sim.lqr import tvlqr_gains
+
+    model = mujoco.MjModel.from_xml_string(FLOATING.format(mass=2.0))
+    data = mujoco.MjData(model)
+    qpos, qvel = [], []
+    for _ in range(4):
+        qpos.append(data.qpos.copy())
+        qvel.append(data.qvel.copy())
+        for _ in range(2):
+            mujoco.mj_step(model, data)
+    qpos, qvel, ctrl = np.array(qpos), np.array(qvel), np.zeros((3, 1))
+    k1 = tvlqr_gains(model, qpos, qvel, ctrl, 2)
+    k1[...] = np.nan  # The caller's copy: the cache keeps its own.
+    k2 = tvlqr_gains(model, qpos, qvel, ctrl, 2)
+    assert np.all(np.isfinite(k2))
+    np.testing.assert_array_equal(k2, tvlqr_gains(mujoco.MjModel.from_xml_string(
+        FLOATING.format(mass=2.0)), qpos, qvel, ctrl, 2))  # fmt: skip
+    heavier = tvlqr_gains(mujoco.MjModel.from_xml_string(FLOATING.format(mass=4.0)),
+                          qpos, qvel, ctrl, 2)  # fmt: skip
+    assert np.abs(heavier - k2).max() > 1e-3 * np.abs(k2).max()
+    moved = tvlqr_gains(model, qpos, qvel, ctrl + 0.2, 2)
+    assert np.abs(moved - k2).max() > 1e-3 * np.abs(k2).max()

@@ -40,7 +40,13 @@ MIN_FIT_SAMPLES = 50
 """Fewest state samples in the fit part of a log (the residual network and the signature
 plots need some too)."""
 
+SCREEN = 0.1
+"""A candidate scored on B must remove at least this share of its joints' error on A."""
+_SCREEN_KEEP = 4
+
 _SECANT_STEPS = 6
+_SECANT_TOL = 1e-3
+"""A pair's secant search stops when its next step is shorter than this share of its interval."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -280,10 +286,12 @@ def _fit(
     bases: list[Correction],
     pairs: list[_Pair],
     first: list[float] | None = None,
+    removed: list[float] | None = None,
 ) -> list[float]:
     """Fit every pair's parameter on the predictor's span: batched secant search on the
     residual of the pair's joints, each pair on its own base correction, starting from "no
-    effect" and ``first`` (default: each pair's probe). Returns the best value per pair.
+    effect" and ``first`` (default: each pair's probe). Returns the best value per pair;
+    ``removed`` (if given) receives the share of each pair's error its value removes there.
 
     A torque limit acts only above it, so its error is flat down to the largest torque and
     kinked there: it gets a grid and a golden-section search instead."""
@@ -291,24 +299,29 @@ def _fit(
     if grid:
         smooth = [i for i in range(len(pairs)) if i not in grid]
         out = [0.0] * len(pairs)
-        for i, v in zip(grid, _grid_fit(predictor, [bases[i] for i in grid],
-                                        [pairs[i] for i in grid]), strict=True):  # fmt: skip
-            out[i] = v
+        shares = [0.0] * len(pairs)
+        part: list[float] = []
+        for k, (i, v) in enumerate(zip(grid, _grid_fit(predictor, [bases[i] for i in grid],
+                                   [pairs[i] for i in grid], removed=part), strict=True)):  # fmt: skip
+            out[i], shares[i] = v, part[k]
         if smooth:
             firsts = None if first is None else [first[i] for i in smooth]
-            for i, v in zip(smooth, _fit(predictor, [bases[i] for i in smooth],
-                                         [pairs[i] for i in smooth], firsts), strict=True):  # fmt: skip
-                out[i] = v
+            part = []
+            for k, (i, v) in enumerate(zip(smooth, _fit(predictor, [bases[i] for i in smooth],
+                                       [pairs[i] for i in smooth], firsts, part), strict=True)):  # fmt: skip
+                out[i], shares[i] = v, part[k]
+        if removed is not None:
+            removed[:] = shares
         return out
 
-    def run(values: list[float]) -> list[np.ndarray]:
+    def run(values: list[float], which: list[int]) -> list[np.ndarray]:
         cs = []
-        for b, p, v in zip(bases, pairs, values, strict=True):
-            c = b.copy()
-            p.apply(c, v)
+        for i in which:
+            c = bases[i].copy()
+            pairs[i].apply(c, values[i])
             cs.append(c)
         res = predictor.run(cs)
-        return [res[i][..., p.joints, :].ravel() for i, p in enumerate(pairs)]
+        return [res[k][..., pairs[i].joints, :].ravel() for k, i in enumerate(which)]
 
     unique = {id(b): b for b in bases}
     r_none = dict(zip(unique, predictor.run(list(unique.values())), strict=True))
@@ -317,11 +330,15 @@ def _fit(
     ]
     x = [p.probe for p in pairs] if first is None else list(first)
     best = [(float(r @ r), v) for v, r in prev]
+    none_sse = [r for _, r in prev]
+    active = list(range(len(pairs)))
     for _ in range(_SECANT_STEPS):
-        rs = run(x)
-        nxt = []
-        for i, p in enumerate(pairs):
-            r, v = rs[i], x[i]
+        if not active:
+            break
+        rs = run(x, active)
+        still = []
+        for r, i in zip(rs, active, strict=True):
+            p, v = pairs[i], x[i]
             sse = float(r @ r)
             if sse < best[i][0]:
                 best[i] = (sse, v)
@@ -336,8 +353,15 @@ def _fit(
             step = float(np.clip(step, p.lo, p.hi))
             if step == v:  # Stuck on a bound: try half-way back to the best so far.
                 step = 0.5 * (v + best[i][1])
-            nxt.append(step)
-        x = nxt
+            x[i] = step
+            # Converged (the next step would move less than a thousandth of the interval):
+            # the pair leaves the batch, and later rollouts are for the others only.
+            if abs(step - v) > _SECANT_TOL * (p.hi - p.lo):
+                still.append(i)
+        active = still
+    if removed is not None:
+        removed[:] = [1.0 - e / max(float(r @ r), 1e-30)
+                      for (e, _), r in zip(best, none_sse, strict=True)]  # fmt: skip
     return [v for _, v in best]
 
 
@@ -396,43 +420,63 @@ _GRID_EFFECTS = ("torque_limit", "backlash")
 
 
 def _grid_fit(
-    predictor: _Scorer, bases: list[Correction], pairs: list[_Pair], n: int = 8, golden: int = 9
+    predictor: _Scorer,
+    bases: list[Correction],
+    pairs: list[_Pair],
+    n: int = 8,
+    golden: int = 9,
+    removed: list[float] | None = None,
 ) -> list[float]:
     """Batched grid search over each pair's interval, then golden-section search between the
     best grid point's neighbours; geometric where the interval spans decades (backlash),
-    linear otherwise. Every pair advances one evaluation per batch."""
+    linear otherwise. Every pair advances one evaluation per batch.
+
+    A pair whose grid is best at its "no effect" end, or ties with it there (a torque limit
+    above every torque changes nothing), shows no effect the grid can resolve: it stays at
+    that end, and the golden-section search is for the others."""
     geometric = np.array([p.lo > 0 and p.hi / p.lo > 20 for p in pairs])
 
-    def value(x: np.ndarray) -> np.ndarray:
-        """Parameter values from search coordinates (P,) or (P, k)."""
-        g = geometric.reshape(-1, *([1] * (x.ndim - 1)))
+    def value(x: np.ndarray, which: np.ndarray) -> np.ndarray:
+        """Parameter values from search coordinates (P,) or (P, k) of pairs ``which``."""
+        g = geometric[which].reshape(-1, *([1] * (x.ndim - 1)))
         return np.where(g, np.exp(x), x)
 
-    def sse(xs: np.ndarray) -> np.ndarray:
+    def sse(xs: np.ndarray, which: np.ndarray) -> np.ndarray:
         """Error of each pair's joints at its value in ``xs`` (P, k). Shape: (P, k)."""
         k = xs.shape[1]
         cs = []
-        for b, p, vs in zip(bases, pairs, value(xs), strict=True):
+        for i, vs in zip(which, value(xs, which), strict=True):
             for v in vs:
-                c = b.copy()
-                p.apply(c, float(v))
+                c = bases[i].copy()
+                pairs[i].apply(c, float(v))
                 cs.append(c)
         res = predictor.run(cs)
-        return np.array([[float(np.sum(res[i * k + j][..., p.joints, :] ** 2)) for j in range(k)]
-                         for i, p in enumerate(pairs)])  # fmt: skip
+        return np.array([[float(np.sum(res[r * k + j][..., pairs[i].joints, :] ** 2))
+                          for j in range(k)] for r, i in enumerate(which)])  # fmt: skip
 
+    every = np.arange(len(pairs))
     lo = np.array([np.log(p.lo) if g else p.lo for p, g in zip(pairs, geometric, strict=True)])
     hi = np.array([np.log(p.hi) if g else p.hi for p, g in zip(pairs, geometric, strict=True)])
     grid = np.linspace(lo, hi, n, axis=1)  # (P, n)
-    err = sse(grid)
-    tried_x, tried_e = [grid], [err]  # Every value evaluated, per pair.
+    err = sse(grid, every)
+    none_end = np.array([0 if abs(p.none - p.lo) <= abs(p.none - p.hi) else n - 1 for p in pairs])
+    out = value(grid[every, none_end], every)
+    at_none = err[every, none_end]
+    live = np.flatnonzero(at_none > err.min(axis=1))
+    best = err.min(axis=1)
+    if live.size == 0:
+        if removed is not None:
+            removed[:] = [0.0] * len(pairs)
+        return [float(v) for v in out]
+    grid, err = grid[live], err[live]
+    rows = np.arange(live.size)
+    tried_x, tried_e = [grid], [err]  # Every value evaluated, per live pair.
     k = np.argmin(err, axis=1)
-    rows = np.arange(len(pairs))
     a = grid[rows, np.maximum(k - 1, 0)]
     b = grid[rows, np.minimum(k + 1, n - 1)]
     ratio = (np.sqrt(5.0) - 1.0) / 2.0
     x12 = np.stack([b - ratio * (b - a), a + ratio * (b - a)], axis=1)
-    e12 = sse(x12)
+    e12 = sse(x12, live)
     tried_x.append(x12)
     tried_e.append(e12)
     (x1, x2), (e1, e2) = x12.T, e12.T
@@ -440,13 +484,17 @@ def _grid_fit(
         left = e1 <= e2  # The minimum lies in [a, x2]: x1 becomes the new x2.
         a, b = np.where(left, a, x1), np.where(left, x2, b)
         x_new = np.where(left, b - ratio * (b - a), a + ratio * (b - a))
-        e_new = sse(x_new[:, None])[:, 0]
+        e_new = sse(x_new[:, None], live)[:, 0]
         tried_x.append(x_new[:, None])
         tried_e.append(e_new[:, None])
         x1, e1, x2, e2 = (np.where(left, x_new, x2), np.where(left, e_new, e2),
                           np.where(left, x1, x_new), np.where(left, e1, e_new))  # fmt: skip
     xs, es = np.concatenate(tried_x, axis=1), np.concatenate(tried_e, axis=1)
-    return [float(v) for v in value(xs[rows, np.argmin(es, axis=1)])]
+    out[live] = value(xs[rows, np.argmin(es, axis=1)], live)
+    best[live] = es.min(axis=1)
+    if removed is not None:
+        removed[:] = [float(1.0 - b / max(e, 1e-30)) for b, e in zip(best, at_none, strict=True)]
+    return [float(v) for v in out]
 
 
 def _refit(
@@ -687,7 +735,19 @@ def diagnose_log(
                     bases.append(with_kept(start_for((*plays, names[j]))))
                     pairs.append(_Pair(effect="backlash", index=j, joints=np.array([j]),
                                        lo=0.002, hi=0.2, none=0.0, probe=0.02))  # fmt: skip
-        values = _fit(fit_a, bases, pairs)
+        shares: list[float] = []
+        values = _fit(fit_a, bases, pairs, removed=shares)
+        # Only the pairs that remove a part of their joints' error on A are scored on B, and
+        # always the best few of them, the rivals the confidence weighs: a pair that removes
+        # less than SCREEN of its joints' error where it was fitted does not remove
+        # MIN_REDUCTION of it on B. Pairs on the joints of an effect kept already are all
+        # scored: on top of that effect they remove little until refitted with it (below).
+        top = set(np.argsort(-np.array(shares))[:_SCREEN_KEEP].tolist())
+        taken = [int(j) for q, _ in kept if not q.group for j in q.joints]
+        keep = [i for i, (p, r) in enumerate(zip(pairs, shares, strict=True))
+                if r >= SCREEN or i in top or np.intersect1d(p.joints, taken).size]  # fmt: skip
+        pairs, bases = [pairs[i] for i in keep], [bases[i] for i in keep]
+        values = [values[i] for i in keep]
         # A pair on joints that already carry an effect is refitted together with it: the
         # effect found first took more than its share of their error.
         revised = [[v for _, v in kept] for _ in pairs]

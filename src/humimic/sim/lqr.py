@@ -3,6 +3,9 @@ step, the Riccati recursion, and the time-varying LQR gains that stabilize a sto
 
 from __future__ import annotations
 
+import hashlib
+import pickle
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import mujoco
@@ -172,6 +175,39 @@ def tvlqr_gains(
     if delay < 0 or int(delay) != delay:
         raise ValueError(f"delay must be a whole number of control steps >= 0, got {delay}")
     w = weights or LqrWeights()
+    # The gains of one plan on one model are the same wherever they are asked for (training,
+    # then evaluation under each physics: the base's controller is the nominal robot's), and
+    # take seconds: they are remembered by the model's whole content and the plan's.
+    key = hashlib.sha1(pickle.dumps(model))
+    for a in (qpos, qvel, ctrl):
+        key.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        key.update(repr(np.shape(a)).encode())
+    key.update(repr((decimation, w, eps, int(delay))).encode())
+    digest = key.hexdigest()
+    if digest in _GAINS:
+        _GAINS.move_to_end(digest)
+        return _GAINS[digest].copy()
+    K = _tvlqr_gains(model, qpos, qvel, ctrl, decimation, w, eps, int(delay))
+    _GAINS[digest] = K.copy()
+    while len(_GAINS) > _GAINS_KEPT:
+        _GAINS.popitem(last=False)
+    return K
+
+
+_GAINS: OrderedDict[str, np.ndarray] = OrderedDict()
+_GAINS_KEPT = 8
+
+
+def _tvlqr_gains(
+    model: mujoco.MjModel,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    ctrl: np.ndarray,
+    decimation: int,
+    w: LqrWeights,
+    eps: float,
+    delay: int,
+) -> np.ndarray:
     H, nv, nu = ctrl.shape[0], model.nv, model.nu
     nx = 2 * nv
     data = mujoco.MjData(model)
