@@ -45,8 +45,9 @@ SCREEN = 0.1
 _SCREEN_KEEP = 4
 
 _SECANT_STEPS = 6
-_SECANT_TOL = 1e-3
-"""A pair's secant search stops when its next step is shorter than this share of its interval."""
+_SECANT_TOL = 1e-4
+"""A pair's secant search stops when its next step is shorter than this share of its interval
+(1e-3 left a 0.8 kg payload at 0.785 kg and the held-out error at 0.45 against 0.31 mrad)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -354,7 +355,7 @@ def _fit(
             if step == v:  # Stuck on a bound: try half-way back to the best so far.
                 step = 0.5 * (v + best[i][1])
             x[i] = step
-            # Converged (the next step would move less than a thousandth of the interval):
+            # Converged (the next step would move less than _SECANT_TOL of the interval):
             # the pair leaves the batch, and later rollouts are for the others only.
             if abs(step - v) > _SECANT_TOL * (p.hi - p.lo):
                 still.append(i)
