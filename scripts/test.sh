@@ -18,7 +18,9 @@ echo "== pyright"
 echo "== pytest"
 # Two workers (pytest-xdist): 12% faster on the 2-core machine (7:57 -> 6:58), where MuJoCo
 # and torch already use both cores part of the time.
+# Work stealing: an idle worker takes queued tests from the busy one, so that the long
+# diagnosis tests do not end the run on one worker.
 # One OpenMP thread per worker: two workers of two spinning torch threads each on two cores
 # slowed the residual-network test from 43 s to 156 s.
-if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2; export OMP_NUM_THREADS=1; fi
+if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2 --dist worksteal; export OMP_NUM_THREADS=1; fi
 .venv/bin/python -m pytest -q "$@"
