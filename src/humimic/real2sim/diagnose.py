@@ -462,9 +462,8 @@ def _grid_fit(
     err = sse(grid, every)
     none_end = np.array([0 if abs(p.none - p.lo) <= abs(p.none - p.hi) else n - 1 for p in pairs])
     out = value(grid[every, none_end], every)
-    at_none = err[every, none_end]
-    live = np.flatnonzero(at_none > err.min(axis=1))
-    best = err.min(axis=1)
+    at_none, best = err[every, none_end], err.min(axis=1)
+    live = np.flatnonzero(at_none > best)
     if live.size == 0:
         if removed is not None:
             removed[:] = [0.0] * len(pairs)
