@@ -68,18 +68,18 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     for name in ("before", "after", "after_nominal"):
         assert 0.0 <= r[name]["policy"]["success_rate"] <= 1.0
         assert r[name]["policy"]["mpjpe_global_mm"] > 0
-    assert r["sysid"]["kstep_rmse_mrad_before"] > r["sysid"]["kstep_rmse_mrad_after"]
+    # Sysid read the policy's deployment: whole episodes of the 1.5 s clip, about 5 s of them.
+    dep = r["deployment_log"]
+    assert r["sysid"]["log"] == "deployment" and dep["log"] == str(out / "deployment.mcap")
+    assert dep["episodes"] == 4 and 0 <= dep["falls"] <= 4 and 0.0 < dep["seconds"] <= 6.0
+    assert json.loads((out / "sysid" / "report.json").read_text())["base"] == "floating"
     assert "humimic loop" in (out / "loop.md").read_text()
 
     from humimic.real2sim.robotlog import read_robot_log
     from humimic.sim.physics import load_physics
     from humimic.tracking.runs import read_run_settings
 
-    corrected = load_physics(out / "corrected.yaml")  # Sysid found the weak knee drive.
-    assert [(e.effect, e.targets) for e in corrected.effects] == [
-        ("gain_mismatch", ("left_knee_joint",))
-    ]
-    assert corrected.effects[0].value == pytest.approx(0.7, abs=0.03)
+    load_physics(out / "corrected.yaml")  # What sysid claimed, as a physics file.
     tuned = read_run_settings(out / "finetune")
     assert tuned.physics == str(out / "corrected.yaml") and tuned.init_from == base_run
     assert read_run_settings(out / "finetune_nominal").physics is None
@@ -106,3 +106,27 @@ def test_bad_input_exits_2_and_writes_nothing(base_run: Path, tmp_path: Path) ->
     assert main([*args, "--real", str(bad)]) == 2
     assert main([*args, "--real", "worn_knees", "--iterations", "0"]) == 2
     assert not out.exists()
+
+
+def test_a_gantry_session_records_the_real_robot(tmp_path: Path) -> None:
+    """``--sysid-log gantry``: the real robot's effects and floor, hanging in a gantry, as
+    ``humimic sysid simulate`` would log them with those effects injected."""
+    from humimic.configs.runs import LoopSettings
+    from humimic.pipeline.loop import gantry_session
+    from humimic.real2sim import LogSettings, read_robot_log, simulate_log
+    from humimic.sim.effects import parse_injection
+
+    real = tmp_path / "real.yaml"
+    real.write_text("effects:\n  - gain_mismatch:left_knee_joint=0.7\n")
+    s = LoopSettings(run=tmp_path, real=str(real), out=tmp_path / "o", sysid_log="gantry",
+                     sysid_duration=5.0, seed=3)  # fmt: skip
+    path = gantry_session(s, "g1", tmp_path / "gantry.mcap")
+    names = tuple(nominal_model(get_robot("g1")).joint(j).name for j in range(1, 30))
+    log = read_robot_log(path, names)
+    same = simulate_log(get_robot("g1"), [parse_injection("gain_mismatch:left_knee_joint=0.7")],
+                        LogSettings(duration=5.0, seed=3))  # fmt: skip
+    plain = simulate_log(get_robot("g1"), [], LogSettings(duration=5.0, seed=3))
+    assert log.base == "fixed"
+    np.testing.assert_allclose(log.q, same.q, atol=1e-9)
+    knee = names.index("left_knee_joint")
+    assert np.abs(log.q[:, knee] - plain.q[:, knee]).max() > 1e-3  # The weak knee shows.

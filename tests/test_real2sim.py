@@ -116,6 +116,37 @@ def test_held_out_span_uses_the_last_part() -> None:
     assert log.t[held.starts[0]] >= 0.7 * log.duration - 1e-9
 
 
+def test_no_window_spans_a_gap_in_a_log(tmp_path: Path) -> None:
+    """Two recordings logged one after another (1 s apart): each window lies in one of them,
+    starting at least SETTLE after the join, and the nominal model predicts the joined log
+    as well as each part (a window across the join would compare one recording's prediction
+    with the other's states)."""
+    from humimic.real2sim.residual import SETTLE, Correction, Predictor
+    from humimic.real2sim.robotlog import join_logs
+
+    g1 = get_robot("g1")
+    a = simulate_log(g1, [], LogSettings(duration=4.0, seed=1))
+    b = simulate_log(g1, [], LogSettings(duration=4.0, seed=2))
+    joined = read_robot_log(write_robot_log(join_logs([a, b], pause=1.0), tmp_path / "ab.mcap"),
+                            a.joint_names)  # fmt: skip
+    (gap,) = joined.gaps()
+    assert joined.t[gap + 1] - joined.t[gap] == pytest.approx(1.0, abs=0.01)
+    model = prediction_spec(g1, a.base_pose).compile()
+    p = Predictor(model, joined, horizon=0.5, stride=0.1)
+    start, end = joined.t[p.starts], joined.t[p.starts + p.samples]
+    assert np.all(end - start < 0.51)
+    later = start > joined.t[gap]
+    assert later.any() and (~later).any()
+    assert np.all(start[later] >= joined.t[gap + 1] + SETTLE - 1e-9)
+    both = p.error(Correction.of(model)).kstep_rmse_rad
+    parts = [kstep_error(model, x, stride=0.1).kstep_rmse_rad for x in (a, b)]
+    assert both < 1.2 * max(parts)
+    # A log whose every window spans a gap is refused, and says so.
+    short = join_logs([replace(a, t=a.t[:60], q=a.q[:60], qd=a.qd[:60], effort=None)] * 2)
+    with pytest.raises(InputError, match="span a gap"):
+        Predictor(model, short, horizon=0.5)
+
+
 def test_cli_simulate_and_residual(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "log.mcap"
     argv = ["sysid", "simulate", "--duration", "4", "--out", str(out),

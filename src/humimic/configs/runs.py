@@ -514,7 +514,7 @@ class EvalSettings:
 @dataclass(frozen=True, kw_only=True)
 class LoopSettings:
     """Deploy a policy on a "real" robot (a physics file that no training step reads),
-    diagnose the gap with sysid on a gantry log of that robot, fine-tune in the corrected
+    diagnose the gap with sysid on a log of that robot, fine-tune in the corrected
     model, redeploy, report before and after (docs/tracking.md, "The loop")."""
 
     run: Path
@@ -531,8 +531,11 @@ class LoopSettings:
     """Fine-tuning PPO iterations."""
     num_envs: int | None = None
     """Fine-tuning envs (default: as many as the run trained with)."""
+    sysid_log: Literal["deployment", "gantry"] = "deployment"
+    """What sysid diagnoses: the policy's deployment on the real robot (episodes of the clip,
+    logged with IMU and motion capture) or a gantry session (hanging, multi-sine targets)."""
     sysid_duration: float = 40.0
-    """Seconds of the gantry log (5 to 3600)."""
+    """Seconds of the sysid log (5 to 3600; a deployment log: whole episodes, up to 64)."""
     control: bool = False
     """Also fine-tune in the nominal model for the same iterations, and deploy that."""
     device: str = "cpu"

@@ -1,7 +1,7 @@
 """``humimic loop``: deploy on the "real" robot, find what the simulator lacks, fine-tune, redeploy.
 
-:func:`loop` runs the stages; :func:`deploy` and :func:`gantry_session` are the two that read
-the "real" robot.
+:func:`loop` runs the stages; :func:`deploy`, :func:`deployment_session` and
+:func:`gantry_session` are those that read the "real" robot.
 """
 
 from __future__ import annotations
@@ -18,20 +18,20 @@ from humimic.configs.runs import EvalSettings, LoopSettings, TrainSettings
 from humimic.errors import InputError, OutputPathError
 from humimic.io import atomic_write_text, check_writable, json_ready
 
+MAX_DEPLOY_EPISODES = 64
+"""Most episodes in one deployment log."""
 _METRICS = ("success_rate", "mean_steps", "mpjpe_global_mm", "mpjpe_root_mm", "joint_error_rad")
 
 
 def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
-    """Run ``run``'s policy on the real robot; write its metrics, MCAP and robot log.
+    """Run ``run``'s policy on the real robot; write its metrics, MCAP and robot log (the
+    first episode).
 
     Returns:
         The evaluation results (policy and open loop).
     """
-    from humimic.real2sim.robotlog import PoseTrack, RobotLog, write_robot_log
-    from humimic.robots import get_robot
-    from humimic.robots.model import nominal_spec
+    from humimic.real2sim.robotlog import write_robot_log
     from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
-    from humimic.tracking.runs import read_run_settings
 
     settings = EvalSettings(run=run, episodes=s.episodes, motion=s.motion, physics=s.real,
                             device=s.device, seed=s.seed)  # fmt: skip
@@ -39,29 +39,71 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     write_eval_mcap(out / "eval.mcap", ev.motion, ev.joint_names, ev.step_dt, ev.policy,
                     ev.open_loop, ev.results)  # fmt: skip
-    robot = get_robot(read_run_settings(run).robot)
-    drives = nominal_spec(robot)[1]
-    names = ev.joint_names
-    tr = ev.policy
-    t = np.arange(len(tr.qpos)) * ev.step_dt
-    q = np.stack(tr.qpos)[:, 7:]
-    kp = np.array([drives[n].kp for n in names])
-    kd = np.array([drives[n].kd for n in names])
-    zeros = np.zeros_like(q)
-    # A floating base has no fixed pose: the identity (a unit quaternion) stands in for it.
-    identity = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-    qpos, qvel = np.stack(tr.qpos), np.stack(tr.qvel)
-    log = RobotLog(robot=robot.name, base="floating", base_pose=identity, joint_names=names,
-                   t=t, q=q, qd=qvel[:, 6:], effort=None, t_cmd=t,
-                   cmd_q=np.stack(tr.targets), cmd_qd=zeros, cmd_tau=zeros,
-                   kp=np.tile(kp, (len(t), 1)), kd=np.tile(kd, (len(t), 1)),
-                   imu=_imu(robot, t, qpos, qvel),
-                   mocap=PoseTrack(t=t, pos_w=qpos[:, :3], quat_w=qpos[:, 3:7]))  # fmt: skip
-    write_robot_log(log, out / "robot_log.mcap")
     results = dict(ev.results)
-    results["robot_log"] = str(out / "robot_log.mcap")
+    if len(ev.policy.qpos) >= 2:
+        log = _robot_log(run, ev.joint_names, ev.step_dt, ev.policy)
+        results["robot_log"] = str(write_robot_log(log, out / "robot_log.mcap"))
     atomic_write_text(out / "eval.json", json.dumps(json_ready(results), indent=2) + "\n")
     return results
+
+
+def _robot_log(run: Path, names: tuple[str, ...], dt: float, tr: Any) -> Any:
+    """One episode's trace as a floating-base robot log: states every control step, and the
+    PD targets each step applied, stamped when that step began."""
+    from humimic.real2sim.robotlog import PoseTrack, RobotLog
+    from humimic.robots import get_robot
+    from humimic.robots.model import nominal_spec
+    from humimic.tracking.runs import read_run_settings
+
+    robot = get_robot(read_run_settings(run).robot)
+    drives = nominal_spec(robot)[1]
+    qpos, qvel = np.stack(tr.qpos), np.stack(tr.qvel)
+    t = np.arange(len(qpos)) * dt
+    # The trace's targets[k] drove the step that ended at t[k]: sent at t[k - 1].
+    cmd = np.stack(tr.targets)[1:]
+    kp = np.tile([drives[n].kp for n in names], (len(cmd), 1))
+    kd = np.tile([drives[n].kd for n in names], (len(cmd), 1))
+    zeros = np.zeros_like(cmd)
+    # A floating base has no fixed pose: the identity (a unit quaternion) stands in for it.
+    identity = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    return RobotLog(robot=robot.name, base="floating", base_pose=identity, joint_names=names,
+                    t=t, q=qpos[:, 7:], qd=qvel[:, 6:], effort=None, t_cmd=t[:-1],
+                    cmd_q=cmd, cmd_qd=zeros, cmd_tau=zeros, kp=kp, kd=kd,
+                    imu=_imu(robot, t, qpos, qvel),
+                    mocap=PoseTrack(t=t, pos_w=qpos[:, :3], quat_w=qpos[:, 3:7]))  # fmt: skip
+
+
+def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
+    """Log the policy performing the clip on the real robot, episode after episode, as one
+    deployment log (floating base, IMU, motion capture; 1 s between episodes), about
+    ``--sysid-duration`` seconds of it. Each episode starts from the training's reset noise
+    about the first frame, as a robot's performances differ; one that falls ends there.
+
+    Returns:
+        What was logged: ``episodes``, ``falls``, ``seconds`` (of robot motion), ``log``.
+    """
+    from humimic.motion import load_motion
+    from humimic.real2sim.robotlog import join_logs, write_robot_log
+    from humimic.tracking.evaluate import run_evaluation
+    from humimic.tracking.runs import read_run_settings
+
+    motion = s.motion
+    clip = load_motion(motion or read_run_settings(run).motion)
+    seconds = (clip.num_frames - 1) / clip.fps
+    n = int(min(MAX_DEPLOY_EPISODES, max(1, np.ceil(s.sysid_duration / max(seconds, 0.1)))))
+    settings = EvalSettings(run=run, episodes=n, motion=motion, physics=s.real,
+                            device=s.device, seed=s.seed + 1)  # fmt: skip
+    ev = run_evaluation(settings, open_loop=False, traces=n, reset_noise=True)
+    logs = [_robot_log(run, ev.joint_names, ev.step_dt, tr)
+            for tr in ev.policy_traces if len(tr.qpos) >= 2]  # fmt: skip
+    if not logs:
+        raise InputError(f"{run}: the policy fell at once in every episode on the real robot; "
+                         "no deployment log to diagnose (use --sysid-log gantry)")  # fmt: skip
+    write_robot_log(join_logs(logs, pause=1.0), path)
+    p = ev.results["policy"]
+    return {"log": str(path), "episodes": n,
+            "falls": round(n * (1.0 - p["success_rate"])),
+            "seconds": float(sum(lg.duration for lg in logs))}  # fmt: skip
 
 
 def _imu(robot: Any, t: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> Any:
@@ -145,18 +187,19 @@ def loop(settings: LoopSettings) -> dict:
     """Run the loop; returns ``loop.json``'s content.
 
     The "real" robot is a physics file (:mod:`humimic.sim.physics`). Only the deploy stage
-    (:func:`deploy`, :func:`gantry_session`) reads it; the stages after it see what a team
+    (:func:`deploy`, :func:`deployment_session`, :func:`gantry_session`) reads it; the stages after it see what a team
     would have from a real robot: logs.
 
     1. **Deploy** the run's policy on the real robot: closed-loop metrics against the open
        loop (``before/eval.json``, ``before/eval.mcap``) and the first episode as a robot log
        in the real2sim format (``before/robot_log.mcap``, floating base).
-    2. **Gantry session** on the real robot: the robot hangs in a gantry and follows
-       multi-sine PD targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes).
-       ``humimic sysid diagnose`` identifies joint-level effects from fixed-base logs; a
-       walking robot's log has no ground truth for the base and the contacts, so the
-       identification runs on the gantry log, as it would on a real robot.
-    3. **Sysid**: ``humimic sysid diagnose gantry.mcap`` (``sysid/``); its claimed effects
+    2. **The sysid log** (``--sysid-log``): by default a **deployment session**, the policy
+       performing the clip on the real robot episode after episode (each from the
+       training's reset noise), logged as a robot on the floor would log itself: joints,
+       commands, IMU, motion capture (``deployment.mcap``, :func:`deployment_session`). Or a
+       **gantry session** (``gantry``): the robot hangs in a gantry and follows multi-sine PD
+       targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes).
+    3. **Sysid**: ``humimic sysid diagnose`` on that log (``sysid/``); its claimed effects
        become a physics file, ``corrected.yaml``.
     4. **Fine-tune** the policy in the corrected model, under the run's DR (``finetune/``);
        with ``--control``, also in the nominal model for the same iterations
@@ -187,14 +230,21 @@ def loop(settings: LoopSettings) -> dict:
             shutil.rmtree(out, ignore_errors=True)
         raise
     report["before"] = _summary(before)
-    print(f"[2/5] gantry session on the real robot ({s.sysid_duration:.0f} s)")
-    gantry = gantry_session(s, run.robot, out / "gantry.mcap")
+    if s.sysid_log == "gantry":
+        print(f"[2/5] gantry session on the real robot ({s.sysid_duration:.0f} s)")
+        sysid_log = gantry_session(s, run.robot, out / "gantry.mcap")
+    else:
+        print(f"[2/5] deployment session on the real robot (~{s.sysid_duration:.0f} s)")
+        session = deployment_session(s, s.run, out / "deployment.mcap")
+        report["deployment_log"] = session
+        sysid_log = Path(session["log"])
 
-    print("[3/5] sysid diagnose on the gantry log")
-    diag = run_diagnosis(gantry, out / "sysid")
+    print(f"[3/5] sysid diagnose on the {s.sysid_log} log")
+    diag = run_diagnosis(sysid_log, out / "sysid")
     corrected = physics_from_sysid(diag, name="corrected", robot=run.robot)
     write_physics(corrected, out / "corrected.yaml")
     report["sysid"] = {
+        "log": s.sysid_log,
         "claimed": corrected.as_dict().get("effects", []),
         "kstep_rmse_mrad_before": 1e3 * diag["error_before"]["kstep_rmse_rad"],
         "kstep_rmse_mrad_after": 1e3 * diag["error_after"]["kstep_rmse_rad"],
@@ -257,7 +307,7 @@ def _markdown(r: dict) -> str:
     claimed = "\n".join(f"- `{e}`" for e in sy["claimed"]) or "- nothing claimed"
     lines += [
         "",
-        "## What sysid found (gantry log)",
+        f"## What sysid found ({sy.get('log', 'gantry')} log)",
         "",
         claimed,
         "",
@@ -269,4 +319,4 @@ def _markdown(r: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["deploy", "gantry_session", "loop"]
+__all__ = ["deploy", "deployment_session", "gantry_session", "loop"]

@@ -20,6 +20,9 @@ from humimic.real2sim.robotlog import RobotLog
 from humimic.sim.joints import JointMap
 from humimic.sim.models import PHYSICS_DT
 
+_HALF_WINDOW = 4
+"""Half the Savitzky-Golay window [samples] that smooths velocities and accelerations."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class NetConfig:
@@ -143,7 +146,7 @@ def residual_torque(c: Correction, log: RobotLog, idx: np.ndarray) -> np.ndarray
     of the measured motion minus the modelled drive torque and feed-forward."""
     m = c.model
     dt = float(np.median(np.diff(log.t)))
-    window = 9
+    window = 2 * _HALF_WINDOW + 1
     qd = savgol_filter(log.qd, window, 2, axis=0)
     qdd = savgol_filter(log.qd, window, 2, deriv=1, delta=dt, axis=0)
     jm = JointMap.of(m)
@@ -197,6 +200,11 @@ def fit_residual_net(
     lo = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
     hi = int(np.searchsorted(log.t, log.t[0] + span[1] * log.duration, side="right"))
     idx = np.arange(max(lo, config.history), hi)
+    # Samples whose history or smoothing window (residual_torque) spans a gap are left out.
+    back = np.maximum(idx - max(config.history - 1, _HALF_WINDOW), 0)
+    idx = idx[log.unbroken(back, np.minimum(idx + _HALF_WINDOW, log.t.size - 1) - back)]
+    if idx.size == 0:
+        raise InputError(f"{log.where}: no state sample of the fit part lies away from a gap")
     target = residual_torque(c, log, idx)
     inputs = _history(log, idx, config.history)
     net = ResidualActuatorNet(log.joint_names, config)

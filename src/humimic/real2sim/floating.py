@@ -11,9 +11,13 @@ import numpy as np
 from humimic.errors import InputError
 from humimic.real2sim.robotlog import RobotLog
 from humimic.sim.joints import JointMap
+from humimic.sim.models import REST_DEPTH, floor_colliders, lowest_point
 from humimic.transforms import quat_conj, quat_mul, quat_slerp, quat_to_matrix
 
-STANCE = "IMU orientation and gyro; height and velocity from the lowest collider at rest"
+STANCE = (
+    "IMU orientation and gyro; height and velocity from the lowest collider at rest "
+    "(as deep in the floor as the model's feet sink standing)"
+)
 MOCAP = STANCE + "; horizontal position from motion capture (/base_pose)"
 _SLACK = 0.05
 """How far [s] a sample may lie outside a stream's span and still be read (its end value)."""
@@ -73,6 +77,14 @@ def _interp_quat(t_src: np.ndarray, q: np.ndarray, t: np.ndarray) -> np.ndarray:
     return quat_slerp(q[i], q[i + 1], u)
 
 
+def rest_depth(model: mujoco.MjModel) -> float:
+    """How deep [m] the model's feet sink into the floor when it stands: its numeric
+    :data:`~humimic.sim.models.REST_DEPTH` (set by
+    :func:`~humimic.sim.models.floating_prediction_spec`), else 0."""
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, REST_DEPTH)
+    return float(model.numeric_data[model.numeric_adr[i]]) if i >= 0 else 0.0
+
+
 def estimate_base(
     model: mujoco.MjModel, log: RobotLog, t: np.ndarray, q: np.ndarray, qd: np.ndarray
 ) -> BaseEstimate:
@@ -127,18 +139,13 @@ def estimate_base(
     qvel[:, 3:] = omega_b
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     qpos[:, 3:] = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
-    # Stance: the lowest collider rests on the floor.
-    floor = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
-    if not floor:
-        raise InputError("the model has no floor (a plane) for a floating-base log")
-    f = floor[0]
-    colliders = [g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
-                 and (model.geom_contype[g] & model.geom_conaffinity[f]
-                      or model.geom_contype[f] & model.geom_conaffinity[g])]  # fmt: skip
+    # Stance: the lowest collider rests on the floor, as deep as the model's feet sink when
+    # it stands (its contacts are soft).
+    f, colliders = floor_colliders(model)
+    depth = rest_depth(model)
     jm = JointMap.of(model)
     qa, da = int(model.jnt_qposadr[fj]), int(model.jnt_dofadr[fj])
     data = mujoco.MjData(model)
-    fromto = np.zeros(6)
     jacp = np.zeros((3, model.nv))
     for k in range(n):
         data.qpos[:] = model.qpos0
@@ -146,12 +153,8 @@ def estimate_base(
         data.qpos[jm.qadr] = q[k]
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
-        best, point, body = np.inf, np.zeros(3), root
-        for g in colliders:
-            d = mujoco.mj_geomDistance(model, data, f, g, 10.0, fromto)
-            if d < best:
-                best, point, body = d, fromto[3:].copy(), int(model.geom_bodyid[g])
-        qpos[k, 2] = -best
+        best, point, body = lowest_point(model, data, f, colliders)
+        qpos[k, 2] = -best - depth
         data.qvel[:] = 0.0
         data.qvel[da + 3 : da + 6] = omega_b[k]
         data.qvel[jm.dadr] = qd[k]

@@ -25,6 +25,9 @@ _MAX_BATCH_BYTES = 96 * 2**20
 """Rollout outputs are produced in chunks of at most this size."""
 _EPS = 1e-7
 """Clock tolerance [s] when finding the command in force (step times are sums of floats)."""
+SETTLE = 0.1
+"""Windows start at least this long [s] after a gap in a log: the commands a drive acts on
+(a delay of up to 50 ms is searched) must come from the same stretch of the log."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -144,6 +147,10 @@ class Predictor:
             - 1
         )
         starts = np.arange(first, max(last, first), max(1, round(stride / dt_state)))
+        # No window spans a gap in the log, or starts within SETTLE after one.
+        whole = log.unbroken(starts, self.samples, SETTLE)
+        broken = int(np.count_nonzero(~whole))
+        starts = starts[whole]
         self.starts = starts[phase::every]
         if self.starts.size == 0:
             length = (span[1] - span[0]) * log.duration
@@ -152,9 +159,11 @@ class Predictor:
                 if tuple(span) == (0.0, 1.0)
                 else f"its {span[0]:.0%}-{span[1]:.0%} span ({length:.3g} s)"
             )
+            spans = f" (and {broken} that span a gap in the log)" if broken else ""
             raise InputError(
                 f"{where}: too short for --horizon {horizon:g} s windows: {part} holds "
-                f"{starts.size} window{'' if starts.size == 1 else 's'}, {phase + 1} needed"
+                f"{starts.size} window{'' if starts.size == 1 else 's'}{spans}, "
+                f"{phase + 1} needed"
             )
         steps = self.samples * self.sub
         # Time at the start of every physics step of every window, and of the step after the

@@ -10,7 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
+from humimic.errors import InputError
 from humimic.formats.mcap import McapFormatError, McapWriter, read_mcap, stamp
+
+GAP = 1.5
+"""A step between state samples longer than this many median intervals is a gap in the log."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -98,9 +102,94 @@ class RobotLog:
     def duration(self) -> float:
         return float(self.t[-1] - self.t[0])
 
+    def gaps(self) -> np.ndarray:
+        """Where the state stream breaks: indices ``i`` with more than :data:`GAP` median
+        state intervals between sample ``i`` and ``i + 1`` (dropped messages, or several
+        episodes logged one after another). Shape: (G,)."""
+        if self.t.size < 2:
+            return np.zeros(0, dtype=np.int64)
+        dt = np.diff(self.t)
+        return np.flatnonzero(dt > GAP * float(np.median(dt)))
+
+    def unbroken(
+        self, starts: np.ndarray, samples: int | np.ndarray, settle: float = 0.0
+    ) -> np.ndarray:
+        """Which stretches ``starts[k] .. starts[k] + samples`` of the state samples lie
+        within one unbroken part of the log, starting at least ``settle`` seconds after that
+        part's first sample when a gap precedes it (what came before a gap is not what the
+        drives held). Shape: (len(starts),), bool."""
+        starts = np.asarray(starts, dtype=np.int64)
+        gaps = self.gaps()
+        if gaps.size == 0:
+            return np.ones(starts.shape, dtype=bool)
+        part = np.searchsorted(gaps, starts, side="left")  # Gaps before each start.
+        same = part == np.searchsorted(gaps, starts + samples, side="left")
+        first = np.concatenate([[0], gaps + 1])[part]
+        settled = (part == 0) | (self.t[starts] - self.t[first] >= settle - 1e-9)
+        return same & settled
+
     def command_index(self, times: np.ndarray) -> np.ndarray:
         """Index of the command in force at each time (the drive holds the last one)."""
         return np.clip(np.searchsorted(self.t_cmd, times, side="right") - 1, 0, len(self.t_cmd) - 1)
+
+
+def join_logs(logs: list[RobotLog], pause: float = 1.0) -> RobotLog:
+    """Several logs of one robot as one, each after the last with ``pause`` seconds between
+    (every stream shifted alike): episodes recorded one after another. The joins are gaps
+    (:meth:`RobotLog.gaps`) that no prediction window spans.
+
+    Raises:
+        InputError: No logs, a pause that is not longer than a state interval, or logs of
+            other robots, bases, joints, IMU sites or streams.
+    """
+    if not logs:
+        raise InputError("join_logs: no logs to join")
+    first = logs[0]
+    dt = float(np.median(np.diff(first.t))) if first.t.size > 1 else 0.0
+    if not (np.isfinite(pause) and pause > GAP * dt):
+        raise InputError(f"join_logs: pause {pause} s must exceed {GAP} state intervals")
+    for other in logs[1:]:
+        same = (other.robot, other.base, other.joint_names,
+                None if other.imu is None else other.imu.site, other.mocap is None,
+                other.effort is None) == (first.robot, first.base, first.joint_names,
+                None if first.imu is None else first.imu.site, first.mocap is None,
+                first.effort is None)  # fmt: skip
+        if not same or not np.array_equal(other.base_pose, first.base_pose):
+            raise InputError(f"join_logs: {other.where} is not a log of the same robot, "
+                             f"joints and streams as {first.where}")  # fmt: skip
+    shifted, end = [], 0.0
+    for k, lg in enumerate(logs):
+        starts = [lg.t[0], lg.t_cmd[0], *(x.t[0] for x in (lg.imu, lg.mocap) if x is not None)]
+        ends = [lg.t[-1], lg.t_cmd[-1], *(x.t[-1] for x in (lg.imu, lg.mocap) if x is not None)]
+        shift = 0.0 if k == 0 else end + pause - min(starts)
+        shifted.append((lg, shift))
+        end = max(ends) + shift
+
+    def cat(get) -> np.ndarray:
+        return np.concatenate([get(lg) for lg, _ in shifted])
+
+    def times(get) -> np.ndarray:
+        return np.concatenate([get(lg) + d for lg, d in shifted])
+
+    imu = mocap = None
+    if first.imu is not None:
+        acc = None if first.imu.acc_b is None else cat(lambda lg: lg.imu.acc_b)
+        imu = ImuLog(site=first.imu.site, t=times(lambda lg: lg.imu.t),
+                     quat_w=cat(lambda lg: lg.imu.quat_w), gyro_b=cat(lambda lg: lg.imu.gyro_b),
+                     acc_b=acc)  # fmt: skip
+    if first.mocap is not None:
+        mocap = PoseTrack(t=times(lambda lg: lg.mocap.t), pos_w=cat(lambda lg: lg.mocap.pos_w),
+                          quat_w=cat(lambda lg: lg.mocap.quat_w))  # fmt: skip
+    return RobotLog(
+        robot=first.robot, base=first.base, base_pose=first.base_pose,
+        joint_names=first.joint_names, t=times(lambda lg: lg.t), q=cat(lambda lg: lg.q),
+        qd=cat(lambda lg: lg.qd),
+        effort=None if first.effort is None else cat(lambda lg: lg.effort),
+        t_cmd=times(lambda lg: lg.t_cmd), cmd_q=cat(lambda lg: lg.cmd_q),
+        cmd_qd=cat(lambda lg: lg.cmd_qd), cmd_tau=cat(lambda lg: lg.cmd_tau),
+        kp=cat(lambda lg: lg.kp), kd=cat(lambda lg: lg.kd), source=first.source, imu=imu,
+        mocap=mocap,
+    )  # fmt: skip
 
 
 def write_robot_log(log: RobotLog, path: str | os.PathLike[str]) -> Path:

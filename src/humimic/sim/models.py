@@ -202,11 +202,77 @@ def floating_prediction_spec(robot: RobotConfig, *, filters: bool = True) -> muj
     spec, _ = _mesh_free_spec(robot, PHYSICS_DT)
     for sensor in list(spec.sensors):
         spec.delete(sensor)
+    depth = _rest_depth(robot.name, spec)
     for key in list(spec.keys):
         spec.delete(key)
     if filters:
         _add_filters(spec)
+    spec.add_numeric(name=REST_DEPTH, data=[depth])
     return spec
+
+
+REST_DEPTH = "humimic_rest_depth"
+"""A floating-base prediction model's numeric: how deep [m] its feet sink into the floor
+when it stands (MuJoCo's contacts are soft), to place a robot standing on the floor."""
+_REST_DEPTHS: dict[str, float] = {}
+
+
+def floor_colliders(model: mujoco.MjModel) -> tuple[int, list[int]]:
+    """The floor (the first plane) and the robot geoms that collide with it.
+
+    Raises:
+        InputError: The model has no plane.
+    """
+    floor = [g for g in range(model.ngeom) if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE]
+    if not floor:
+        raise InputError("the model has no floor (a plane) for a floating-base log")
+    f = floor[0]
+    colliders = [g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
+                 and (model.geom_contype[g] & model.geom_conaffinity[f]
+                      or model.geom_contype[f] & model.geom_conaffinity[g])]  # fmt: skip
+    return f, colliders
+
+
+def lowest_point(
+    model: mujoco.MjModel, data: mujoco.MjData, floor: int, colliders: list[int]
+) -> tuple[float, np.ndarray, int]:
+    """The collider nearest the floor (kinematics done): its signed distance [m] (negative:
+    into the floor), its nearest point (world) and its body."""
+    fromto = np.zeros(6)
+    best, point, body = np.inf, np.zeros(3), 0
+    for g in colliders:
+        d = mujoco.mj_geomDistance(model, data, floor, g, 10.0, fromto)
+        if d < best:
+            best, point, body = d, fromto[3:].copy(), int(model.geom_bodyid[g])
+    return best, point, body
+
+
+def _rest_depth(name: str, spec: mujoco.MjSpec) -> float:
+    """How deep the robot's lowest collider sinks when it stands in its first keyframe,
+    holding the pose with its drives (0.2-0.4 s after a touch-down start; the contacts
+    settle in a few of their 20 ms time constants). 0 without a keyframe."""
+    if name in _REST_DEPTHS:
+        return _REST_DEPTHS[name]
+    m = spec.copy().compile()
+    depth = 0.0
+    free = np.flatnonzero(m.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+    if m.nkey and free.size:
+        d = mujoco.MjData(m)
+        mujoco.mj_resetDataKeyframe(m, d, 0)
+        hinge = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
+        ctrl = np.where(hinge, d.qpos[m.jnt_qposadr[m.actuator_trnid[:, 0]]], 0.0)
+        f, colliders = floor_colliders(m)
+        mujoco.mj_kinematics(m, d)
+        d.qpos[int(m.jnt_qposadr[free[0]]) + 2] -= lowest_point(m, d, f, colliders)[0]
+        seen = []
+        for k in range(round(0.4 / m.opt.timestep)):
+            d.ctrl[:] = ctrl
+            mujoco.mj_step(m, d)
+            if k * m.opt.timestep >= 0.2:
+                seen.append(lowest_point(m, d, f, colliders)[0])
+        depth = max(0.0, -float(np.median(seen)))
+    _REST_DEPTHS[name] = depth
+    return depth
 
 
 def _add_filters(spec: mujoco.MjSpec) -> None:

@@ -24,18 +24,19 @@ from humimic.tracking.config import AdaptiveSampling, ResetNoise
 
 @dataclass
 class _Trace:
-    """What env 0 did, step by step, while its first episode lived."""
+    """What one env (``env``) did, step by step, while its first episode lived."""
 
     qpos: list[np.ndarray] = field(default_factory=list)
     qvel: list[np.ndarray] = field(default_factory=list)
     targets: list[np.ndarray] = field(default_factory=list)
     reward: list[float] = field(default_factory=list)
+    env: int = 0
 
     def add(self, env: Any, reward: float) -> None:
         r = env.backend.read()
-        self.qpos.append(np.array(r.qpos[0]))
-        self.qvel.append(np.array(r.qvel[0]))
-        self.targets.append(env.joint_targets[0].double().cpu().numpy())
+        self.qpos.append(np.array(r.qpos[self.env]))
+        self.qvel.append(np.array(r.qvel[self.env]))
+        self.targets.append(env.joint_targets[self.env].double().cpu().numpy())
         self.reward.append(reward)
 
 
@@ -43,10 +44,11 @@ def _episodes(
     env: Any,
     act: Any,
     episodes: int,
-    trace: _Trace | None = None,
+    trace: _Trace | list[_Trace] | None = None,
     record: dict[str, np.ndarray] | None = None,
 ) -> dict:
-    """Run one episode per env; returns the metrics. ``trace`` records env 0; ``record``
+    """Run one episode per env; returns the metrics. ``trace`` records its env (a list: one
+    env each); ``record``
     gets each episode's physics (``physics_e``, the normalized DR parameters ``e`` it ran
     under, :func:`~humimic.sim.randomization.param_layout`) and whether it ``failed``.
 
@@ -71,15 +73,17 @@ def _episodes(
 
     obs = env.get_observations()
     e0 = env.physics_params.clone()  # Each env plays one episode: the draw of its reset.
-    if trace is not None:
-        trace.add(env, 0.0)
+    traces = [] if trace is None else trace if isinstance(trace, list) else [trace]
+    for tr in traces:
+        tr.add(env, 0.0)
     threads = 1 if dev.type == "cpu" else torch.get_num_threads()  # As in training rollouts.
     with torch.inference_mode(), torch_threads(threads):
         while bool(alive.any()):
             obs, rew, dones, extras = env.step(act(obs))
             live = alive & ~dones  # Done envs were reset inside step: their state is new.
-            if trace is not None and bool(live[0]):
-                trace.add(env, float(rew[0]))
+            for tr in traces:
+                if bool(live[tr.env]):
+                    tr.add(env, float(rew[tr.env]))
             err = (s.body_pos_w - s.ref_body_pos_w).norm(dim=-1)  # (n, B)
             r = s.root_index
             rel = (s.body_pos_w - s.body_pos_w[:, r : r + 1]) - (
@@ -126,6 +130,9 @@ class Evaluation:
     param_layout: dict[str, slice] = field(default_factory=dict)
     """Where each DR quantity lies in ``physics_e``
     (:func:`~humimic.sim.randomization.param_layout`)."""
+    policy_traces: list[_Trace] = field(default_factory=list)
+    """The first ``traces`` policy episodes (:func:`run_evaluation`); ``policy`` is the
+    first."""
 
 
 def eval_inputs(s: EvalSettings) -> dict[str, Any]:
@@ -179,8 +186,15 @@ def evaluate(settings: EvalSettings) -> dict:
     return results
 
 
-def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluation:
+def run_evaluation(
+    settings: EvalSettings, *, open_loop: bool = True, traces: int = 1, reset_noise: bool = False
+) -> Evaluation:
     """Run the policy and, if ``open_loop``, the open loop (writes nothing).
+
+    ``traces``: how many of the policy's episodes to record step by step (at most
+    ``episodes``). ``reset_noise``: start each episode from the training's reset noise about
+    the first frame (episodes that differ as a robot's performances do) instead of exactly
+    on it.
 
     Every episode plays the whole clip from its first frame, without reset noise, under the
     physics of the chosen DR profile (``none``: the nominal robot) and the physics file, if
@@ -215,8 +229,9 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
     task = replace(
         base,
         start_frame=0,
-        reset=ResetNoise(pose=((0.0, 0.0),) * 6, velocity=((0.0, 0.0),) * 6,  # type: ignore[arg-type]
-                         joint_pos=(0.0, 0.0)),
+        reset=base.reset if reset_noise else
+        ResetNoise(pose=((0.0, 0.0),) * 6, velocity=((0.0, 0.0),) * 6,  # type: ignore[arg-type]
+                   joint_pos=(0.0, 0.0)),
         adaptive=AdaptiveSampling(enabled=False),
         episode_length_s=motion.num_frames * base.step_dt + 1.0,
     )  # fmt: skip
@@ -233,9 +248,10 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
         runner = make_runner(env, run_rsl_cfg(s.run, recorded), log_dir=None, device=s.device)
         load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
         policy = runner.get_inference_policy(device=s.device)
-        policy_trace = _Trace()
+        policy_traces = [_Trace(env=k) for k in range(max(1, min(traces, s.episodes)))]
+        policy_trace = policy_traces[0]
         record: dict[str, np.ndarray] = {}
-        results["policy"] = _episodes(env, policy, s.episodes, policy_trace, record)
+        results["policy"] = _episodes(env, policy, s.episodes, policy_traces, record)
         joint_names = env.joint_names
         layout = param_layout(env.backend.num_bodies_total, len(joint_names))
     finally:
@@ -243,7 +259,7 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
     open_trace = _Trace()
     if not open_loop:
         return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
-                          record, layout)  # fmt: skip
+                          record, layout, policy_traces)  # fmt: skip
     env = TrackingEnv(task, motion, n, device=s.device)
     try:
         st = env.state
@@ -267,7 +283,7 @@ def run_evaluation(settings: EvalSettings, *, open_loop: bool = True) -> Evaluat
     finally:
         env.close()
     return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
-                      record, layout)  # fmt: skip
+                      record, layout, policy_traces)  # fmt: skip
 
 
 def write_eval_mcap(
