@@ -40,3 +40,25 @@ def motion_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("motion") / "stand.npz"
     save_motion(motion_from_qpos(m, q, fps, "g1"), path)
     return path
+
+
+_LONG_FIRST = (
+    "test_real2sim_diagnose.py",
+    "test_real2sim_floating.py",
+    "test_real2sim.py",
+    "test_loop.py",
+    "test_imitate.py",
+    "test_browser.py",
+    "test_tracking_train.py",
+    "test_dynamics.py",
+)
+"""Modules whose tests take 15-60 s each (the diagnoses, end-to-end trainings, the browser)."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The long modules' tests run first, the many short ones after: two workers
+    (pytest-xdist) then share the short ones at the end instead of one waiting on the other's
+    last minute-long diagnosis. Order within a module is kept."""
+    del config
+    rank = {name: i for i, name in enumerate(_LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(_LONG_FIRST)))

@@ -56,7 +56,7 @@ def test_browser_draws_the_robot(tmp_path: Path, shared_data: Path) -> None:
     proc = _start_viewer(motion, port)
     try:
         png = screenshot(
-            f"http://127.0.0.1:{port}/", tmp_path / "shot.png", wait=6.0,
+            f"http://127.0.0.1:{port}/", tmp_path / "shot.png", wait=1.0,
             ready=lambda data: _dark_middle(_pixels(data)) > 200, timeout=60.0,
         )  # fmt: skip
     finally:

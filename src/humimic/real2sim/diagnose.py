@@ -190,7 +190,10 @@ def _pairs(
         one = np.array([j])
         spec = dict(_SINGLE)
         if peak[j] > 0:  # A drive that never pushes has no torque limit to find.
-            spec["torque_limit"] = (0.05 * peak[j], peak[j], peak[j], 0.8 * peak[j])
+            # Two decades below the peak: a drive that saturates lags its command, which
+            # inflates the commanded torque the peak is computed from (a 3.5 N m knee limit
+            # lay below 5 % of its peak on a 12 s log).
+            spec["torque_limit"] = (0.01 * peak[j], peak[j], peak[j], 0.8 * peak[j])
         for effect, (lo, hi, none, probe) in spec.items():
             out.append(_Pair(effect=effect, index=j, joints=one, lo=lo, hi=hi, none=none,
                              probe=probe))  # fmt: skip
