@@ -426,6 +426,14 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     assert 1.0 - failed.mean() == pytest.approx(ev.results["policy"]["success_rate"])
     friction = e[:, ev.param_layout["friction"]]
     assert np.abs(friction).max() <= 1.0 and friction.std() > 0.05  # Six different floors.
+    # Each episode recorded, from the first frame exactly or (--start-noise) about it.
+    for noise in (False, True):
+        ev = run_evaluation(EvalSettings(run=out, episodes=3, start_noise=noise),
+                            open_loop=False, traces=3)  # fmt: skip
+        firsts = np.stack([t.qpos[0] for t in ev.policy_traces])
+        assert [t.env for t in ev.policy_traces] == [0, 1, 2]
+        assert (np.ptp(firsts, axis=0).max() > 1e-3) == noise
+        assert ev.results["start_noise"] == noise
 
     # The first episode, beside the JSON, with the reference: what `humimic view` plays.
     from humimic.formats.mcap import qpos_from_log, read_mcap

@@ -497,6 +497,10 @@ class EvalSettings:
     """Torch device of the policy (``cpu``, ``cuda`` or ``cuda:N``)."""
     seed: int = 1
     """Seed of the evaluation's randomness."""
+    start_noise: bool = False
+    """Start each episode from the training's reset noise about the first frame (root pose
+    and velocity, joint positions) instead of exactly on it: how much the policy depends on
+    starting where the clip does."""
 
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""

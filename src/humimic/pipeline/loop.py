@@ -91,9 +91,10 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     clip = load_motion(motion or read_run_settings(run).motion)
     seconds = (clip.num_frames - 1) / clip.fps
     n = int(min(MAX_DEPLOY_EPISODES, max(1, np.ceil(s.sysid_duration / max(seconds, 0.1)))))
+    # Another seed than the deploy stage's evaluation: other reset-noise draws.
     settings = EvalSettings(run=run, episodes=n, motion=motion, physics=s.real,
-                            device=s.device, seed=s.seed + 1)  # fmt: skip
-    ev = run_evaluation(settings, open_loop=False, traces=n, reset_noise=True)
+                            device=s.device, seed=s.seed + 1, start_noise=True)  # fmt: skip
+    ev = run_evaluation(settings, open_loop=False, traces=n)
     logs = [_robot_log(run, ev.joint_names, ev.step_dt, tr)
             for tr in ev.policy_traces if len(tr.qpos) >= 2]  # fmt: skip
     if not logs:

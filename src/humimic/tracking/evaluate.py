@@ -187,16 +187,15 @@ def evaluate(settings: EvalSettings) -> dict:
 
 
 def run_evaluation(
-    settings: EvalSettings, *, open_loop: bool = True, traces: int = 1, reset_noise: bool = False
+    settings: EvalSettings, *, open_loop: bool = True, traces: int = 1
 ) -> Evaluation:
     """Run the policy and, if ``open_loop``, the open loop (writes nothing).
 
     ``traces``: how many of the policy's episodes to record step by step (at most
-    ``episodes``). ``reset_noise``: start each episode from the training's reset noise about
-    the first frame (episodes that differ as a robot's performances do) instead of exactly
-    on it.
+    ``episodes``).
 
-    Every episode plays the whole clip from its first frame, without reset noise, under the
+    Every episode plays the whole clip from its first frame (``--start-noise``: from the
+    training's reset noise about it, episodes that differ as a robot's performances do), under the
     physics of the chosen DR profile (``none``: the nominal robot) and the physics file, if
     any; the metrics are those of :func:`_episodes`. The open-loop baseline replays the
     reference's joint positions as PD targets (no policy; a refined motion's stored controls,
@@ -229,7 +228,7 @@ def run_evaluation(
     task = replace(
         base,
         start_frame=0,
-        reset=base.reset if reset_noise else
+        reset=base.reset if s.start_noise else
         ResetNoise(pose=((0.0, 0.0),) * 6, velocity=((0.0, 0.0),) * 6,  # type: ignore[arg-type]
                    joint_pos=(0.0, 0.0)),
         adaptive=AdaptiveSampling(enabled=False),
@@ -238,7 +237,8 @@ def run_evaluation(
     n = s.num_envs or s.episodes
     results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
                                "iterations": int(blob["iter"]), "dr": s.dr,
-                               "motion": str(motion_path), "frames": motion.num_frames}  # fmt: skip
+                               "motion": str(motion_path), "frames": motion.num_frames,
+                               "start_noise": s.start_noise}  # fmt: skip
     if base.physics is not None:
         results["physics"] = {"name": base.physics.name, **base.physics.as_dict()}
 
