@@ -22,5 +22,6 @@ echo "== pytest"
 # diagnosis tests do not end the run on one worker.
 # One OpenMP thread per worker: two workers of two spinning torch threads each on two cores
 # slowed the residual-network test from 43 s to 156 s.
-if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2 --dist worksteal; export OMP_NUM_THREADS=1; fi
+# The 15 slowest tests are listed at the end: where the 10 minutes go.
+if [ $# -eq 0 ]; then set -- -m "not network and not slow" -n 2 --dist worksteal --durations=15; export OMP_NUM_THREADS=1; fi
 .venv/bin/python -m pytest -q "$@"
