@@ -41,43 +41,57 @@ def deploy(s: LoopSettings, run: Path, out: Path) -> dict:
                     ev.open_loop, ev.results)  # fmt: skip
     results = dict(ev.results)
     if len(ev.policy.qpos) >= 2:
-        log = _robot_log(run, ev.joint_names, ev.step_dt, ev.policy)
+        (log,) = _robot_logs(run, ev.joint_names, ev.step_dt, [ev.policy])
         results["robot_log"] = str(write_robot_log(log, out / "robot_log.mcap"))
     atomic_write_text(out / "eval.json", json.dumps(json_ready(results), indent=2) + "\n")
     return results
 
 
-def _robot_log(run: Path, names: tuple[str, ...], dt: float, tr: Any) -> Any:
-    """One episode's trace as a floating-base robot log: states every control step, and the
+def _robot_logs(run: Path, names: tuple[str, ...], dt: float, traces: list[Any]) -> list[Any]:
+    """Each episode's trace as a floating-base robot log: states every control step, and the
     PD targets each step applied, stamped when that step began."""
-    from humimic.real2sim.robotlog import PoseTrack, RobotLog
+    from humimic.real2sim.robotlog import ImuLog, PoseTrack, RobotLog
     from humimic.robots import get_robot
     from humimic.robots.model import nominal_spec
     from humimic.tracking.runs import read_run_settings
+    from humimic.transforms import quat_mul, quat_to_matrix
 
     robot = get_robot(read_run_settings(run).robot)
     drives = nominal_spec(robot)[1]
-    qpos, qvel = np.stack(tr.qpos), np.stack(tr.qvel)
-    t = np.arange(len(qpos)) * dt
-    # The trace's targets[k] drove the step that ended at t[k]: sent at t[k - 1].
-    cmd = np.stack(tr.targets)[1:]
-    kp = np.tile([drives[n].kp for n in names], (len(cmd), 1))
-    kd = np.tile([drives[n].kd for n in names], (len(cmd), 1))
-    zeros = np.zeros_like(cmd)
+    kp = np.array([drives[n].kp for n in names])
+    kd = np.array([drives[n].kd for n in names])
+    site = _imu_site(robot)
     # A floating base has no fixed pose: the identity (a unit quaternion) stands in for it.
     identity = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-    return RobotLog(robot=robot.name, base="floating", base_pose=identity, joint_names=names,
-                    t=t, q=qpos[:, 7:], qd=qvel[:, 6:], effort=None, t_cmd=t[:-1],
-                    cmd_q=cmd, cmd_qd=zeros, cmd_tau=zeros, kp=kp, kd=kd,
-                    imu=_imu(robot, t, qpos, qvel),
-                    mocap=PoseTrack(t=t, pos_w=qpos[:, :3], quat_w=qpos[:, 3:7]))  # fmt: skip
+    logs = []
+    for tr in traces:
+        qpos, qvel = np.stack(tr.qpos), np.stack(tr.qvel)
+        t = np.arange(len(qpos)) * dt
+        # The trace's targets[k] drove the step that ended at t[k]: sent at t[k - 1].
+        cmd = np.stack(tr.targets)[1:]
+        zeros = np.zeros_like(cmd)
+        imu = None
+        if site is not None:  # Orientation and gyro at the IMU's site.
+            name, q_bs = site
+            imu = ImuLog(site=name, t=t,
+                         quat_w=quat_mul(qpos[:, 3:7], np.broadcast_to(q_bs, (len(t), 4))),
+                         gyro_b=qvel[:, 3:6] @ quat_to_matrix(q_bs), acc_b=None)  # fmt: skip
+        logs.append(RobotLog(
+            robot=robot.name, base="floating", base_pose=identity, joint_names=names, t=t,
+            q=qpos[:, 7:], qd=qvel[:, 6:], effort=None, t_cmd=t[:-1], cmd_q=cmd,
+            cmd_qd=zeros, cmd_tau=zeros, kp=np.tile(kp, (len(cmd), 1)),
+            kd=np.tile(kd, (len(cmd), 1)), imu=imu,
+            mocap=PoseTrack(t=t, pos_w=qpos[:, :3], quat_w=qpos[:, 3:7]),
+        ))  # fmt: skip
+    return logs
 
 
 def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     """Log the policy performing the clip on the real robot, episode after episode, as one
     deployment log (floating base, IMU, motion capture; 1 s between episodes), about
     ``--sysid-duration`` seconds of it. Each episode starts from the training's reset noise
-    about the first frame, as a robot's performances differ; one that falls ends there.
+    about the first frame (``humimic eval --start-noise``), so that the episodes differ; one
+    that falls ends there.
 
     Returns:
         What was logged: ``episodes``, ``falls``, ``seconds`` (of robot motion), ``log``.
@@ -95,8 +109,8 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     settings = EvalSettings(run=run, episodes=n, motion=motion, physics=s.real,
                             device=s.device, seed=s.seed + 1, start_noise=True)  # fmt: skip
     ev = run_evaluation(settings, open_loop=False, traces=n)
-    logs = [_robot_log(run, ev.joint_names, ev.step_dt, tr)
-            for tr in ev.policy_traces if len(tr.qpos) >= 2]  # fmt: skip
+    lived = [tr for tr in ev.policy_traces if len(tr.qpos) >= 2]
+    logs = _robot_logs(run, ev.joint_names, ev.step_dt, lived)
     if not logs:
         raise InputError(f"{run}: the policy fell at once in every episode on the real robot; "
                          "no deployment log to diagnose (use --sysid-log gantry)")  # fmt: skip
@@ -107,12 +121,10 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
             "seconds": float(sum(lg.duration for lg in logs))}  # fmt: skip
 
 
-def _imu(robot: Any, t: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> Any:
-    """The IMU a deployed robot logs, from its simulated base state (orientation and gyro at
-    the root body's ``*imu*`` site), or ``None`` when the root body has no such site."""
-    from humimic.real2sim.robotlog import ImuLog
+def _imu_site(robot: Any) -> tuple[str, np.ndarray] | None:
+    """The root body's ``*imu*`` site, where a deployed robot's IMU sits: its name and its
+    rotation in the body (w x y z), or ``None`` when the root body has none."""
     from humimic.sim.models import floating_prediction_spec
-    from humimic.transforms import quat_mul, quat_to_matrix
 
     m = floating_prediction_spec(robot).compile()
     root = m.body(robot.root_body).id
@@ -120,10 +132,7 @@ def _imu(robot: Any, t: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> Any:
              if m.site_bodyid[s] == root and "imu" in m.site(s).name.lower()]  # fmt: skip
     if not sites:
         return None
-    q_bs = m.site_quat[sites[0]] / np.linalg.norm(m.site_quat[sites[0]])
-    return ImuLog(site=m.site(sites[0]).name, t=t,
-                  quat_w=quat_mul(qpos[:, 3:7], np.broadcast_to(q_bs, (len(t), 4))),
-                  gyro_b=qvel[:, 3:6] @ quat_to_matrix(q_bs), acc_b=None)  # fmt: skip
+    return m.site(sites[0]).name, m.site_quat[sites[0]] / np.linalg.norm(m.site_quat[sites[0]])
 
 
 def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
@@ -188,8 +197,8 @@ def loop(settings: LoopSettings) -> dict:
     """Run the loop; returns ``loop.json``'s content.
 
     The "real" robot is a physics file (:mod:`humimic.sim.physics`). Only the deploy stage
-    (:func:`deploy`, :func:`deployment_session`, :func:`gantry_session`) reads it; the stages after it see what a team
-    would have from a real robot: logs.
+    (:func:`deploy`, :func:`deployment_session`, :func:`gantry_session`) reads it; the
+    stages after it see what a team would have from a real robot: logs.
 
     1. **Deploy** the run's policy on the real robot: closed-loop metrics against the open
        loop (``before/eval.json``, ``before/eval.mcap``) and the first episode as a robot log

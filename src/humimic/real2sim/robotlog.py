@@ -148,13 +148,14 @@ def join_logs(logs: list[RobotLog], pause: float = 1.0) -> RobotLog:
     dt = float(np.median(np.diff(first.t))) if first.t.size > 1 else 0.0
     if not (np.isfinite(pause) and pause > GAP * dt):
         raise InputError(f"join_logs: pause {pause} s must exceed {GAP} state intervals")
+
+    def kind(lg: RobotLog) -> tuple:
+        """What logs joined into one must share."""
+        return (lg.robot, lg.base, lg.joint_names, tuple(lg.base_pose), lg.effort is None,
+                lg.imu and lg.imu.site, lg.imu and lg.imu.acc_b is None, lg.mocap is None)  # fmt: skip
+
     for other in logs[1:]:
-        same = (other.robot, other.base, other.joint_names,
-                None if other.imu is None else other.imu.site, other.mocap is None,
-                other.effort is None) == (first.robot, first.base, first.joint_names,
-                None if first.imu is None else first.imu.site, first.mocap is None,
-                first.effort is None)  # fmt: skip
-        if not same or not np.array_equal(other.base_pose, first.base_pose):
+        if kind(other) != kind(first):
             raise InputError(f"join_logs: {other.where} is not a log of the same robot, "
                              f"joints and streams as {first.where}")  # fmt: skip
     shifted, end = [], 0.0

@@ -7,6 +7,7 @@ writes the rollouts for ``humimic view``).
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -32,11 +33,11 @@ class _Trace:
     reward: list[float] = field(default_factory=list)
     env: int = 0
 
-    def add(self, env: Any, reward: float) -> None:
-        r = env.backend.read()
-        self.qpos.append(np.array(r.qpos[self.env]))
-        self.qvel.append(np.array(r.qvel[self.env]))
-        self.targets.append(env.joint_targets[self.env].double().cpu().numpy())
+    def add(self, state: Any, targets: torch.Tensor, reward: float) -> None:
+        """One step: ``state`` the backend's read-out, ``targets`` every env's PD targets."""
+        self.qpos.append(np.array(state.qpos[self.env]))
+        self.qvel.append(np.array(state.qvel[self.env]))
+        self.targets.append(targets[self.env].double().cpu().numpy())
         self.reward.append(reward)
 
 
@@ -44,12 +45,11 @@ def _episodes(
     env: Any,
     act: Any,
     episodes: int,
-    trace: _Trace | list[_Trace] | None = None,
+    traces: Sequence[_Trace] = (),
     record: dict[str, np.ndarray] | None = None,
 ) -> dict:
-    """Run one episode per env; returns the metrics. ``trace`` records its env (a list: one
-    env each); ``record``
-    gets each episode's physics (``physics_e``, the normalized DR parameters ``e`` it ran
+    """Run one episode per env; returns the metrics. Each of ``traces`` records its env;
+    ``record`` gets each episode's physics (``physics_e``, the normalized DR parameters ``e`` it ran
     under, :func:`~humimic.sim.randomization.param_layout`) and whether it ``failed``.
 
     An episode succeeds if no tracking failure (a termination other than the clip's end)
@@ -73,17 +73,20 @@ def _episodes(
 
     obs = env.get_observations()
     e0 = env.physics_params.clone()  # Each env plays one episode: the draw of its reset.
-    traces = [] if trace is None else trace if isinstance(trace, list) else [trace]
-    for tr in traces:
-        tr.add(env, 0.0)
+    if traces:
+        state = env.backend.read()
+        for tr in traces:
+            tr.add(state, env.joint_targets, 0.0)
     threads = 1 if dev.type == "cpu" else torch.get_num_threads()  # As in training rollouts.
     with torch.inference_mode(), torch_threads(threads):
         while bool(alive.any()):
             obs, rew, dones, extras = env.step(act(obs))
             live = alive & ~dones  # Done envs were reset inside step: their state is new.
-            for tr in traces:
-                if bool(live[tr.env]):
-                    tr.add(env, float(rew[tr.env]))
+            if traces:
+                state = env.backend.read()  # Once for every traced env.
+                for tr in traces:
+                    if bool(live[tr.env]):
+                        tr.add(state, env.joint_targets, float(rew[tr.env]))
             err = (s.body_pos_w - s.ref_body_pos_w).norm(dim=-1)  # (n, B)
             r = s.root_index
             rel = (s.body_pos_w - s.body_pos_w[:, r : r + 1]) - (
@@ -195,7 +198,7 @@ def run_evaluation(
     ``episodes``).
 
     Every episode plays the whole clip from its first frame (``--start-noise``: from the
-    training's reset noise about it, episodes that differ as a robot's performances do), under the
+    training's reset noise about it, a shove at the start), under the
     physics of the chosen DR profile (``none``: the nominal robot) and the physics file, if
     any; the metrics are those of :func:`_episodes`. The open-loop baseline replays the
     reference's joint positions as PD targets (no policy; a refined motion's stored controls,
@@ -279,7 +282,7 @@ def run_evaluation(
             k = st.frame.clamp(max=len(targets) - 1)
             return env.action_for_targets(targets[k])
 
-        results["open_loop"] = _episodes(env, replay, s.episodes, open_trace)
+        results["open_loop"] = _episodes(env, replay, s.episodes, [open_trace])
     finally:
         env.close()
     return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
