@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 import platform
+import shlex
 import subprocess
 import sys
 import time
@@ -137,8 +138,11 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
                  "--quiet", *flags)  # fmt: skip
     elif not reused:
         _humimic("train", "--motion", str(args.motion), "--out", str(run), "--max-minutes",
-                 str(args.minutes), "--seed", str(args.seed), "--quiet", *RECIPES[name])  # fmt: skip
+                 str(args.minutes), "--seed", str(args.seed), "--quiet", *args.train_flags,
+                 *RECIPES[name])  # fmt: skip
     train_wall = time.perf_counter() - t0
+    if args.train_only:
+        return {"recipe": name, "train_wall_s": train_wall, **progress_rows(run)[-1]}
     progress = progress_rows(run)
     curve = evaluation_curve(run, episodes=args.curve_episodes, dr="default",
                              points=args.curve_points)  # fmt: skip
@@ -171,6 +175,11 @@ def main() -> None:
     parser.add_argument("--curve-episodes", type=int, default=8)
     parser.add_argument("--curve-points", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--train-flags", type=shlex.split, default=[],
+                        help="flags for every recipe's `humimic train`, one string: "
+                             "--train-flags='--backend warp --device cuda'")  # fmt: skip
+    parser.add_argument("--train-only", action="store_true",
+                        help="train, evaluate nothing (on a GPU machine; evaluate here with --reuse)")  # fmt: skip
     parser.add_argument("--reuse", action="store_true",
                         help="evaluate a recipe's run folder that exists instead of training")  # fmt: skip
     args = parser.parse_args()
@@ -181,6 +190,8 @@ def main() -> None:
         row["machine"] = machine
         print(json.dumps(row), flush=True)
         rows.append(row)
+    if args.train_only:
+        return
     summary = {
         r["recipe"]: {
             "dr_default": r["dr_default"]["policy"],
