@@ -108,6 +108,17 @@ def _humimic(*args: str) -> None:
         raise SystemExit(f"{' '.join(cmd)} failed ({done.returncode}):\n{done.stdout[-3000:]}")
 
 
+def _trained_on(run: Path, progress: list[dict]) -> str:
+    """Where and how long a run trained, from its own files (a reused run may come from a GPU
+    machine)."""
+    from humimic.tracking.runs import read_run_settings
+
+    s = read_run_settings(run)
+    where = (f"{s.device}, {s.backend} backend, {s.num_envs} envs" if s.device != "cpu"
+             else f"{os.cpu_count()} CPU cores")  # fmt: skip
+    return f"{progress[-1]['seconds'] / 60:.1f} min on {where}"
+
+
 def run_recipe(name: str, args: argparse.Namespace) -> dict:
     """Train one recipe for the budget, evaluate its curve and its last checkpoint."""
     from humimic.tracking.curve import (
@@ -146,9 +157,12 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
     progress = progress_rows(run)
     curve = evaluation_curve(run, episodes=args.curve_episodes, dr="default",
                              points=args.curve_points)  # fmt: skip
-    plot_learning_curve(progress, curve, run / "learning_curve.png",
-                        f"{name}: {args.motion.name}, {args.minutes:g} min on "
-                        f"{os.cpu_count()} CPU cores")  # fmt: skip
+    plot_learning_curve(
+        progress,
+        curve,
+        run / "learning_curve.png",
+        f"{name}: {args.motion.name}, {_trained_on(run, progress)}",
+    )
     flags = RECIPES[name] if name in RECIPES else {**DISTILLS, **FINETUNES}[name][1]
     result: dict = {"recipe": name, "flags": flags, "train_wall_s": train_wall,
                     "train_seconds": progress[-1]["seconds"], "env_steps": progress[-1]["env_steps"],
