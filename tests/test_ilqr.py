@@ -115,9 +115,9 @@ def test_one_iteration_solves_a_linear_quadratic_problem() -> None:
     assert out.steps == (1.0,) and out.cost == cost(out.controls) < out.initial_cost
 
 
-def _arm_problem():  # type: ignore[no-untyped-def]
-    """Reach a pose with the arm under gravity (nonlinear): the model, start, horizon,
-    decimation, stage model, exact cost and bounds of an iLQR polish."""
+def test_polish_lowers_a_nonlinear_cost_within_bounds() -> None:
+    """On the arm under gravity (nonlinear), from a plan that holds still: each iteration
+    keeps the exact cost from rising, the bounds hold, and the result replays to its cost."""
     model = mujoco.MjModel.from_xml_string(ARM)
     H, dec = 20, 4
     goal = np.array([-0.8, 1.2])
@@ -146,13 +146,6 @@ def _arm_problem():  # type: ignore[no-untyped-def]
         w[-1] = 10.0
         return float(np.sum(w[:, None] * (x[:, :2] - goal) ** 2))
 
-    return model, state, H, dec, stage, cost, lo, hi
-
-
-def test_polish_lowers_a_nonlinear_cost_within_bounds() -> None:
-    """On the arm under gravity (nonlinear), from a plan that holds still: each iteration
-    keeps the exact cost from rising, the bounds hold, and the result replays to its cost."""
-    model, state, H, dec, stage, cost, lo, hi = _arm_problem()
     start = np.zeros((H, 2))
     costs = [cost(start)]
     u = start
@@ -165,20 +158,6 @@ def test_polish_lowers_a_nonlinear_cost_within_bounds() -> None:
         assert abs(cost(u) - out.cost) < 1e-12
     assert np.all(u >= lo) and np.all(u <= hi)
     assert costs[-1] < 0.05 * costs[0], costs
-
-
-def test_the_polish_does_not_depend_on_its_threads() -> None:
-    """The threads split the control steps of the linearization (unevenly here, and more
-    threads than cores): every thread count gives the serial polish's plan, bit for bit."""
-    model, state, H, dec, stage, cost, lo, hi = _arm_problem()
-    plans = [
-        ilqr(model, state, np.zeros(2), np.zeros((H, 2)), decimation=dec, stage=stage,
-             cost=cost, lower=lo, upper=hi, iterations=3, threads=n).controls
-        for n in (1, 3, 7)
-    ]  # fmt: skip
-    assert np.abs(plans[0]).max() > 0.1  # The polish moved the plan.
-    for plan in plans[1:]:
-        np.testing.assert_array_equal(plan, plans[0])
 
 
 def test_riccati_gains_equal_the_batch_least_squares_optimum() -> None:

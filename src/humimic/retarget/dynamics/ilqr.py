@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import mujoco
@@ -52,7 +50,6 @@ def ilqr(
     iterations: int,
     eps: float = 1e-6,
     mu: float = 2e-2,
-    threads: int | None = None,
 ) -> IlqrResult:
     """Polish ``controls`` from ``state`` by ``iterations`` of iLQR.
 
@@ -94,10 +91,6 @@ def ilqr(
         iterations: Most iterations; fewer if the regularization grows past 1e4.
         eps: Finite-difference step of the transition derivatives.
         mu: Initial regularization.
-        threads: Threads that linearize the plan (default: every core). The plan is rolled
-            out once, keeping each control step's start state; the steps' Jacobians and stage
-            models are then independent, and each thread takes a contiguous run of steps from
-            its own ``MjData`` (MuJoCo releases the GIL). The result does not depend on it.
 
     Returns:
         The polished plan and its exact cost.
@@ -121,75 +114,48 @@ def ilqr(
     A, B = np.zeros((H, nx, nx)), np.zeros((H, nx, nu))
     lx, lxx = np.zeros((H + 1, nx)), np.zeros((H + 1, nx, nx))
     lu, luu = np.zeros((H, nu)), np.zeros((H, nu, nu))
-    # The start state (and solver warm start) of every control step of the current plan.
-    xs = np.zeros((H, mujoco.mj_stateSize(model, spec)))
-    ws = np.zeros((H, nv))
-    n = max(1, min(H, threads or os.cpu_count() or 1))
-    datas = [mujoco.MjData(model) for _ in range(n)]
-
-    def linearize(k: int) -> None:
-        """Jacobians and stage models of the control steps in thread ``k``'s share."""
-        dk = datas[k]
-        for t in range(k * H // n, (k + 1) * H // n):
-            mujoco.mj_setState(model, dk, xs[t], spec)
-            dk.qacc_warmstart[:] = ws[t]
-            A[t], B[t] = control_step_jacobians(model, dk, u[t], decimation, eps)
-            r, J, lu[t], luu[t] = stage(dk, t, u[t])
-            lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
-            lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
-
-    pool = ThreadPoolExecutor(n) if n > 1 else None
     stale = True  # The linearization is not the current plan's (a rejected step keeps it).
-    try:
-        for _ in range(iterations):
-            if stale:
-                d = start()
-                xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
-                for t in range(H):
-                    mujoco.mj_getState(model, d, xs[t], spec)
-                    ws[t] = d.qacc_warmstart
-                    d.ctrl[:] = u[t]
-                    for _ in range(decimation):
-                        mujoco.mj_step(model, d)
-                    xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
-                if pool is None:
-                    linearize(0)
-                else:
-                    list(pool.map(linearize, range(n)))
-                stale = False
-            gains = None
-            while gains is None and mu <= 1e4:
-                gains = riccati(lx, lxx, lu, luu, A, B, mu)
-                if gains is None:
-                    mu *= 10.0
+    for _ in range(iterations):
+        if stale:
+            d = start()
+            xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
+            for t in range(H):
+                A[t], B[t] = control_step_jacobians(model, d, u[t], decimation, eps)
+                xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
+                r, J, lu[t], luu[t] = stage(d, t, u[t])
+                lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
+                lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
+            stale = False
+        gains = None
+        while gains is None and mu <= 1e4:
+            gains = riccati(lx, lxx, lu, luu, A, B, mu)
             if gains is None:
-                break
-            k, K = gains
-            # Line search on the exact cost, with the feedback closing the loop on the way.
-            taken = 0.0
-            for alpha in (1.0, 0.5, 0.25, 0.1):
-                d, un = start(), np.zeros_like(u)
-                for t in range(H):
-                    mujoco.mj_differentiatePos(model, dq, 1.0, xq[t], d.qpos)
-                    dx = np.concatenate([dq, d.qvel - xv[t], d.act - xa[t]])
-                    un[t] = np.clip(u[t] + alpha * k[t] + K[t] @ dx, lower, upper)
-                    d.ctrl[:] = un[t]
-                    for _ in range(decimation):
-                        mujoco.mj_step(model, d)
-                cn = float(cost(un))
-                if cn < c:
-                    u, c, taken, stale = un, cn, alpha, True
-                    break
-            steps.append(taken)
-            if taken:
-                mu = max(mu / 3.0, 2e-4)
-            else:
                 mu *= 10.0
-                if mu > 1e4:
-                    break
-    finally:
-        if pool is not None:
-            pool.shutdown()
+        if gains is None:
+            break
+        k, K = gains
+        # Line search on the exact cost, with the feedback closing the loop on the way.
+        taken = 0.0
+        for alpha in (1.0, 0.5, 0.25, 0.1):
+            d, un = start(), np.zeros_like(u)
+            for t in range(H):
+                mujoco.mj_differentiatePos(model, dq, 1.0, xq[t], d.qpos)
+                dx = np.concatenate([dq, d.qvel - xv[t], d.act - xa[t]])
+                un[t] = np.clip(u[t] + alpha * k[t] + K[t] @ dx, lower, upper)
+                d.ctrl[:] = un[t]
+                for _ in range(decimation):
+                    mujoco.mj_step(model, d)
+            cn = float(cost(un))
+            if cn < c:
+                u, c, taken, stale = un, cn, alpha, True
+                break
+        steps.append(taken)
+        if taken:
+            mu = max(mu / 3.0, 2e-4)
+        else:
+            mu *= 10.0
+            if mu > 1e4:
+                break
     return IlqrResult(controls=u, cost=c, initial_cost=c0, steps=tuple(steps))
 
 

@@ -498,7 +498,6 @@ class DynamicsRetargeter:
             self.model, state, warm, u, decimation=self.decimation, stage=stage,
             cost=lambda plan: self._plan_cost(state, warm, plan, f0),
             lower=self.ctrl_lo, upper=self.ctrl_hi, iterations=self.cfg.polish_iterations,
-            threads=self.backend.nthread,
         )  # fmt: skip
         return out.controls, out.cost
 
