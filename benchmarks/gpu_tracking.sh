@@ -9,8 +9,9 @@
 # There, call 2 (carry .gpuB):  bash benchmarks/gpu_tracking.sh run SECONDS
 #   SECONDS: the whole call's budget; each recipe gets min(3 minutes, its share of what the
 #   install and the compile warm-up leave).
-# Back here: tar -xf the run tars into RUNS, strip nothing more, then
-#   .venv/bin/python benchmarks/tracking_recipes.py --motion walk.npz --out RUNS --reuse ...
+# Back here (the run folders' config.yaml name /tmp/runs/RECIPE/reference.npz, so unpack there):
+#   for r in default beyondmimic; do cat FILES/$r.tar.* | tar -x -C /tmp/runs; done
+#   .venv/bin/python benchmarks/tracking_recipes.py --motion walk.npz --out /tmp/runs --reuse ...
 set -uo pipefail
 site=/tmp/site stash=/root/stash
 export PYTHONPATH=$site:$PWD/src PYTHONUNBUFFERED=1 MENAGERIE_ROOT=/tmp/menagerie
@@ -28,7 +29,8 @@ torch.__version__, torch.cuda.get_device_name(), 'mujoco', mujoco.__version__)" 
   python3 -m humimic.cli.main train --help > /dev/null && echo "humimic train --help: ok"
   touch $stash/installed; ls -la $stash ;;
 run)
-  budget=${2:?seconds}
+  budget=${2:-}
+  [[ $budget =~ ^[0-9]+$ ]] || { echo "gpu_tracking.sh run SECONDS: a whole number of seconds"; exit 2; }
   [ -f $stash/installed ] || { echo "no stash: run setup first"; exit 1; }
   mkdir -p $site && tar -xJf .gpuB/warp_py.tar.xz -C $site || exit 1
   cat $stash/warp.so.xz.a .gpuB/warp.so.xz.b | xz -d -T0 > $site/warp/bin/warp.so || exit 1

@@ -152,9 +152,9 @@ def run_recipe(name: str, args: argparse.Namespace) -> dict:
                  str(args.minutes), "--seed", str(args.seed), "--quiet", *args.train_flags,
                  *RECIPES[name])  # fmt: skip
     train_wall = time.perf_counter() - t0
-    if args.train_only:
-        return {"recipe": name, "train_wall_s": train_wall, **progress_rows(run)[-1]}
     progress = progress_rows(run)
+    if args.train_only:
+        return {"recipe": name, "train_wall_s": train_wall, **progress[-1]}
     curve = evaluation_curve(run, episodes=args.curve_episodes, dr="default",
                              points=args.curve_points)  # fmt: skip
     plot_learning_curve(
