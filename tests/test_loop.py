@@ -90,6 +90,10 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     # A deployment log with the IMU and mocap a robot on the floor reports, which the
     # predictions read (the base's state rebuilt from them, not from the simulator).
     assert log.imu is not None and log.imu.site == "imu_in_pelvis" and log.mocap is not None
+    # Standing the first 0.4 s: on average about gravity's reaction, up (the pelvis upright).
+    assert log.imu.acc_b is not None
+    up = float(np.mean(log.imu.acc_b[:20, 2]))
+    assert 9.3 < up < 10.3 and np.all(np.abs(np.mean(log.imu.acc_b[:20, :2], axis=0)) < 1.0)
     assert main(["sysid", "residual", str(out / "before" / "robot_log.mcap"), "--horizon",
                  "0.1", "--report", str(tmp_path / "res.json")]) == 0  # fmt: skip
     res = json.loads((tmp_path / "res.json").read_text())

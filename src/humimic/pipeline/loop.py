@@ -71,11 +71,19 @@ def _robot_logs(run: Path, names: tuple[str, ...], dt: float, traces: list[Any])
         cmd = np.stack(tr.targets)[1:]
         zeros = np.zeros_like(cmd)
         imu = None
-        if site is not None:  # Orientation and gyro at the IMU's site.
-            name, q_bs = site
-            imu = ImuLog(site=name, t=t,
-                         quat_w=quat_mul(qpos[:, 3:7], np.broadcast_to(q_bs, (len(t), 4))),
-                         gyro_b=qvel[:, 3:6] @ quat_to_matrix(q_bs), acc_b=None)  # fmt: skip
+        if site is not None:  # Orientation, gyro and accelerometer at the IMU's site.
+            name, q_bs, p_bs, gravity = site
+            quat_ws = quat_mul(qpos[:, 3:7], np.broadcast_to(q_bs, (len(t), 4)))
+            R_wb = quat_to_matrix(qpos[:, 3:7])
+            omega_w = np.einsum("nij,nj->ni", R_wb, qvel[:, 3:6])
+            v_site = qvel[:, :3] + np.cross(omega_w, R_wb @ p_bs)
+            # A sampled accelerometer reads the mean specific force between its neighbouring
+            # samples (as a low-pass filter before sampling would): the site's velocity
+            # differenced, gravity taken out, in the IMU's axes.
+            f_w = np.gradient(v_site, t, axis=0) - gravity
+            acc_b = np.einsum("nji,nj->ni", quat_to_matrix(quat_ws), f_w)
+            imu = ImuLog(site=name, t=t, quat_w=quat_ws,
+                         gyro_b=qvel[:, 3:6] @ quat_to_matrix(q_bs), acc_b=acc_b)  # fmt: skip
         logs.append(RobotLog(
             robot=robot.name, base="floating", base_pose=identity, joint_names=names, t=t,
             q=qpos[:, 7:], qd=qvel[:, 6:], effort=None, t_cmd=t[:-1], cmd_q=cmd,
@@ -121,9 +129,10 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
             "seconds": float(sum(lg.duration for lg in logs))}  # fmt: skip
 
 
-def _imu_site(robot: Any) -> tuple[str, np.ndarray] | None:
-    """The root body's ``*imu*`` site, where a deployed robot's IMU sits: its name and its
-    rotation in the body (w x y z), or ``None`` when the root body has none."""
+def _imu_site(robot: Any) -> tuple[str, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The root body's ``*imu*`` site, where a deployed robot's IMU sits: its name, its
+    rotation (w x y z) and position in the body, and the model's gravity [m/s^2]; ``None``
+    when the root body has none."""
     from humimic.sim.models import floating_prediction_spec
 
     m = floating_prediction_spec(robot).compile()
@@ -132,7 +141,9 @@ def _imu_site(robot: Any) -> tuple[str, np.ndarray] | None:
              if m.site_bodyid[s] == root and "imu" in m.site(s).name.lower()]  # fmt: skip
     if not sites:
         return None
-    return m.site(sites[0]).name, m.site_quat[sites[0]] / np.linalg.norm(m.site_quat[sites[0]])
+    s = sites[0]
+    return (m.site(s).name, m.site_quat[s] / np.linalg.norm(m.site_quat[s]),
+            m.site_pos[s].copy(), m.opt.gravity.copy())  # fmt: skip
 
 
 def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:

@@ -173,8 +173,7 @@ class Predictor:
         self.base: BaseEstimate | None = None
         """The floating base's state at each window's start (``None``: a fixed base)."""
         if fj is not None:
-            self.base = estimate_base(model, log, log.t[self.starts], log.q[self.starts],
-                                      log.qd[self.starts])  # fmt: skip
+            self.base = estimate_base(model, log, self.starts)
         self.nthread = nthread or os.cpu_count() or 1
         self._datas: dict[tuple[int, ...], list[mujoco.MjData]] = {}
         self._index_cache: dict[float, np.ndarray] = {}
