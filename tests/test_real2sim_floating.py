@@ -17,7 +17,7 @@ import pytest
 
 from humimic.cli.main import main
 from humimic.real2sim import LogSettings, RobotLog, read_robot_log, simulate_log, write_robot_log
-from humimic.real2sim.floating import smooth_track
+from humimic.real2sim.floating import prediction_step, smooth_track
 from humimic.real2sim.residual import Predictor, kstep_error
 from humimic.robots import get_robot
 from humimic.sim.effects import Correction, parse_injection
@@ -136,6 +136,13 @@ def test_the_smoother_skips_a_slipping_stance_foot() -> None:
     sig = np.full(p.shape, np.inf)
     _, vs = smooth_track(t, a + rng.normal(0, 0.05, a.shape), np.zeros_like(p), sig, stance, 0.3)
     assert float(np.sqrt(np.mean((vs - v) ** 2))) < 0.03
+
+
+@pytest.mark.parametrize(("rate", "step_ms"),
+                         [(50, 5.0), (200, 5.0), (500, 2.0), (1000, 1.0), (125, 4.0), (2000, 1.0)])  # fmt: skip
+def test_the_prediction_step_divides_the_state_interval(rate: int, step_ms: float) -> None:
+    log = replace(_log(), t=np.arange(40) / rate)
+    assert prediction_step(log) == pytest.approx(step_ms * 1e-3)
 
 
 @pytest.mark.parametrize("mocap", [True, False])

@@ -30,6 +30,7 @@ from humimic.real2sim.diagnose import (
     diagnose_log,
     fit_predictors,
 )
+from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
@@ -90,6 +91,7 @@ def load_robot_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotLog]:
             f"{path}: a floating-base log needs topic /imu (the base's orientation and angular "
             'velocity) and metadata robot.imu_site for predictions (docs/real2sim.md, "Logs")'
         )
+    model.opt.timestep = prediction_step(log)
     return robot, model, log
 
 

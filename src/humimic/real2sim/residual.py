@@ -17,7 +17,7 @@ from humimic.real2sim.robotlog import RobotLog
 from humimic.sim import rollout
 from humimic.sim.effects import Correction
 from humimic.sim.joints import JointMap
-from humimic.sim.models import PHYSICS_DT
+from humimic.sim.models import MAX_STEP, PHYSICS_DT
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED
@@ -109,9 +109,12 @@ class Predictor:
         if fj is None and log.base != "fixed":
             raise InputError(f"{where}: a floating-base log (robot on the floor) needs a "
                              "floating-base model")  # fmt: skip
-        if abs(model.opt.timestep - PHYSICS_DT) > 1e-12:
+        self.dt = float(model.opt.timestep)
+        """The physics step [s] the predictions take (the model's)."""
+        if not PHYSICS_DT - 1e-12 <= self.dt <= MAX_STEP + 1e-12:
             raise InputError(
-                f"predictions step at {PHYSICS_DT} s; the model steps at {model.opt.timestep}"
+                f"predictions step at {PHYSICS_DT * 1e3:g} to {MAX_STEP * 1e3:g} ms; the "
+                f"model steps at {self.dt * 1e3:g} ms"
             )
         for gains, what in ((log.kp, "kp"), (log.kd, "kd")):
             changed = np.flatnonzero(np.ptp(gains, axis=0) > 1e-9 * (1 + np.abs(gains).max()))
@@ -128,11 +131,11 @@ class Predictor:
         self.horizon = horizon
         stride = horizon if stride is None else stride
         dt_state = float(np.median(np.diff(log.t)))
-        self.sub = round(dt_state / PHYSICS_DT)
-        if self.sub < 1 or abs(self.sub * PHYSICS_DT - dt_state) > 0.05 * dt_state:
+        self.sub = round(dt_state / self.dt)
+        if self.sub < 1 or abs(self.sub * self.dt - dt_state) > 0.05 * dt_state:
             raise InputError(
                 f"{where}: states every {dt_state * 1e3:.3g} ms: need a multiple of "
-                f"{PHYSICS_DT * 1e3} ms"
+                f"{self.dt * 1e3:g} ms"
             )
         self.samples = round(horizon / dt_state)
         if self.samples < 1:
@@ -168,7 +171,7 @@ class Predictor:
         steps = self.samples * self.sub
         # Time at the start of every physics step of every window, and of the step after the
         # window (its command is the one in force at the last sample).
-        self.clock = log.t[self.starts][:, None] + PHYSICS_DT * np.arange(steps + 1)[None, :]
+        self.clock = log.t[self.starts][:, None] + self.dt * np.arange(steps + 1)[None, :]
         self._act_log = JointMap.of(model).act_log
         self.base: BaseEstimate | None = None
         """The floating base's state at each window's start (``None``: a fixed base)."""
@@ -245,10 +248,10 @@ class Predictor:
             tau = m.actuator_dynprm[:, 0]
             for a in np.flatnonzero(tau > 0):  # ... unless it filters: run its filter.
                 j = jm.act_log[a]
-                n = min(int(np.ceil(16 * tau[a] / PHYSICS_DT)), 4000)
-                back = log.t[self.starts][:, None] - PHYSICS_DT * np.arange(n, 0, -1)[None, :]
+                n = min(int(np.ceil(16 * tau[a] / self.dt)), 4000)
+                back = log.t[self.starts][:, None] - self.dt * np.arange(n, 0, -1)[None, :]
                 u = log.cmd_q[self._in_force(float(c.delay[a]), back), j] - c.offset[j]
-                alpha = 1.0 - np.exp(-PHYSICS_DT / tau[a])
+                alpha = 1.0 - np.exp(-self.dt / tau[a])
                 x = u[:, 0].copy()
                 for k in range(1, n):
                     x += alpha * (u[:, k] - x)
@@ -346,7 +349,7 @@ class Predictor:
         tau = m.actuator_dynprm[:, 0]
         for a in np.flatnonzero((tau > 0) & (m.actuator_actadr >= 0)):
             act = state[..., lay["act"].start + m.actuator_actadr[a]]
-            u[..., a] = act + (u[..., a] - act) * (1.0 - np.exp(-PHYSICS_DT / tau[a]))
+            u[..., a] = act + (u[..., a] - act) * (1.0 - np.exp(-self.dt / tau[a]))
         j = jm.act_log
         kp, kd = self.kp * c.gain_scale, self.kd * c.gain_scale
         f = kp * (u - q[..., j]) - kd * qd[..., j]

@@ -23,6 +23,9 @@ _REDUCE_NETFORCE = 3
 
 PHYSICS_DT = 0.001
 """Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
+MAX_STEP = 0.005
+"""The longest step [s] a prediction on the floor takes (the tracking env's): see
+:func:`humimic.real2sim.floating.prediction_step`."""
 
 
 def _mesh_free_spec(
