@@ -22,7 +22,8 @@ _CONTACT_FORCE = 1 << int(mujoco.mjtConDataField.mjCONDATA_FORCE)
 _REDUCE_NETFORCE = 3
 
 PHYSICS_DT = 0.001
-"""Simulation step of logs and predictions [s]: the drives' PD runs at 1 kHz."""
+"""Simulation step of simulated logs and of gantry predictions [s]: the drives' PD runs at
+1 kHz (predictions on the floor may step longer, up to :data:`MAX_STEP`)."""
 MAX_STEP = 0.005
 """The longest step [s] a prediction on the floor takes (the tracking env's): see
 :func:`humimic.real2sim.floating.prediction_step`."""
