@@ -1,6 +1,7 @@
 """Deployment logs (a G1 standing on the floor, swaying under its balance controller): the
-nominal model's k-step prediction error, with the base state rebuilt from the IMU and the
-contact, with and without motion capture, on a clean log and on logs with undeclared effects;
+nominal model's k-step prediction error, with the base state rebuilt from the log
+(humimic.real2sim.floating.estimate_base) with and without motion capture, at the step
+``humimic sysid diagnose`` predicts at (``prediction_step``), on a clean log and on logs with undeclared effects;
 with ``--diagnose``, the diagnosis search (the Python API ``humimic sysid diagnose`` runs) on
 each. Prints one JSON line per case and a summary object.
 
@@ -19,6 +20,7 @@ import time
 import numpy as np
 
 from humimic.real2sim import LogSettings, diagnose_log, simulate_log
+from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.residual import Predictor
 from humimic.robots import get_robot
 from humimic.sim.effects import Correction, parse_injection
@@ -51,6 +53,7 @@ def main() -> None:
             settings = LogSettings(duration=args.duration, base="floating", mocap=mocap,
                                    seed=args.seed)  # fmt: skip
             log = simulate_log(robot, injections, settings)
+            model.opt.timestep = prediction_step(log)  # As `humimic sysid diagnose` steps.
             t1 = time.perf_counter()
             p = Predictor(model, log, horizon=0.5)
             err = p.error(Correction.of(model))

@@ -7,6 +7,7 @@ the IMU and the contact (:mod:`humimic.real2sim.floating`), not from the simulat
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import replace
 from functools import cache
@@ -247,7 +248,9 @@ def test_a_clean_deployment_log_yields_no_confident_claim() -> None:
     from humimic.real2sim.diagnose import CLAIM
 
     log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=5))
-    d = diagnose_log(_model(), log)
+    model = copy.copy(_model())
+    model.opt.timestep = prediction_step(log)  # As `humimic sysid diagnose` steps it: 5 ms.
+    d = diagnose_log(model, log)
     assert [f for f in d.findings if f.confidence >= CLAIM] == []
 
 
