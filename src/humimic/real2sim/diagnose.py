@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
+from humimic.real2sim.floating import BaseEstimate
 from humimic.real2sim.residual import Predictor
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.registry import RobotConfig
@@ -576,20 +577,24 @@ def backlash_models(
 
 
 def fit_predictors(
-    model: mujoco.MjModel, log: RobotLog, horizon: float
+    model: mujoco.MjModel, log: RobotLog, horizon: float, base_track: BaseEstimate | None = None
 ) -> tuple[Predictor, Predictor, Predictor]:
     """The fit-part predictors of a diagnosis: A for the secant fits (every other window of
     A), A and B for scoring (A and B interleave: alternate windows of the fit span, so that
-    both see every kind of motion the log has).
+    both see every kind of motion the log has). The floating base (if any) is estimated once for the three, or ``base_track`` is used
+    (see :class:`~humimic.real2sim.residual.Predictor`).
 
     Raises:
         InputError: The log is too short for the horizon (naming the log file and
             ``--horizon``), or its fit part has fewer than :data:`MIN_FIT_SAMPLES` states.
     """
     fit = (0.0, FIT_END)
-    fit_a = Predictor(model, log, horizon=horizon, span=fit, every=4, phase=0)
-    score_a = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=0)
-    score_b = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=1)
+    fit_a = Predictor(model, log, horizon=horizon, span=fit, every=4, phase=0,
+                      base_track=base_track)  # fmt: skip
+    score_a = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=0,
+                        base_track=fit_a.track)  # fmt: skip
+    score_b = Predictor(model, log, horizon=horizon, span=fit, every=2, phase=1,
+                        base_track=fit_a.track)  # fmt: skip
     n = int(np.searchsorted(log.t, log.t[0] + FIT_END * log.duration))
     if n < MIN_FIT_SAMPLES:
         raise InputError(

@@ -203,8 +203,10 @@ def smooth_track(
     return xs[:, :, 0], xs[:, :, 1]
 
 
-def estimate_base(model: mujoco.MjModel, log: RobotLog, idx: np.ndarray) -> BaseEstimate:
-    """The floating base's coordinates at the log's state samples ``idx``.
+def estimate_base(
+    model: mujoco.MjModel, log: RobotLog, idx: np.ndarray | None = None
+) -> BaseEstimate:
+    """The floating base's coordinates at the log's state samples ``idx`` (default: all).
 
     Orientation and angular velocity come from the IMU (its site's fixed rotation in the root
     body undone). Position and linear velocity come from the whole log at once
@@ -219,7 +221,7 @@ def estimate_base(model: mujoco.MjModel, log: RobotLog, idx: np.ndarray) -> Base
     Args:
         model: A floating-base model with the log's joints (and the IMU's site).
         log: The log, with ``/imu``.
-        idx: State sample indices. Shape: (n,).
+        idx: State sample indices (``None``: every sample). Shape: (n,).
 
     Raises:
         InputError: No IMU, an IMU site the model lacks or that is not on the root body, or
@@ -301,7 +303,7 @@ def estimate_base(model: mujoco.MjModel, log: RobotLog, idx: np.ndarray) -> Base
         p_s[part], v_s[part] = smooth_track(
             t[part], None if acc is None else acc[part], pos[part] + r_w[part], sigma[part],
             v_stance[part] + lever_v[part], SIGMA_STANCE)  # fmt: skip
-    idx = np.asarray(idx, dtype=np.int64)
+    idx = np.arange(n) if idx is None else np.asarray(idx, dtype=np.int64)
     qpos, qvel = np.zeros((idx.size, 7)), np.zeros((idx.size, 6))
     qpos[:, :3] = (p_s - r_w)[idx]
     qpos[:, 3:] = quat_wb[idx]

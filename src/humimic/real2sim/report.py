@@ -182,7 +182,7 @@ def run_diagnosis(
         )
     # Every check on the log and the horizon comes before the output folder is made.
     held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
-    fit_predictors(model, log, horizon)
+    fit_predictors(model, log, horizon, held.track)
     out = out_dir
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
         check_not_input(out / name, {"the log": log_path}, "--out-dir")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -76,6 +76,9 @@ class Predictor:
         every, phase: Keep every ``every``-th window of the span, starting at ``phase``
             (interleaved subsets for cross-validation).
         nthread: Rollout threads (default: the CPU count).
+        base_track: A floating base's :func:`~humimic.real2sim.floating.estimate_base` at
+            every state sample of this log and model (another predictor's :attr:`track`),
+            so that predictors of one log estimate it once (default: estimated here).
     """
 
     def __init__(
@@ -89,6 +92,7 @@ class Predictor:
         every: int = 1,
         phase: int = 0,
         nthread: int | None = None,
+        base_track: BaseEstimate | None = None,
     ) -> None:
         where = log.where
         if not (np.isfinite(horizon) and horizon > 0):
@@ -173,10 +177,16 @@ class Predictor:
         # window (its command is the one in force at the last sample).
         self.clock = log.t[self.starts][:, None] + self.dt * np.arange(steps + 1)[None, :]
         self._act_log = JointMap.of(model).act_log
+        self.track: BaseEstimate | None = None
+        """The floating base's state at every state sample (``None``: a fixed base)."""
         self.base: BaseEstimate | None = None
         """The floating base's state at each window's start (``None``: a fixed base)."""
         if fj is not None:
-            self.base = estimate_base(model, log, self.starts)
+            self.track = base_track or estimate_base(model, log)
+            if len(self.track.qpos) != log.t.size:
+                raise ValueError("base_track: one state per state sample of the log expected")
+            self.base = replace(self.track, qpos=self.track.qpos[self.starts],
+                                qvel=self.track.qvel[self.starts])  # fmt: skip
         self.nthread = nthread or os.cpu_count() or 1
         self._datas: dict[tuple[int, ...], list[mujoco.MjData]] = {}
         self._index_cache: dict[float, np.ndarray] = {}
