@@ -33,6 +33,7 @@ RUNNERS: dict[type, Callable[[Any], int | None]] = {
     sysid.SysidSimulate: sysid.run_simulate,
     sysid.SysidResidual: sysid.run_residual,
     sysid.SysidDiagnose: sysid.run_diagnose,
+    sysid.SysidImport: sysid.run_import,
     fetch.FetchCommand: fetch.run_fetch,
     TrainSettings: track.run_train,
     DistillSettings: track.run_distill,

@@ -1,4 +1,4 @@
-"""``humimic sysid simulate|residual|diagnose``: real2sim on robot logs."""
+"""``humimic sysid simulate|residual|diagnose|import``: real2sim on robot logs."""
 
 from __future__ import annotations
 
@@ -66,6 +66,37 @@ class SysidDiagnose:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SysidImport:
+    """Turn another recorder's robot log into humimic's MCAP contract: a Unitree low-state log
+    (.npz or .csv; arrays named after unitree_sdk2's LowState/LowCmd fields) or a ROS 2 bag
+    (JointState, Imu and a command topic; docs/real2sim.md, "Real logs in")."""
+
+    src: Annotated[Path, tyro.conf.Positional]
+    """The recorder's log: .npz, .csv, or a ROS 2 bag (folder, .db3 or .mcap)."""
+    robot: RobotName = "g1"
+    """Robot name from the registry (`humimic robots list`)."""
+    out: Path
+    """Output .mcap file."""
+    map: Path | None = None
+    """YAML: joints (source joint or motor index -> model joint), ignore (source joints not in
+    the model), gains (kp/kd per model joint or '*', for commands that carry none)."""
+    base: Literal["floating", "fixed"] = "floating"
+    """floating: on the floor (needs the IMU); fixed: hanging in a gantry (needs --base-pose)."""
+    base_pose: tuple[float, float, float, float, float, float, float] | None = None
+    """Fixed base: X Y Z QW QX QY QZ of the root body in the gantry."""
+    imu_site: str = ""
+    """The model site the IMU sits at (default: the root body's site named *imu*)."""
+    states_topic: str = "/joint_states"
+    """ROS 2: sensor_msgs/JointState, or a Unitree LowState (motors and IMU)."""
+    commands_topic: str = "/joint_commands"
+    """ROS 2: sensor_msgs/JointState of targets (gains from --map), or a Unitree LowCmd."""
+    imu_topic: str = "/imu"
+    """ROS 2: sensor_msgs/Imu (empty: the LowState's IMU, or none for a fixed base)."""
+    base_pose_topic: str = ""
+    """ROS 2: geometry_msgs/PoseStamped of the root body from motion capture (empty: none)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class SysidCommand:
     """Real2sim: simulate robot logs with injected effects; measure the simulator's residual."""
 
@@ -73,8 +104,9 @@ class SysidCommand:
         Annotated[SysidSimulate, tyro.conf.subcommand("simulate")]
         | Annotated[SysidResidual, tyro.conf.subcommand("residual")]
         | Annotated[SysidDiagnose, tyro.conf.subcommand("diagnose")]
+        | Annotated[SysidImport, tyro.conf.subcommand("import")]
     ]
-    """simulate, residual or diagnose."""
+    """simulate, residual, diagnose or import."""
 
 
 def run_simulate(cmd: SysidSimulate) -> None:
@@ -95,6 +127,49 @@ def run_simulate(cmd: SysidSimulate) -> None:
     write_robot_log(log, cmd.out)
     print(f"wrote {cmd.out}: {log.q.shape[0]} states, {log.t_cmd.size} commands, "
           f"{len(log.joint_names)} joints")  # fmt: skip
+
+
+def run_import(cmd: SysidImport) -> None:
+    """Run ``humimic sysid import``."""
+    import numpy as np
+
+    from humimic.real2sim import write_robot_log
+    from humimic.real2sim.imports import (
+        ImportMap,
+        RosTopics,
+        import_log,
+        import_target,
+        read_import_map,
+    )
+    from humimic.robots import get_robot
+
+    if cmd.out.suffix != ".mcap":
+        raise InputError(f"{cmd.out}: the log must be an .mcap file (--out)")
+    inputs = {"the source log": cmd.src} | ({"--map": cmd.map} if cmd.map else {})
+    check_not_input(cmd.out, inputs, "--out")
+    check_writable(cmd.out)
+    robot = get_robot(cmd.robot, "--robot")
+    imap = read_import_map(cmd.map) if cmd.map is not None else ImportMap()
+    pose = None if cmd.base_pose is None else np.array(cmd.base_pose)
+    target = import_target(robot, cmd.base, pose, cmd.imu_site)
+    topics = RosTopics(joint_states=cmd.states_topic, commands=cmd.commands_topic,
+                       imu=cmd.imu_topic, base_pose=cmd.base_pose_topic)  # fmt: skip
+    log = import_log(cmd.src, target, imap, topics)
+    write_robot_log(log, cmd.out)
+    streams = ["IMU"] if log.imu is not None else []
+    if log.imu is not None and log.imu.acc_b is not None:
+        streams.append("accelerometer")
+    if log.mocap is not None:
+        streams.append("motion capture")
+    if log.effort is not None:
+        streams.append("joint torque")
+    rate = (log.t.size - 1) / max(log.duration, 1e-9)
+    print(f"wrote {cmd.out}: {log.duration:.1f} s, {log.t.size} states ({rate:.0f} Hz), "
+          f"{log.t_cmd.size} commands, {len(log.joint_names)} joints, {log.base} base"
+          + (f"; with {', '.join(streams)}" if streams else ""))  # fmt: skip
+    if log.gaps().size:
+        print(f"note: the state stream breaks {log.gaps().size} time(s) (gaps over 1.5 median "
+              "intervals); predictions skip windows across them")  # fmt: skip
 
 
 def run_residual(cmd: SysidResidual) -> None:

@@ -13,6 +13,10 @@ import numpy as np
 from humimic.errors import InputError
 from humimic.formats.mcap import McapFormatError, McapWriter, read_mcap, stamp
 
+QUAT_TOL = 0.1
+"""A logged orientation whose length differs from 1 by more than this is refused (a wrong
+field, not noise); others are normalized."""
+
 GAP = 1.5
 """A step between state samples longer than this many median intervals is a gap in the log."""
 
@@ -282,7 +286,7 @@ def _unit_quats(log_path: Path, topic: str, q: np.ndarray, field: str) -> np.nda
         McapFormatError: Naming the topic, message and field.
     """
     norm = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(np.abs(norm - 1.0) > 0.1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUAT_TOL)
     if bad.size:
         i = int(bad[0])
         raise McapFormatError(

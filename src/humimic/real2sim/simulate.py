@@ -268,7 +268,8 @@ def _encoder_offsets(injections: list[Injection], names: tuple[str, ...]) -> np.
     return offset
 
 
-def _imu_site(model: mujoco.MjModel, root: int, asked: str) -> str:
+def imu_site_of(model: mujoco.MjModel, root: int, asked: str) -> str:
+    """The IMU's site: ``asked`` (``--imu-site``), or the root body's site named *imu*."""
     if asked:
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, asked) < 0:
             raise InputError(f"--imu-site {asked!r}: no such site in the robot")
@@ -344,7 +345,7 @@ def _simulate_floating(
         edit(spec)
     probe = spec.compile()
     root = int(probe.body(robot.root_body).id)
-    site = _imu_site(probe, root, settings.imu_site)
+    site = imu_site_of(probe, root, settings.imu_site)
     # The IMU as a robot's driver reports it: MuJoCo's own sensors at the site.
     site_obj = mujoco.mjtObj.mjOBJ_SITE
     spec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEQUAT, objtype=site_obj, objname=site)
