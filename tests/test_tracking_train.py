@@ -6,6 +6,7 @@ the policy learns.
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -200,9 +201,13 @@ def test_fine_tune_from_a_run_on_a_physics_file(motion_file: Path, tmp_path: Pat
     base = tmp_path / "base"
     assert main(_train_args(motion_file, base, 2)) == 0
     tuned = tmp_path / "tuned"
-    args = _train_args(motion_file, tuned, 1, "--init-from", str(base), "--physics", "backpack")
+    args = _train_args(motion_file, tuned, 1, "--init-from", str(base), "--physics", "backpack",
+                       "--ppo.learning-rate", "3e-05", "--ppo.schedule", "fixed")  # fmt: skip
     assert main(args) == 0
     assert "physics: backpack" in (tuned / "config.yaml").read_text()
+    # The run's learning rate, not the one in the checkpoint's optimizer state.
+    with (tuned / "progress.csv").open() as f:
+        assert float(next(csv.DictReader(f))["lr_mean"]) == pytest.approx(3e-5)
 
     def count(run: Path, it: int) -> float:
         blob = torch.load(run / "checkpoints" / f"model_{it:06d}.pt", weights_only=True)

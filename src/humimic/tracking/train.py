@@ -393,7 +393,8 @@ def _check_init_base(checkpoint: Path, action_base: str) -> None:
 def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: PpoConfig) -> None:
     """Load ``--init-from``'s weights into a new run's runner (its iteration count restarts).
 
-    A PPO checkpoint gives actor, critic and optimizer. A student's (``humimic distill``)
+    A PPO checkpoint gives actor, critic and optimizer (its moments; the learning rate is
+    this run's ``--ppo.learning-rate``, not the one the checkpoint's run ended at). A student's (``humimic distill``)
     gives the actor alone: the critic starts fresh (``--ppo.critic-warmup-iterations`` trains
     it before the actor moves), and the action noise starts at ``--ppo.init-std``: a
     student's std is the fixed rollout noise of its distillation, not something it learned.
@@ -418,6 +419,12 @@ def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: Ppo
     if student:
         with torch.no_grad():
             runner.alg.get_policy().distribution.std_param.fill_(ppo.init_std)
+    # The optimizer's state carries the learning rate the checkpoint's run ended with (the
+    # adaptive schedule's last value); this run's --ppo.learning-rate is the one it starts at.
+    runner.alg.learning_rate = ppo.learning_rate
+    optimizer = getattr(runner.alg, "optimizer", None)
+    for group in optimizer.param_groups if optimizer is not None else []:
+        group["lr"] = ppo.learning_rate
     runner.current_learning_iteration = 0
 
 
