@@ -322,6 +322,11 @@ def _set(key: str, row: int, col: int, value: float):
         (lambda a: a.__setitem__("dq", a["dq"][:, :20]), ["'dq'", "shape"]),
         (lambda a: a.__setitem__("temperature", a["q"]), ["unknown array", "'temperature'"]),
         (lambda a: a.__setitem__("gyroscope", a["gyroscope"][:-1]), ["'gyroscope'", "shape"]),
+        (lambda a: a.__setitem__("q", a["q"] + 1j), ["'q'", "complex", "real numbers"]),
+        (lambda a: a.__setitem__("time", a["time"] * 1e9), ["'time'", "spans", "seconds"]),
+        (lambda a: a.pop("base_pos"), ["needs 'base_pos'"]),
+        (lambda a: a.__setitem__("cmd_time", a["cmd_time"] + 1e3), ["do not overlap"]),
+        (_set("q", 4, 3, np.inf), ["'q'", "row 4", "(left_knee_joint)", "not finite"]),
     ],
 )
 def test_a_broken_unitree_log_exits_2_naming_the_field(tmp_path: Path, capsys, edit, words) -> None:
@@ -330,6 +335,22 @@ def test_a_broken_unitree_log_exits_2_naming_the_field(tmp_path: Path, capsys, e
     err = capsys.readouterr().err
     assert str(src) in err and all(w in err for w in words), err
     assert not (tmp_path / "imported.mcap").exists()
+
+
+def test_a_nan_in_an_ignored_motor_slot_is_not_read(tmp_path: Path) -> None:
+    src = _broken(tmp_path, _set("cmd_kd", 2, 30, np.nan))
+    assert _import(tmp_path, src, "--map", str(_slot_map(tmp_path)))[0] == 0
+
+
+def test_a_corrupt_npz_exits_2(tmp_path: Path, capsys) -> None:
+    src = _broken(tmp_path, lambda a: None)
+    data = src.read_bytes()
+    src.write_bytes(data[: len(data) // 2])
+    assert _import(tmp_path, src)[0] == 2
+    assert "not a readable .npz archive" in capsys.readouterr().err
+    src.write_text("time,q_0\n")
+    assert _import(tmp_path, src)[0] == 2
+    assert "not a zip archive" in capsys.readouterr().err
 
 
 def test_unmapped_motor_slots_and_bad_maps_exit_2(tmp_path: Path, capsys) -> None:
@@ -344,6 +365,12 @@ def test_unmapped_motor_slots_and_bad_maps_exit_2(tmp_path: Path, capsys) -> Non
     dup = _slot_map(tmp_path, "joints: {'1': left_hip_pitch_joint}\n")
     assert _import(tmp_path, src, "--map", str(dup))[0] == 2
     assert "filled by both motor 0 and motor 1" in capsys.readouterr().err
+    # Map entries that name nothing are refused, not ignored: a typo would pass in silence.
+    for extra, words in (("joints: {'77': left_knee_joint}\n", "names '77'"),
+                         ("gains: {'*': {kp: 1, kd: 1}}\n", "carry their own kp and kd"),
+                         ("gains: [1, 2]\n", "gains must map")):  # fmt: skip
+        assert _import(tmp_path, src, "--map", str(_slot_map(tmp_path, extra)))[0] == 2
+        assert words in capsys.readouterr().err
     # The output never overwrites the input (a ROS 2 bag stored as one .mcap file).
     bag = tmp_path / "bag.mcap"
     bag.write_bytes(b"not touched")
@@ -355,6 +382,18 @@ def test_a_ros2_bag_without_its_command_topic_or_gains_exits_2(tmp_path: Path, c
     log = _log()
     bag = tmp_path / "bag"
     _ros_bag(bag, log, names_order=np.arange(len(log.joint_names)), extra_joint=False)
+    mp = tmp_path / "map.yaml"
+    mp.write_text(_gains_yaml(log))
+    # A topic of another type where the IMU or the poses should be; an output in the bag.
+    assert _import(tmp_path, bag, "--map", str(mp), "--imu-topic", "/joint_commands")[0] == 2
+    assert "topic /joint_commands is sensor_msgs/msg/JointState, expected sensor_msgs/msg/Imu" in (
+        capsys.readouterr().err
+    )
+    assert _import(tmp_path, bag, "--map", str(mp), "--base-pose-topic", "/imu")[0] == 2
+    assert "expected geometry_msgs/msg/PoseStamped" in capsys.readouterr().err
+    inside = bag / "out.mcap"
+    assert main(["sysid", "import", str(bag), "--out", str(inside), "--map", str(mp)]) == 2
+    assert "inside the bag folder" in capsys.readouterr().err and not inside.exists()
     assert _import(tmp_path, bag, "--commands-topic", "/cmd")[0] == 2
     err = capsys.readouterr().err
     assert "no messages on /cmd (--commands-topic)" in err and "/joint_commands" in err
@@ -372,6 +411,11 @@ def test_a_ros2_bag_without_its_command_topic_or_gains_exits_2(tmp_path: Path, c
         ("time,q_0\n0,1\n0.1\n", [":3:", "1 fields, the header has 2"]),
         ("time,quaternion_w,quaternion_x\n0,1,0\n0.1,1,0\n", ["quaternion_w/x/y/z expected"]),
         ("time,speed_0\n0,1\n0.1,1\n", ["column 'speed_0'"]),
+        ("time,q_00\n0,1\n0.1,1\n", ["column 'q_00'"]),
+        ("time_0,q_0\n0,1\n0.1,1\n", ["column 'time_0'"]),
+        ("time,q_0,q_0\n0,1,1\n0.1,1,1\n", ["column 'q_0' appears more than once"]),
+        ("time;q_0\n0;1\n0.1;1\n", ["separated by commas"]),
+        ("time,q_0\n0,1\n\nnan,1\n0.2,1\n", ["'time', line 4", "not finite"]),
     ],
 )
 def test_a_broken_csv_exits_2_naming_the_line_or_column(
@@ -382,3 +426,37 @@ def test_a_broken_csv_exits_2_naming_the_line_or_column(
     assert _import(tmp_path, src)[0] == 2
     err = capsys.readouterr().err
     assert str(src) in err and all(w in err for w in words), err
+
+
+def test_a_csv_from_a_spreadsheet_imports(tmp_path: Path) -> None:
+    """A byte-order mark and blank lines (as spreadsheets write them) are read past."""
+    log = _log()
+    arrays = _unitree_arrays(log)
+    n = 20
+    header = ["time"] + [f"{k}_{i}" for k in ("q", "dq", "cmd_q", "cmd_kp", "cmd_kd")
+                         for i in range(35)]  # fmt: skip
+    rows = [[arrays["time"][r]] + [arrays[k][r if k in ("q", "dq") else log.command_index(log.t)[r], i]
+                                   for k in ("q", "dq", "cmd_q", "cmd_kp", "cmd_kd")
+                                   for i in range(35)] for r in range(n)]  # fmt: skip
+    src = tmp_path / "sheet.csv"
+    text = (
+        ",".join(header) + "\r\n" + "\r\n".join(",".join(repr(float(v)) for v in r) for r in rows)
+    )
+    src.write_text("\ufeff" + text + "\r\n\r\n", encoding="utf-8")
+    rc, back = _import(tmp_path, src, "--map", str(_slot_map(tmp_path)), "--base", "fixed",
+                       "--base-pose", "0", "0", "1", "1", "0", "0", "0")  # fmt: skip
+    assert rc == 0 and back is not None
+    np.testing.assert_allclose(back.q, log.q[:n], atol=1e-9)
+
+
+def test_a_bad_base_pose_exits_2(tmp_path: Path, capsys) -> None:
+    src = _broken(tmp_path, lambda a: None)
+    mp = str(_slot_map(tmp_path))
+    assert _import(tmp_path, src, "--map", mp, "--base", "fixed", "--base-pose",
+                   "0", "0", "1", "0", "0", "0", "0")[0] == 2  # fmt: skip
+    assert "length 0" in capsys.readouterr().err
+    assert (
+        _import(tmp_path, src, "--map", mp, "--base-pose", "0", "0", "1", "1", "0", "0", "0")[0]
+        == 2
+    )
+    assert "--base-pose is for a gantry log" in capsys.readouterr().err

@@ -70,14 +70,22 @@ def check_not_input(
     """
     if output is None:
         return
-    out = Path(output).resolve()
+    out = _resolved(output, flag)
     for label, path in inputs.items():
         if path is None:
             continue
-        if out == Path(path).resolve():
+        if out == _resolved(path, label):
             raise OutputPathError(
                 f"{flag} {output}: would overwrite {label} ({path}); choose another path"
             )
+
+
+def _resolved(path: str | os.PathLike[str], label: str) -> Path:
+    """The absolute path with links followed; a link loop is bad input, not a crash."""
+    try:
+        return Path(path).resolve()
+    except (OSError, RuntimeError) as e:
+        raise InputError(f"{label} {path}: cannot resolve the path ({e})") from None
 
 
 def file_mode() -> int:

@@ -147,6 +147,9 @@ def run_import(cmd: SysidImport) -> None:
         raise InputError(f"{cmd.out}: the log must be an .mcap file (--out)")
     inputs = {"the source log": cmd.src} | ({"--map": cmd.map} if cmd.map else {})
     check_not_input(cmd.out, inputs, "--out")
+    if cmd.src.is_dir() and cmd.out.resolve().is_relative_to(cmd.src.resolve()):
+        raise InputError(f"--out {cmd.out}: inside the bag folder {cmd.src}; choose a path "
+                         "outside it")  # fmt: skip
     check_writable(cmd.out)
     robot = get_robot(cmd.robot, "--robot")
     imap = read_import_map(cmd.map) if cmd.map is not None else ImportMap()

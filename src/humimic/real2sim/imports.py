@@ -7,15 +7,16 @@ from __future__ import annotations
 
 import csv
 import os
+import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 
 from humimic.errors import InputError
+from humimic.io import read_yaml
 from humimic.real2sim.robotlog import QUAT_TOL, ImuLog, PoseTrack, RobotLog
 
 if TYPE_CHECKING:
@@ -84,12 +85,7 @@ def read_import_map(path: str | os.PathLike[str]) -> ImportMap:
             file and the key.
     """
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file (--map)") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise InputError(f"{p}: not a readable YAML file ({e})") from None
+    data = read_yaml(p)
     data = {} if data is None else data
     if not isinstance(data, dict):
         raise InputError(f"{p}: expected a mapping with keys joints, ignore, gains")
@@ -97,16 +93,29 @@ def read_import_map(path: str | os.PathLike[str]) -> ImportMap:
     if unknown:
         raise InputError(f"{p}: unknown key {sorted(unknown)[0]!r}; expected joints, ignore, gains")
     joints = data.get("joints") or {}
-    if not isinstance(joints, dict) or not all(isinstance(v, str) for v in joints.values()):
-        raise InputError(f"{p}: joints must map each source joint to a model joint name")
+    if not isinstance(joints, dict) or not all(
+        isinstance(k, str | int) and not isinstance(k, bool) and isinstance(v, str)
+        for k, v in joints.items()
+    ):
+        raise InputError(f"{p}: joints must map each source joint (a name or a motor index) to "
+                         "a model joint name")  # fmt: skip
     ignore = data.get("ignore") or []
-    if not isinstance(ignore, list):
-        raise InputError(f"{p}: ignore must be a list of source joints")
+    if not isinstance(ignore, list) or not all(
+        isinstance(x, str | int) and not isinstance(x, bool) for x in ignore
+    ):
+        raise InputError(f"{p}: ignore must be a list of source joints (names or motor indices)")
+    gains_in = data.get("gains") or {}
+    if not isinstance(gains_in, dict):
+        raise InputError(f"{p}: gains must map model joints (or '*') to {{kp: NUMBER, kd: NUMBER}}")
     gains: dict[str, tuple[float, float]] = {}
-    for name, g in (data.get("gains") or {}).items():
+    for name, g in gains_in.items():
         try:
+            if not isinstance(g, dict) or set(g) != {"kp", "kd"}:
+                raise TypeError
+            if any(isinstance(g[k], bool | str) for k in ("kp", "kd")):
+                raise TypeError
             kp, kd = float(g["kp"]), float(g["kd"])
-        except (TypeError, KeyError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(f"{p}: gains.{name} must be {{kp: NUMBER, kd: NUMBER}}") from None
         if not (np.isfinite(kp) and np.isfinite(kd) and kp >= 0 and kd >= 0):
             raise InputError(f"{p}: gains.{name}: kp and kd must be finite and >= 0")
@@ -173,45 +182,89 @@ def _columns(
     return col
 
 
-def _finite(where: str, name: str, a: np.ndarray) -> np.ndarray:
+MAX_SPAN = 1e6
+"""Longest span of a log's times [s] (11.6 days): more is a clock in other units (ns)."""
+
+
+def _row(i: int) -> str:
+    return f"row {i}"
+
+
+def _finite(
+    where: str, name: str, a: np.ndarray, row: Callable[[int], str] = _row,
+    columns: tuple[str, ...] = (),
+) -> np.ndarray:  # fmt: skip
+    """``a``, refused when a value is not finite (naming the row, and the column's joint)."""
     bad = np.argwhere(~np.isfinite(a))
     if bad.size:
-        raise InputError(f"{where}: {name}, row {int(bad[0][0])}: a value is not finite")
+        col = f" ({columns[int(bad[0][1])]})" if columns and a.ndim == 2 else ""
+        raise InputError(f"{where}: {name}, {row(int(bad[0][0]))}{col}: a value is not finite")
     return a
 
 
-def _increasing(where: str, name: str, t: np.ndarray) -> np.ndarray:
+def _increasing(
+    where: str, name: str, t: np.ndarray, row: Callable[[int], str] = _row
+) -> np.ndarray:
     if t.ndim != 1 or t.size < 2:
-        raise InputError(f"{where}: {name} must hold at least 2 times")
-    _finite(where, name, t)
+        raise InputError(f"{where}: {name} has shape {t.shape}, expected a 1-D array of at "
+                         "least 2 times")  # fmt: skip
+    _finite(where, name, t, row)
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         i = int(bad[0]) + 1
-        raise InputError(
-            f"{where}: {name}, row {i}: time {t[i]:.6f} does not increase (row {i - 1}: "
-            f"{t[i - 1]:.6f})"
-        )
+        raise InputError(f"{where}: {name}, {row(i)}: time {t[i]:.6f} does not increase "
+                         f"({row(i - 1)}: {t[i - 1]:.6f})")  # fmt: skip
+    if t[-1] - t[0] > MAX_SPAN:
+        raise InputError(f"{where}: {name} spans {t[-1] - t[0]:.4g} s; expected seconds (a "
+                         "clock in milli- or nanoseconds must be converted)")  # fmt: skip
     return t
 
 
-def _unit(where: str, name: str, q: np.ndarray) -> np.ndarray:
+def _unit(where: str, name: str, q: np.ndarray, row: Callable[[int], str] = _row) -> np.ndarray:
     n = np.linalg.norm(q, axis=1)
-    bad = np.flatnonzero(np.abs(n - 1.0) > QUAT_TOL)
+    bad = np.flatnonzero(~(np.abs(n - 1.0) <= QUAT_TOL))
     if bad.size:
-        raise InputError(
-            f"{where}: {name}, row {int(bad[0])}: quaternion of length {n[bad[0]]:.3f}, "
-            "expected unit length (w x y z)"
-        )
+        raise InputError(f"{where}: {name}, {row(int(bad[0]))}: quaternion of length "
+                         f"{n[bad[0]]:.3f}, expected unit length (w x y z)")  # fmt: skip
     return q / n[:, None]
 
 
-def _gains_check(where: str, name: str, g: np.ndarray, joints: tuple[str, ...]) -> np.ndarray:
+def _gains_check(
+    where: str, name: str, g: np.ndarray, joints: tuple[str, ...], row: Callable[[int], str] = _row
+) -> np.ndarray:
     neg = np.argwhere(g < 0)
     if neg.size:
         i, j = (int(x) for x in neg[0])
-        raise InputError(f"{where}: {name}, row {i}: gain of {joints[j]!r} is {g[i, j]:g}, "
+        raise InputError(f"{where}: {name}, {row(i)}: gain of {joints[j]!r} is {g[i, j]:g}, "
                          "expected >= 0")  # fmt: skip
     return g
+
+
+def _overlap(where: str, t: np.ndarray, other: np.ndarray, what: str) -> None:
+    """Refuse a stream that does not overlap the joint states in time."""
+    if other[0] > t[-1] or other[-1] < t[0]:
+        raise InputError(f"{where}: the {what} ({other[0]:.3f}-{other[-1]:.3f} s) do not overlap "
+                         f"the joint states ({t[0]:.3f}-{t[-1]:.3f} s): one clock for every "
+                         "stream is expected")  # fmt: skip
+
+
+def _check_map_used(
+    where: str, imap: ImportMap, seen: set[str], target: Target, gains: bool
+) -> None:
+    """Refuse map entries that name nothing: a typo would otherwise be ignored in silence.
+    ``gains``: whether the command stream took its gains from the map."""
+    for what, keys in (("joints", set(imap.joints)), ("ignore", set(imap.ignore))):
+        unused = sorted(keys - seen)
+        if unused:
+            raise InputError(f"{imap.source}: {what} names {unused[0]!r}, which {where} does not "
+                             "have (a source joint name or motor index)")  # fmt: skip
+    if imap.gains and not gains:
+        raise InputError(f"{imap.source}: gains are given, but the commands in {where} carry "
+                         "their own kp and kd; remove them from the map")  # fmt: skip
+    unknown = sorted(set(imap.gains) - set(target.joint_names) - {"*"})
+    if unknown:
+        raise InputError(f"{imap.source}: gains names {unknown[0]!r}, not a joint of "
+                         f"{target.robot} (or '*')")  # fmt: skip
 
 
 def _assemble(
@@ -268,37 +321,49 @@ def _assemble(
 
 def _load_npz(path: Path) -> dict[str, np.ndarray]:
     try:
-        z = np.load(path, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise ValueError("a single array, not an archive of named arrays")
-        with z:
+        with path.open("rb") as f:
+            magic = f.read(4)
+        if magic != b"PK\x03\x04":
+            raise ValueError("not a zip archive of .npy arrays, as numpy.savez writes")
+        with np.load(path, allow_pickle=False) as z:
             return {k: np.asarray(z[k]) for k in z.files}
-    except (OSError, ValueError, EOFError) as e:
-        why = "pickled objects are not read" if "pickle" in str(e) else str(e)
-        raise InputError(f"{path}: not a readable .npz archive of arrays ({why})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        why = "an array holds pickled objects" if "pickle" in str(e) else _one_line(e)
+        raise InputError(f"{path}: not a readable .npz archive ({why})") from None
 
 
-def _load_csv(path: Path) -> dict[str, np.ndarray]:
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:300]
+
+
+def _load_csv(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Columns ``time``, ``q_0`` ... ``q_{M-1}``, ``quaternion_w`` ... (``KEY_INDEX`` or
-    ``KEY_AXIS``), one row per control tick, regrouped into the NPZ layout."""
+    ``KEY_AXIS``), one row per control tick, regrouped into the NPZ layout. Returns the
+    arrays and each data row's line in the file (blank lines are skipped)."""
     try:
-        with path.open(newline="") as f:
-            rows = list(csv.reader(f))
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            lines = [(n, row) for n, row in enumerate(csv.reader(f), start=1) if row]
     except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise InputError(f"{path}: not a readable CSV file ({e})") from None
-    if len(rows) < 3:
+        raise InputError(f"{path}: not a readable CSV file ({_one_line(e)})") from None
+    if len(lines) < 3:
         raise InputError(f"{path}: expected a header row and at least 2 data rows")
-    header = [h.strip() for h in rows[0]]
-    data = np.full((len(rows) - 1, len(header)), np.nan)
-    for r, row in enumerate(rows[1:], start=2):
+    header = [h.strip() for h in lines[0][1]]
+    if len(header) == 1 and ";" in header[0]:
+        raise InputError(f"{path}: the header is one column holding ';': columns must be "
+                         "separated by commas")  # fmt: skip
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise InputError(f"{path}: column {dup[0]!r} appears more than once")
+    data = np.full((len(lines) - 1, len(header)), np.nan)
+    for r, (n, row) in enumerate(lines[1:]):
         if len(row) != len(header):
-            raise InputError(f"{path}:{r}: {len(row)} fields, the header has {len(header)}")
+            raise InputError(f"{path}:{n}: {len(row)} fields, the header has {len(header)}")
         for c, v in enumerate(row):
             try:
-                data[r - 2, c] = float(v)
+                data[r, c] = float(v)
             except ValueError:
                 raise InputError(
-                    f"{path}:{r}: column {header[c]!r}: {v!r} is not a number"
+                    f"{path}:{n}: column {header[c]!r}: {v!r} is not a number"
                 ) from None
     groups: dict[str, dict[str, int]] = {}
     for c, h in enumerate(header):
@@ -306,9 +371,12 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
             groups.setdefault(h, {})[""] = c
             continue
         key, _, part = h.rpartition("_")
-        if key not in UNITREE_KEYS or not part:
+        axes = _COMPONENTS.get(key)
+        index = part.isdigit() and str(int(part)) == part
+        if key not in UNITREE_KEYS or key in _SCALARS or not (part in axes if axes else index):
             raise InputError(
-                f"{path}: column {h!r}: expected time or KEY_INDEX / KEY_AXIS with KEY one of "
+                f"{path}: column {h!r}: expected time, cmd_time, base_time or KEY_INDEX / "
+                f"KEY_AXIS (q_0, quaternion_w, ...) with KEY one of "
                 + ", ".join(k for k in UNITREE_KEYS if k not in _SCALARS)
             )  # fmt: skip
         groups.setdefault(key, {})[part] = c
@@ -324,12 +392,7 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
                                  + ", ".join(f"{key}_{p}" for p in parts))  # fmt: skip
             order = [parts[a] for a in axes]
         else:
-            try:
-                idx = sorted(int(p) for p in parts)
-            except ValueError:
-                raise InputError(
-                    f"{path}: columns {key}_*: expected motor indices 0, 1, ..."
-                ) from None
+            idx = sorted(int(p) for p in parts)
             if idx != list(range(len(idx))):
                 raise InputError(
                     f"{path}: columns {key}_*: motor indices must run 0, 1, ... without gaps; "
@@ -337,7 +400,7 @@ def _load_csv(path: Path) -> dict[str, np.ndarray]:
                 )
             order = [parts[str(i)] for i in idx]
         out[key] = data[:, order]
-    return out
+    return out, np.array([n for n, _ in lines[1:]])
 
 
 def import_unitree(path: str | os.PathLike[str], target: Target, imap: ImportMap) -> RobotLog:
@@ -348,10 +411,20 @@ def import_unitree(path: str | os.PathLike[str], target: Target, imap: ImportMap
         InputError: A missing or malformed array, naming the file and the key.
     """
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder, expected a .npz or .csv file")
     if not p.is_file():
-        raise InputError(f"{p}: no such file")
-    arrays = _load_npz(p) if p.suffix == ".npz" else _load_csv(p)
+        raise InputError(f"{p}: no such file" if not p.exists() else f"{p}: not a regular file")
     where = str(p)
+    row = _row
+    if p.suffix == ".npz":
+        arrays = _load_npz(p)
+    else:
+        arrays, line_of = _load_csv(p)
+
+        def row(i: int) -> str:
+            return f"line {int(line_of[i])}"
+
     unknown = sorted(set(arrays) - set(UNITREE_KEYS))
     if unknown:
         raise InputError(f"{where}: unknown array {unknown[0]!r}; expected "
@@ -361,9 +434,9 @@ def import_unitree(path: str | os.PathLike[str], target: Target, imap: ImportMap
         if key not in arrays:
             return None
         a = np.asarray(arrays[key])
-        if not np.issubdtype(a.dtype, np.number):
-            raise InputError(f"{where}: {key!r} holds {a.dtype}, expected numbers")
-        return _finite(where, repr(key), a.astype(np.float64))
+        if a.dtype.kind not in "iuf":
+            raise InputError(f"{where}: {key!r} holds {a.dtype}, expected real numbers")
+        return a.astype(np.float64)
 
     def need(key: str) -> np.ndarray:
         a = opt(key)
@@ -374,45 +447,55 @@ def import_unitree(path: str | os.PathLike[str], target: Target, imap: ImportMap
     def shaped(a: np.ndarray, key: str, shape: tuple[int, int]) -> np.ndarray:
         if a.shape != shape:
             raise InputError(f"{where}: {key!r} has shape {a.shape}, expected {shape}")
-        return a
+        return _finite(where, repr(key), a, row)
 
-    t = _increasing(where, "'time'", need("time"))
+    t = _increasing(where, "'time'", need("time"), row)
     n = t.size
     q = need("q")
-    if q.ndim != 2 or q.shape[0] != n:
+    if q.ndim != 2 or q.shape[0] != n or q.shape[1] == 0:
         raise InputError(f"{where}: 'q' has shape {q.shape}, expected ({n}, motors)")
     motors = q.shape[1]
     col = _columns(where, [str(i) for i in range(motors)], imap, target, motors=True)
     zero = np.zeros((1, motors))
 
     def per_motor(a: np.ndarray, key: str, rows: int) -> np.ndarray:
-        return shaped(a, key, (rows, motors))[:, col]
+        if a.shape != (rows, motors):
+            raise InputError(f"{where}: {key!r} has shape {a.shape}, expected ({rows}, {motors})")
+        return _finite(where, repr(key), a[:, col], row, target.joint_names)  # Used motors only.
 
     tc = opt("cmd_time")
-    t_cmd = t if tc is None else _increasing(where, "'cmd_time'", tc)
+    t_cmd = t if tc is None else _increasing(where, "'cmd_time'", tc, row)
+    _overlap(where, t, t_cmd, "command times")
     m = t_cmd.size
     cmd = {k: per_motor(need(f"cmd_{k}"), f"cmd_{k}", m) for k in ("q", "kp", "kd")}
     for k, key in (("qd", "cmd_dq"), ("tau", "cmd_tau")):
         a = opt(key)
         cmd[k] = per_motor(np.repeat(zero, m, axis=0) if a is None else a, key, m)
     for k in ("kp", "kd"):
-        _gains_check(where, f"'cmd_{k}'", cmd[k], target.joint_names)
+        _gains_check(where, f"'cmd_{k}'", cmd[k], target.joint_names, row)
     imu = None
     quat, gyro, acc = opt("quaternion"), opt("gyroscope"), opt("accelerometer")
-    if (quat is None) != (gyro is None):
-        raise InputError(f"{where}: the IMU needs both 'quaternion' and 'gyroscope'")
+    if (quat is None) != (gyro is None) or (acc is not None and quat is None):
+        raise InputError(f"{where}: the IMU needs both 'quaternion' and 'gyroscope' (and "
+                         "'accelerometer' comes with them)")  # fmt: skip
     if quat is not None and gyro is not None:
-        imu = (t, _unit(where, "'quaternion'", shaped(quat, "quaternion", (n, 4))),
+        imu = (t, _unit(where, "'quaternion'", shaped(quat, "quaternion", (n, 4)), row),
                shaped(gyro, "gyroscope", (n, 3)),
                None if acc is None else shaped(acc, "accelerometer", (n, 3)))  # fmt: skip
     mocap = None
-    pos = opt("base_pos")
+    pos, bq, tb = opt("base_pos"), opt("base_quat"), opt("base_time")
+    if pos is None and (bq is not None or tb is not None):
+        raise InputError(f"{where}: motion capture needs 'base_pos' with 'base_quat' (and "
+                         "'base_time' comes with them)")  # fmt: skip
     if pos is not None:
-        tb = opt("base_time")
-        tb = t if tb is None else _increasing(where, "'base_time'", tb)
-        bq = shaped(need("base_quat"), "base_quat", (tb.size, 4))
-        mocap = (tb, shaped(pos, "base_pos", (tb.size, 3)), _unit(where, "'base_quat'", bq))
+        tb = t if tb is None else _increasing(where, "'base_time'", tb, row)
+        _overlap(where, t, tb, "motion-capture times")
+        if bq is None:
+            raise InputError(f"{where}: missing 'base_quat' ({UNITREE_KEYS['base_quat']})")
+        bq = shaped(bq, "base_quat", (tb.size, 4))
+        mocap = (tb, shaped(pos, "base_pos", (tb.size, 3)), _unit(where, "'base_quat'", bq, row))
     tau = opt("tau_est")
+    _check_map_used(where, imap, {str(i) for i in range(motors)}, target, gains=False)
     return _assemble(
         where,
         target,
@@ -480,7 +563,7 @@ def _read_bag(path: Path, topics: Iterable[str]) -> tuple[dict[str, list], dict[
                 out[conn.topic].append((_stamp_ns(msg, logtime), msg))
     except (AnyReaderError, OSError, ValueError, KeyError) as e:
         hint = "; humimic's own logs need no import" if "not ros2" in str(e) else ""
-        raise InputError(f"{path}: not a readable ROS 2 bag ({e}){hint}") from None
+        raise InputError(f"{path}: not a readable ROS 2 bag ({_one_line(e)}){hint}") from None
     return out, types
 
 
@@ -500,11 +583,16 @@ def _times_s(msgs: list, t0_ns: int) -> np.ndarray:
     return (np.array([m[0] for m in msgs], dtype=np.int64) - t0_ns).astype(np.float64) * 1e-9
 
 
+def _message(i: int) -> str:
+    return f"message {i}"
+
+
 def _joint_rows(
-    where: str, topic: str, msgs: list, imap: ImportMap, target: Target, fields: tuple[str, ...]
-) -> dict[str, np.ndarray | None]:
+    where: str, topic: str, msgs: list, imap: ImportMap, target: Target, fields: tuple[str, ...],
+    seen: set[str],
+) -> dict[str, np.ndarray | None]:  # fmt: skip
     """Model-ordered (N, J) arrays of ``sensor_msgs/JointState`` fields; a field empty in
-    every message is ``None``."""
+    every message is ``None``. Adds the source joints to ``seen``."""
     out: dict[str, np.ndarray | None] = {}
     cols: dict[tuple[str, ...], np.ndarray] = {}
     for f in fields:
@@ -515,6 +603,7 @@ def _joint_rows(
             if names not in cols:
                 cols[names] = _columns(f"{where}: topic {topic}, message {i}", list(names), imap,
                                        target, motors=False)  # fmt: skip
+                seen.update(names)
             v = np.asarray(getattr(m, f), dtype=np.float64)
             if v.size == 0:
                 empty += 1
@@ -529,23 +618,30 @@ def _joint_rows(
         if empty:
             raise InputError(f"{where}: topic {topic}: field {f} is empty in {empty} of "
                              f"{len(msgs)} messages")  # fmt: skip
-        out[f] = _finite(where, f"topic {topic}, field {f}", rows)
+        out[f] = _finite(where, f"topic {topic}, field {f}", rows, _message, target.joint_names)
     return out
 
 
 def _motor_rows(
     where: str, topic: str, msgs: list, imap: ImportMap, target: Target, attr: str,
-    fields: tuple[str, ...],
+    fields: tuple[str, ...], seen: set[str],
 ) -> dict[str, np.ndarray]:  # fmt: skip
-    """Model-ordered (N, J) arrays of a Unitree message's per-motor fields."""
+    """Model-ordered (N, J) arrays of a Unitree message's per-motor fields. Adds the motor
+    indices to ``seen``."""
     motors = len(getattr(msgs[0][1], attr))
+    for i, (_, m) in enumerate(msgs):
+        if len(getattr(m, attr)) != motors:
+            raise InputError(f"{where}: topic {topic}, message {i}: {len(getattr(m, attr))} "
+                             f"entries in {attr}, message 0 has {motors}")  # fmt: skip
     col = _columns(
         f"{where}: topic {topic}", [str(i) for i in range(motors)], imap, target, motors=True
     )
+    seen.update(str(i) for i in range(motors))
     out = {}
     for f in fields:
         rows = np.array([[getattr(x, f) for x in getattr(m, attr)] for _, m in msgs], dtype=float)
-        out[f] = _finite(where, f"topic {topic}, {attr}[].{f}", rows)[:, col]
+        out[f] = _finite(where, f"topic {topic}, {attr}[].{f}", rows[:, col], _message,
+                         target.joint_names)  # fmt: skip
     return out
 
 
@@ -581,7 +677,10 @@ def import_ros2(
         raise InputError(f"{p}: no such ROS 2 bag")
     if p.is_dir() and not (p / "metadata.yaml").is_file():
         raise InputError(f"{p}: a ROS 2 bag folder holds metadata.yaml; none here")
+    if not p.is_dir() and not p.is_file():
+        raise InputError(f"{p}: not a regular file or a folder")
     where = str(p)
+    seen: set[str] = set()
     msgs, types = _read_bag(p, [topics.joint_states, topics.commands, topics.imu, topics.base_pose])
     for flag, topic in (
         ("--states-topic", topics.joint_states),
@@ -597,7 +696,7 @@ def import_ros2(
     first = states[0][1]
     if hasattr(first, "motor_state"):
         rows = _motor_rows(where, topics.joint_states, states, imap, target, "motor_state",
-                           ("q", "dq", "tau_est"))  # fmt: skip
+                           ("q", "dq", "tau_est"), seen)  # fmt: skip
         q, qd, effort = rows["q"], rows["dq"], rows["tau_est"]
         if hasattr(first, "imu_state"):
             arr: Callable[[str], np.ndarray] = lambda f: _finite(  # noqa: E731
@@ -607,7 +706,7 @@ def import_ros2(
                             arr("quaternion")), arr("gyroscope"), arr("accelerometer"))  # fmt: skip
     elif hasattr(first, "position") and hasattr(first, "name"):
         rows = _joint_rows(where, topics.joint_states, states, imap, target,
-                           ("position", "velocity", "effort"))  # fmt: skip
+                           ("position", "velocity", "effort"), seen)  # fmt: skip
         if rows["position"] is None or rows["velocity"] is None:
             raise InputError(f"{where}: topic {topics.joint_states}: position and velocity "
                              "are both needed")  # fmt: skip
@@ -616,8 +715,12 @@ def import_ros2(
         raise InputError(f"{where}: topic {topics.joint_states} is {types[topics.joint_states]}, "
                          "expected sensor_msgs/msg/JointState or a Unitree LowState")  # fmt: skip
     if msgs.get(topics.imu):
+        _expect(where, topics.imu, msgs[topics.imu], types, "sensor_msgs/msg/Imu",
+                ("orientation", "orientation_covariance", "angular_velocity",
+                 "linear_acceleration"))  # fmt: skip
         ims = _sorted_by_stamp(where, topics.imu, msgs[topics.imu])
         ti = _increasing(where, f"topic {topics.imu}", _times_s(ims, t0_ns))
+        _overlap(where, t, ti, f"IMU messages on {topics.imu}")
 
         def xyz(m: Any, f: str, keys: str) -> list[float]:
             v = getattr(m, f)
@@ -641,19 +744,22 @@ def import_ros2(
                          "log needs the IMU")  # fmt: skip
     cmds = _sorted_by_stamp(where, topics.commands, msgs[topics.commands])
     t_cmd = _increasing(where, f"topic {topics.commands}", _times_s(cmds, t0_ns))
+    _overlap(where, t, t_cmd, f"commands on {topics.commands}")
     c0 = cmds[0][1]
+    gains_from_map = False
     if hasattr(c0, "motor_cmd"):
         rows = _motor_rows(where, topics.commands, cmds, imap, target, "motor_cmd",
-                           ("q", "dq", "tau", "kp", "kd"))  # fmt: skip
+                           ("q", "dq", "tau", "kp", "kd"), seen)  # fmt: skip
         cmd = {"q": rows["q"], "qd": rows["dq"], "tau": rows["tau"], "kp": rows["kp"],
                "kd": rows["kd"]}  # fmt: skip
     elif hasattr(c0, "position") and hasattr(c0, "name"):
         rows = _joint_rows(where, topics.commands, cmds, imap, target,
-                           ("position", "velocity", "effort"))  # fmt: skip
+                           ("position", "velocity", "effort"), seen)  # fmt: skip
         if rows["position"] is None:
             raise InputError(f"{where}: topic {topics.commands}: position targets are empty")
         zero = np.zeros((t_cmd.size, len(target.joint_names)))
         kp, kd = _gains(where, imap, target, t_cmd.size)
+        gains_from_map = True
         cmd = {"q": rows["position"], "kp": kp, "kd": kd,
                "qd": zero if rows["velocity"] is None else rows["velocity"],
                "tau": zero if rows["effort"] is None else rows["effort"]}  # fmt: skip
@@ -667,16 +773,27 @@ def import_ros2(
         poses = msgs.get(topics.base_pose)
         if not poses:
             raise InputError(f"{where}: no messages on {topics.base_pose} (--base-pose-topic)")
+        _expect(where, topics.base_pose, poses, types, "geometry_msgs/msg/PoseStamped", ("pose",))
         poses = _sorted_by_stamp(where, topics.base_pose, poses)
         tb = _increasing(where, f"topic {topics.base_pose}", _times_s(poses, t0_ns))
+        _overlap(where, t, tb, f"poses on {topics.base_pose}")
         pos = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z]
                         for _, m in poses])  # fmt: skip
         bq = np.array([[m.pose.orientation.w, m.pose.orientation.x, m.pose.orientation.y,
                         m.pose.orientation.z] for _, m in poses])  # fmt: skip
         mocap = (tb, _finite(where, f"topic {topics.base_pose}, position", pos),
                  _unit(where, f"topic {topics.base_pose}, orientation", bq))  # fmt: skip
+    _check_map_used(where, imap, seen, target, gains=gains_from_map)
     return _assemble(where, target, t=t, q=q, qd=qd, effort=effort, t_cmd=t_cmd, cmd=cmd,
                      imu=imu, mocap=mocap)  # fmt: skip
+
+
+def _expect(
+    where: str, topic: str, msgs: list, types: dict[str, str], kind: str, fields: tuple[str, ...]
+) -> None:
+    """Refuse a topic whose messages lack the fields of ``kind``."""
+    if not all(hasattr(msgs[0][1], f) for f in fields):
+        raise InputError(f"{where}: topic {topic} is {types.get(topic)}, expected {kind}")
 
 
 def import_target(
@@ -698,9 +815,17 @@ def import_target(
         pose = np.asarray(base_pose, dtype=np.float64)
         if pose.shape != (7,) or not np.all(np.isfinite(pose)):
             raise InputError("--base-pose: expected 7 finite numbers X Y Z QW QX QY QZ")
+        norm = float(np.linalg.norm(pose[3:]))
+        if not abs(norm - 1.0) <= QUAT_TOL:
+            raise InputError(f"--base-pose: the quaternion QW QX QY QZ has length {norm:.3g}, "
+                             "expected unit length")  # fmt: skip
+        pose[3:] /= norm
         model = prediction_spec(robot, pose).compile()
         names = tuple(model.joint(j).name for j in range(model.njnt))
         return Target(robot=robot.name, joint_names=names, imu_site="", base=base, base_pose=pose)
+    if base_pose is not None:
+        raise InputError("--base-pose is for a gantry log (--base fixed); a floating base's "
+                         "pose comes from the IMU and motion capture")  # fmt: skip
     model = floating_prediction_spec(robot).compile()
     root = int(model.body(robot.root_body).id)
     return Target(robot=robot.name, joint_names=JointMap.of(model).names,
