@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
@@ -59,7 +60,7 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
                         hide_real("sysid", report_mod.run_diagnosis))  # fmt: skip
     out = tmp_path / "loop"
     args = ["loop", "--run", str(base_run), "--real", str(real), "--out", str(out),
-            "--episodes", "1", "--iterations", "1",
+            "--episodes", "1", "--iterations", "1", "--learning-rate", "5e-05",
             "--sysid-duration", "5", "--control", "--quiet"]  # fmt: skip
     assert main(args) == 0
     assert stages == ["sysid", "train", "train"]  # Fine-tuning in the corrected and nominal models.
@@ -84,6 +85,12 @@ def test_loop_end_to_end_never_trains_on_the_real_physics(
     assert tuned.physics == str(out / "corrected.yaml") and tuned.init_from == base_run
     assert read_run_settings(out / "finetune_nominal").physics is None
     assert tuned.num_envs == 8  # Without --num-envs: as many as the run trained with.
+    # Both arms at the loop's learning rate, fixed (the run trained at 1e-3, adaptive).
+    for arm in ("finetune", "finetune_nominal"):
+        ppo = read_run_settings(out / arm).ppo
+        assert (ppo.learning_rate, ppo.schedule) == (5e-05, "fixed")
+        with (out / arm / "progress.csv").open() as f:
+            assert float(next(csv.DictReader(f))["lr_mean"]) == pytest.approx(5e-05)
     names = tuple(nominal_model(get_robot("g1")).joint(j).name for j in range(1, 30))
     log = read_robot_log(out / "before" / "robot_log.mcap", names)
     assert log.base == "floating" and len(log.t) == r["before"]["policy"]["mean_steps"] + 1
@@ -109,6 +116,7 @@ def test_bad_input_exits_2_and_writes_nothing(base_run: Path, tmp_path: Path) ->
     bad.write_text("floor_friction: slippery\n")
     assert main([*args, "--real", str(bad)]) == 2
     assert main([*args, "--real", "worn_knees", "--iterations", "0"]) == 2
+    assert main([*args, "--real", "worn_knees", "--learning-rate", "0"]) == 2
     assert not out.exists()
 
 

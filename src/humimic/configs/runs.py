@@ -535,6 +535,10 @@ class LoopSettings:
     """Fine-tuning PPO iterations."""
     num_envs: int | None = None
     """Fine-tuning envs (default: as many as the run trained with)."""
+    learning_rate: float = 3e-5
+    """Fine-tuning learning rate, on a fixed schedule: a policy that has converged moves away
+    from its optimum at a training run's rate (1e-3, adaptive) on the loop's batches
+    (BENCHMARKS.md, issue 26)."""
     sysid_log: Literal["deployment", "gantry"] = "deployment"
     """What sysid diagnoses: the policy's deployment on the real robot (episodes of the clip,
     logged with IMU and motion capture) or a gantry session (hanging, multi-sine targets)."""
@@ -557,6 +561,8 @@ class LoopSettings:
         _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
         if not 5.0 <= self.sysid_duration <= 3600.0:  # NaN fails too.
             raise InputError(f"--sysid-duration {self.sysid_duration}: choose 5 to 3600 s")
+        if not 0.0 < self.learning_rate <= 0.1:  # NaN fails too.
+            raise InputError(f"--learning-rate {self.learning_rate}: choose a rate in (0, 0.1]")
         _check_minutes(self.max_minutes)
         _check_seed(self.seed)
         check_device(self.device)

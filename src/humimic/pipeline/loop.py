@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -194,7 +195,7 @@ def _finetune(s: LoopSettings, run: Any, out: Path, physics: Path | None) -> dic
                        init_from=s.run, variant=run.variant, seed=s.seed,
                        checkpoint_every=s.iterations, num_steps_per_env=run.num_steps_per_env,
                        max_minutes=s.max_minutes, quiet=s.quiet, task=run.task,
-                       ppo=run.ppo)  # fmt: skip
+                       ppo=replace(run.ppo, learning_rate=s.learning_rate, schedule="fixed"))  # fmt: skip
     last = train(ts)
     return {"run": str(out), "physics": None if physics is None else str(physics),
             "seconds": time.perf_counter() - t0, "last": last}  # fmt: skip
@@ -222,7 +223,8 @@ def loop(settings: LoopSettings) -> dict:
        targets (``gantry.mcap``, the log ``humimic sysid simulate`` writes).
     3. **Sysid**: ``humimic sysid diagnose`` on that log (``sysid/``); its claimed effects
        become a physics file, ``corrected.yaml``.
-    4. **Fine-tune** the policy in the corrected model, under the run's DR (``finetune/``);
+    4. **Fine-tune** the policy in the corrected model, under the run's DR and PPO settings
+       but at ``--learning-rate`` on a fixed schedule (``finetune/``);
        with ``--control``, also in the nominal model for the same iterations
        (``finetune_nominal/``), to tell the correction's gain from that of more training.
     5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and
