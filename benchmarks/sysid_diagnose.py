@@ -62,6 +62,26 @@ CASES: dict[str, tuple[list[str], object]] = {
 }  # fmt: skip
 
 
+def diagnosis_summary(r: dict) -> dict:
+    """What a diagnosis report claimed and how much of the held-out error it removed."""
+    net = r["residual_model"]
+    return {
+        "claimed": [{"effect": e["effect"],
+                     "target": e.get("group") or e.get("body") or e["joints"][0],
+                     "joints": len(e.get("joints", [])),
+                     "value": e["params"]["value"], "confidence": round(e["confidence"], 2)}
+                    for e in r["effects"] if e["confidence"] >= 0.5],
+        "not_identifiable": [{"effect": s["effect"], "joints": len(s["joints"])}
+                             for s in r["not_identifiable"]],
+        "unexplained": r["unexplained"],
+        "unexplained_joints": len(r["unexplained_joints"]),
+        "heldout_kstep_rmse_mrad_before": r["error_before"]["kstep_rmse_rad"] * 1e3,
+        "heldout_kstep_rmse_mrad_after": r["error_after"]["kstep_rmse_rad"] * 1e3,
+        "heldout_kstep_rmse_mrad_residual_net": None if net is None
+        else net["error_after"]["kstep_rmse_rad"] * 1e3,
+    }  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--duration", type=float, default=40.0)
@@ -84,7 +104,6 @@ def main() -> None:
                 log = _bus_latency(log)
             path = write_robot_log(log, Path(tmp) / "log.mcap")
             r = run_diagnosis(path, Path(tmp) / name.replace(" ", "_"))
-            net = r["residual_model"]
             case = {
                 "case": name,
                 "injected": [{"effect": i.effect, "target": ",".join(i.targets), "value": i.value}
@@ -92,17 +111,7 @@ def main() -> None:
                                                       "target": "left_knee_joint"}] if edit is _cable else [])
                             + ([{"effect": "bus latency (stamps)", "target": "all joints",
                                  "value": 0.025}] if retime else []),
-                "claimed": [{"effect": e["effect"],
-                             "target": e.get("group") or e.get("body") or e["joints"][0],
-                             "value": e["params"]["value"], "confidence": round(e["confidence"], 2)}
-                            for e in r["effects"] if e["confidence"] >= 0.5],
-                "not_identifiable": [{"effect": s["effect"], "joints": len(s["joints"])}
-                                     for s in r["not_identifiable"]],
-                "unexplained": r["unexplained"],
-                "heldout_kstep_rmse_mrad_before": r["error_before"]["kstep_rmse_rad"] * 1e3,
-                "heldout_kstep_rmse_mrad_after": r["error_after"]["kstep_rmse_rad"] * 1e3,
-                "heldout_kstep_rmse_mrad_residual_net": None if net is None
-                else net["error_after"]["kstep_rmse_rad"] * 1e3,
+                **diagnosis_summary(r),
                 "seconds": r["seconds"],
             }  # fmt: skip
             out["cases"].append(case)

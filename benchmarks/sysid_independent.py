@@ -42,6 +42,7 @@ from humimic.errors import InputError
 from humimic.real2sim import LogSettings, RobotLog, simulate_log, write_robot_log
 from humimic.real2sim.report import run_diagnosis
 from humimic.robots import get_robot
+from sysid_diagnose import diagnosis_summary
 
 LEGS = [f"{side}_{j}_joint" for side in ("left", "right")
         for j in ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll")]  # fmt: skip
@@ -129,21 +130,9 @@ def main() -> None:
                 sim_s = time.perf_counter() - t0
                 path = write_robot_log(log, Path(tmp) / "log.mcap")
                 r = run_diagnosis(path, Path(tmp) / f"{base}_{name.replace(' ', '_')}")
-                net = r["residual_model"]
                 case = {
                     "case": name, "base": base, "truth": truth,
-                    "claimed": [{"effect": e["effect"],
-                                 "target": e.get("group") or e.get("body") or e["joints"][0],
-                                 "joints": len(e.get("joints", [])),
-                                 "value": round(e["params"]["value"], 4),
-                                 "confidence": round(e["confidence"], 2)}
-                                for e in r["effects"] if e["confidence"] >= 0.5],
-                    "unexplained": r["unexplained"],
-                    "unexplained_joints": len(r["unexplained_joints"]),
-                    "heldout_kstep_rmse_mrad_before": r["error_before"]["kstep_rmse_rad"] * 1e3,
-                    "heldout_kstep_rmse_mrad_after": r["error_after"]["kstep_rmse_rad"] * 1e3,
-                    "heldout_kstep_rmse_mrad_residual_net": None if net is None
-                    else net["error_after"]["kstep_rmse_rad"] * 1e3,
+                    **diagnosis_summary(r),
                     "simulate_s": sim_s, "diagnose_s": r["seconds"],
                 }  # fmt: skip
                 out["cases"].append(case)

@@ -229,19 +229,7 @@ def test_a_payload_is_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
     log = tmp_path / "deploy.mcap"
     assert main(["sysid", "simulate", "--base", "floating", "--duration", "8", "--seed", "3",
                  "--inject", "payload_mass:torso_link=4.0", "--out", str(log)]) == 0  # fmt: skip
-    out = tmp_path / "diag"
-    assert main(["sysid", "diagnose", str(log), "--out-dir", str(out)]) == 0
-    r = json.loads((out / "report.json").read_text())
-    assert r["base"] == "floating" and "motion capture" in r["base_estimate"]
-    assert "backlash" in r["not_searched_effects"]
-    claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
-    assert [(e["effect"], e.get("body")) for e in claimed] == [("payload_mass", "torso_link")]
-    assert claimed[0]["params"]["value"] == pytest.approx(4.0, rel=0.3)
-    assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
-    assert "Floating base" in (out / "report.md").read_text()
-    assert main(["sysid", "diagnose", str(log), "--out-dir", str(tmp_path / "d2"),
-                 "--residual-net", "always"]) == 2  # fmt: skip
-    assert not (tmp_path / "d2").exists()
+    _payload_diagnosed(log, tmp_path, 4.0)
 
 
 def test_a_clean_deployment_log_yields_no_confident_claim() -> None:
@@ -284,17 +272,22 @@ def test_an_independently_built_backpack_is_found_as_a_payload(tmp_path: Path) -
     the held-out error at least halved, nothing else claimed."""
     log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=3),
                        edit=_backpack_body)  # fmt: skip
-    path = write_robot_log(log, tmp_path / "deploy.mcap")
+    _payload_diagnosed(write_robot_log(log, tmp_path / "deploy.mcap"), tmp_path, 3.0)
+
+
+def _payload_diagnosed(log: Path, tmp_path: Path, mass: float) -> None:
+    """``humimic sysid diagnose`` names a payload of ``mass`` on the torso (within 30 %) and
+    nothing else, and at least halves the held-out error; no residual network on the floor."""
     out = tmp_path / "diag"
-    assert main(["sysid", "diagnose", str(path), "--out-dir", str(out)]) == 0
+    assert main(["sysid", "diagnose", str(log), "--out-dir", str(out)]) == 0
     r = json.loads((out / "report.json").read_text())
     assert r["base"] == "floating" and "motion capture" in r["base_estimate"]
     assert "backlash" in r["not_searched_effects"]
     claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
     assert [(e["effect"], e.get("body")) for e in claimed] == [("payload_mass", "torso_link")]
-    assert claimed[0]["params"]["value"] == pytest.approx(3.0, rel=0.3)
+    assert claimed[0]["params"]["value"] == pytest.approx(mass, rel=0.3)
     assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
     assert "Floating base" in (out / "report.md").read_text()
-    assert main(["sysid", "diagnose", str(path), "--out-dir", str(tmp_path / "d2"),
+    assert main(["sysid", "diagnose", str(log), "--out-dir", str(tmp_path / "d2"),
                  "--residual-net", "always"]) == 2  # fmt: skip
     assert not (tmp_path / "d2").exists()
