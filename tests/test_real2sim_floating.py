@@ -291,3 +291,26 @@ def _payload_diagnosed(log: Path, tmp_path: Path, mass: float) -> None:
     assert main(["sysid", "diagnose", str(log), "--out-dir", str(tmp_path / "d2"),
                  "--residual-net", "always"]) == 2  # fmt: skip
     assert not (tmp_path / "d2").exists()
+
+
+def test_an_imu_heading_off_motion_capture_is_turned_onto_it() -> None:
+    """A real IMU's heading is arbitrary (gravity fixes its tilt only): the IMU's world is
+    turned 1.2 rad about the vertical against motion capture's, by scipy here. The estimate
+    finds the offset and predicts as well as with the aligned log; reading the IMU's heading
+    as motion capture's would not."""
+    from scipy.spatial.transform import Rotation
+
+    log = _log()
+    assert log.imu is not None
+    turn = Rotation.from_euler("z", 1.2)
+    xyzw = (turn * Rotation.from_quat(log.imu.quat_w[:, [1, 2, 3, 0]])).as_quat()
+    turned = replace(log, imu=replace(log.imu, quat_w=xyzw[:, [3, 0, 1, 2]]))
+    model = _model()
+    base = Predictor(model, log, horizon=0.5)
+    p = Predictor(model, turned, horizon=0.5)
+    assert p.base is not None and "heading turned -68.8 deg" in p.base.source
+    aligned = base.error(Correction.of(model)).kstep_rmse_rad
+    assert p.error(Correction.of(model)).kstep_rmse_rad == pytest.approx(aligned, rel=0.05)
+    # Without motion capture there is nothing to align to: the heading is the IMU's.
+    nomocap = Predictor(model, replace(turned, mocap=None), horizon=0.5)
+    assert nomocap.base is not None and "heading" not in nomocap.base.source

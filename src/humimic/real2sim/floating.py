@@ -56,6 +56,10 @@ class BaseEstimate:
     world: bool
 
 
+HEADING_NOTE = np.radians(1.0)
+"""A heading offset between the IMU and motion capture larger than this is reported."""
+
+
 def base_source(mocap: bool, accelerometer: bool) -> str:
     """The words :class:`BaseEstimate` ``source`` uses for a log with these streams."""
     used = ["motion capture (/base_pose)"] if mocap else []
@@ -209,7 +213,8 @@ def estimate_base(
     """The floating base's coordinates at the log's state samples ``idx`` (default: all).
 
     Orientation and angular velocity come from the IMU (its site's fixed rotation in the root
-    body undone). Position and linear velocity come from the whole log at once
+    body undone; with motion capture, its heading turned onto motion capture's world by
+    :func:`heading_offset`). Position and linear velocity come from the whole log at once
     (:func:`smooth_track`, run on the IMU site's track, so that the accelerometer needs no
     angular acceleration): motion capture's position where the log has ``/base_pose``; the
     accelerometer's specific force where it has ``linear_acceleration``; and at every sample
@@ -256,6 +261,13 @@ def estimate_base(
     n = t.size
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     quat_wb = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
+    heading = 0.0
+    if log.mocap is not None:
+        _span(where, "/base_pose", log.mocap.t, t)
+        heading = heading_offset(quat_wb, _interp_quat(log.mocap.t, log.mocap.quat_w, t))
+        q_yaw = np.array([np.cos(heading / 2), 0.0, 0.0, np.sin(heading / 2)])
+        quat_ws = quat_mul(np.broadcast_to(q_yaw, quat_ws.shape), quat_ws)
+        quat_wb = quat_mul(np.broadcast_to(q_yaw, quat_wb.shape), quat_wb)
     R_wb = quat_to_matrix(quat_wb)
     r_w = R_wb @ model.site_pos[sid]  # Root origin to the IMU, world axes. Shape: (n, 3).
     omega_w = np.einsum("nij,nj->ni", R_wb, omega_b)
@@ -285,7 +297,6 @@ def estimate_base(
     pos = np.zeros((n, 3))
     sigma = np.full((n, 3), np.inf)
     if log.mocap is not None:
-        _span(where, "/base_pose", log.mocap.t, t)
         pos[:] = _interp(log.mocap.t, log.mocap.pos_w, t)
         sigma[:] = SIGMA_MOCAP
     else:
@@ -312,5 +323,17 @@ def estimate_base(
     world = log.mocap is not None
     if not world:
         qpos[:, :2] = 0.0
-    return BaseEstimate(qpos=qpos, qvel=qvel, source=base_source(world, acc is not None),
-                        world=world)  # fmt: skip
+    source = base_source(world, acc is not None)
+    if abs(heading) > HEADING_NOTE:
+        source += f"; the IMU's heading turned {np.degrees(heading):+.1f} deg onto motion capture's"
+    return BaseEstimate(qpos=qpos, qvel=qvel, source=source, world=world)
+
+
+def heading_offset(quat_imu: np.ndarray, quat_mocap: np.ndarray) -> float:
+    """The yaw [rad] about the world's vertical that turns the IMU's world onto motion
+    capture's: an IMU's tilt is absolute (gravity), its heading is not (it starts anywhere and
+    drifts). The circular mean of the per-sample yaw of ``quat_mocap * conj(quat_imu)``, both
+    world from the root body. Shape of each: (n, 4)."""
+    d = quat_to_matrix(quat_mul(quat_mocap, quat_conj(quat_imu)))
+    yaw = np.arctan2(d[:, 1, 0], d[:, 0, 0])
+    return float(np.arctan2(np.mean(np.sin(yaw)), np.mean(np.cos(yaw))))
