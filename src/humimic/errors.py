@@ -47,3 +47,13 @@ class MissingDependencyError(HumimicError):
 
 class FetchError(HumimicError):
     """Downloading data at run time failed."""
+
+
+def first_line(e: BaseException, limit: int = 160) -> str:
+    """An exception's message on one short line (torch's can span dozens; of a state dict
+    that does not load, the line after its heading says what differs)."""
+    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
+    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
+        lines = lines[1:]
+    text = lines[0] if lines else type(e).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."

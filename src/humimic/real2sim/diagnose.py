@@ -581,8 +581,9 @@ def fit_predictors(
 ) -> tuple[Predictor, Predictor, Predictor]:
     """The fit-part predictors of a diagnosis: A for the secant fits (every other window of
     A), A and B for scoring (A and B interleave: alternate windows of the fit span, so that
-    both see every kind of motion the log has). The floating base (if any) is estimated once for the three, or ``base_track`` is used
-    (see :class:`~humimic.real2sim.residual.Predictor`).
+    both see every kind of motion the log has). The floating base (if any) is estimated
+    once for the three, or ``base_track`` is used (see
+    :class:`~humimic.real2sim.residual.Predictor`).
 
     Raises:
         InputError: The log is too short for the horizon (naming the log file and

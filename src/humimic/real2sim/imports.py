@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from humimic.errors import InputError
+from humimic.errors import InputError, first_line
 from humimic.io import read_yaml
 from humimic.real2sim.robotlog import QUAT_TOL, ImuLog, PoseTrack, RobotLog
 
@@ -328,12 +328,8 @@ def _load_npz(path: Path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as z:
             return {k: np.asarray(z[k]) for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        why = "an array holds pickled objects" if "pickle" in str(e) else _one_line(e)
+        why = "an array holds pickled objects" if "pickle" in str(e) else first_line(e)
         raise InputError(f"{path}: not a readable .npz archive ({why})") from None
-
-
-def _one_line(e: BaseException) -> str:
-    return " ".join(str(e).split())[:300]
 
 
 def _load_csv(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -344,7 +340,7 @@ def _load_csv(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
         with path.open(newline="", encoding="utf-8-sig") as f:
             lines = [(n, row) for n, row in enumerate(csv.reader(f), start=1) if row]
     except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise InputError(f"{path}: not a readable CSV file ({_one_line(e)})") from None
+        raise InputError(f"{path}: not a readable CSV file ({first_line(e)})") from None
     if len(lines) < 3:
         raise InputError(f"{path}: expected a header row and at least 2 data rows")
     header = [h.strip() for h in lines[0][1]]
@@ -563,7 +559,7 @@ def _read_bag(path: Path, topics: Iterable[str]) -> tuple[dict[str, list], dict[
                 out[conn.topic].append((_stamp_ns(msg, logtime), msg))
     except (AnyReaderError, OSError, ValueError, KeyError) as e:
         hint = "; humimic's own logs need no import" if "not ros2" in str(e) else ""
-        raise InputError(f"{path}: not a readable ROS 2 bag ({_one_line(e)}){hint}") from None
+        raise InputError(f"{path}: not a readable ROS 2 bag ({first_line(e)}){hint}") from None
     return out, types
 
 

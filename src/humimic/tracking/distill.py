@@ -269,10 +269,10 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     (:class:`~humimic.tracking.rma.RmaDistillation`); ``progress.csv`` has ``loss_latent``
     (trained on) and ``loss_behavior`` (the actions' MSE, not trained on).
     """
+    from humimic.errors import first_line
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
-        first_line,
         resolve_checkpoint,
         resolved_source,
         run_config,

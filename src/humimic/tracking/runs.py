@@ -20,7 +20,7 @@ import torch
 import yaml
 
 from humimic.configs.runs import PpoConfig, TaskSettings, TrainSettings
-from humimic.errors import InputError
+from humimic.errors import InputError, first_line
 from humimic.io import atomic_write_text
 from humimic.sim.randomization import DR_PROFILES
 from humimic.tracking.config import TrackingConfig
@@ -49,16 +49,6 @@ def checkpoint_files(run: Path) -> list[Path]:
     if not folder.is_dir():
         return []
     return sorted(folder.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1]))
-
-
-def first_line(e: BaseException, limit: int = 160) -> str:
-    """An exception's message on one short line (torch's can span dozens; of a state dict
-    that does not load, the line after its heading says what differs)."""
-    lines = [line.strip() for line in str(e).strip().splitlines() if line.strip()]
-    if len(lines) > 1 and lines[0].startswith("Error(s) in loading state_dict"):
-        lines = lines[1:]
-    text = lines[0] if lines else type(e).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:

@@ -19,7 +19,7 @@ import torch
 import yaml
 
 from humimic.configs.runs import TIMED_ITERATIONS, PpoConfig, TaskSettings, TrainSettings
-from humimic.errors import HumimicError, InputError
+from humimic.errors import HumimicError, InputError, first_line
 from humimic.io import check_not_input, check_writable
 from humimic.motion import Motion, load_motion, motion_from_qpos
 from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_profile
@@ -29,7 +29,6 @@ from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import make_runner, scale_actor_output, train_cfg
 from humimic.tracking.runs import (
     checkpoint_files,
-    first_line,
     latest_checkpoint,
     load_weights,
     ppo_for,
@@ -394,8 +393,8 @@ def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: Ppo
     """Load ``--init-from``'s weights into a new run's runner (its iteration count restarts).
 
     A PPO checkpoint gives actor, critic and optimizer (its moments; the learning rate is
-    this run's ``--ppo.learning-rate``, not the one the checkpoint's run ended at). A student's (``humimic distill``)
-    gives the actor alone: the critic starts fresh (``--ppo.critic-warmup-iterations`` trains
+    this run's ``--ppo.learning-rate``, not the one the checkpoint's run ended at). A
+    student's (``humimic distill``) gives the actor alone: the critic starts fresh (``--ppo.critic-warmup-iterations`` trains
     it before the actor moves), and the action noise starts at ``--ppo.init-std``: a
     student's std is the fixed rollout noise of its distillation, not something it learned.
     """
