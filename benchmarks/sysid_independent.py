@@ -20,7 +20,7 @@ Every effect here is written in this file, against the MuJoCo model spec or the 
 Prints one JSON line per case and log, then a summary object.
 
 Usage: .venv/bin/python benchmarks/sysid_independent.py [--duration 40] [--seed 11]
-       [--only NAME] [--base fixed|floating]
+       [--only NAME] [--base fixed|floating] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -105,13 +105,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument("--only", default=None, help="run one case (its name)")
     parser.add_argument("--base", choices=["fixed", "floating"], default=None)
+    parser.add_argument(
+        "--keep", type=Path, default=None, help="keep each case's log and report in this folder"
+    )
     args = parser.parse_args()
     robot = get_robot("g1")
     out = {"benchmark": "sysid_independent", "machine": {"cpu": platform.processor() or
            platform.machine(), "cores": os.cpu_count()}, "duration_s": args.duration,
            "seed": args.seed, "cases": []}  # fmt: skip
     bases = [args.base] if args.base else ["fixed", "floating"]
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.keep or Path(scratch)
+        tmp.mkdir(parents=True, exist_ok=True)
         for name, (edit, retime, truth) in CASES.items():
             if args.only and name != args.only:
                 continue
@@ -128,8 +133,9 @@ def main() -> None:
                 if retime is not None:
                     log = retime(log)
                 sim_s = time.perf_counter() - t0
-                path = write_robot_log(log, Path(tmp) / "log.mcap")
-                r = run_diagnosis(path, Path(tmp) / f"{base}_{name.replace(' ', '_')}")
+                case_dir = Path(tmp) / f"{base}_{name.replace(' ', '_')}"
+                path = write_robot_log(log, Path(tmp) / f"{case_dir.name}.mcap")
+                r = run_diagnosis(path, case_dir)
                 case = {
                     "case": name, "base": base, "truth": truth,
                     **diagnosis_summary(r),

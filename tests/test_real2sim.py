@@ -179,6 +179,9 @@ def test_cli_diagnose_writes_model_and_report(tmp_path: Path) -> None:
     ]
     assert r["error_after"]["kstep_rmse_rad"] < r["error_before"]["kstep_rmse_rad"]
     assert r["residual_model"] is None and r["unexplained"] is False
+    # The vocabulary's own effect: once claimed, its joint is back at its noise floor.
+    assert claimed[0]["partial"] is False and claimed[0]["stands_out"] < 3.0
+    assert "Partial explanations" not in (out / "report.md").read_text()
     model = mujoco.MjModel.from_xml_path(str(out / "model.xml"))
     dof = model.joint("right_knee_joint").dofadr[0]
     assert model.dof_damping[dof] == pytest.approx(claimed[0]["params"]["value"], rel=1e-5)

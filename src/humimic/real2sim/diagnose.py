@@ -41,6 +41,16 @@ MIN_FIT_SAMPLES = 50
 """Fewest state samples in the fit part of a log (the residual network and the signature
 plots need some too)."""
 
+PARTIAL = 3.0
+"""A claimed effect whose joints keep more than this multiple of their noise floor (with every
+claimed effect in the model) explains only part of their error, and the report says so. It is
+a statement, not a confidence: on a gantry log of leg drives at 70 % of kp with kd kept, the
+shared gain (0.70, the right kp; the vocabulary's gain scales kd too) kept 9 times the floor,
+and a knee cable's spring claimed as Coulomb friction on a floor log 27 times; both removed
+the same share of their joints' error on B (0.72 and 0.76), so nothing here tells an
+incomplete effect from a proxy, and lowering the confidence by the remainder dropped the right
+gain and tripled the held-out error (3.4 -> 10.2 mrad)."""
+
 SCREEN = 0.1
 """A candidate scored on B must remove at least this share of its joints' error on A."""
 _SCREEN_KEEP = 4
@@ -68,6 +78,10 @@ class Finding:
         confidence: In [0, 1]; >= 0.5 is a claim.
         error_reduction: Share of its joints' k-step error removed on unseen fit data (B).
         targets: The joints of a group effect (empty for one joint or body).
+        stands_out: The RMS position error its joints keep (on B) with every claimed effect in
+            the model, in multiples of their noise floors (:func:`noise_floor`): above
+            :data:`PARTIAL`, it explains only part of their error (``None``: not scored with
+            the final correction).
     """
 
     effect: str
@@ -77,6 +91,12 @@ class Finding:
     confidence: float
     error_reduction: float
     targets: tuple[str, ...] = ()
+    stands_out: float | None = None
+
+    @property
+    def partial(self) -> bool:
+        """Its joints still stand out with it in the model: something else acts there."""
+        return self.stands_out is not None and self.stands_out > PARTIAL
 
     @property
     def acts_on(self) -> tuple[str, ...]:
@@ -402,6 +422,64 @@ class _Scorer:
     def per_joint(self, c: Correction) -> np.ndarray:
         """Normalized RMS error per joint over both channels."""
         return np.sqrt(np.mean(self.run([c])[0] ** 2, axis=(0, 1, 3)))
+
+
+BASE_PROBES = (("linear velocity", 0.02), ("angular velocity", 0.02), ("height", 0.003))
+"""The floating-base estimate's errors a noise floor allows for: the most, per window start,
+a log's base estimate is taken to be off by (m/s, rad/s, m; an IMU's gyro noise is a few
+mrad/s, a stance-foot velocity estimate's about 1 cm/s)."""
+
+
+def noise_floor(predictor: Predictor, c: Correction, per_joint: np.ndarray) -> np.ndarray:
+    """Each joint's noise floor [rad]: the k-step error it has when the model lacks nothing.
+
+    With a fixed base, the median joint's error (``per_joint``, the RMS error of each joint
+    with ``c``): most joints lack nothing, and the start states' noise reaches every joint
+    alike. On the floor, each window starts from an estimated base state, and an error there
+    moves some joints' predictions far more than others (on a standing G1, the ankles and the
+    waist roll several times the median joint): the floor of joint j is
+    ``sqrt(a^2 + sum_k b_k^2 s_kj^2)``, where ``s_kj`` is how far joint j's prediction moves
+    when the base state at every window start is off by :data:`BASE_PROBES` ``k`` (random,
+    one draw per window), and ``a``, ``b_k`` are fitted to ``per_joint`` (non-negative least
+    squares on the squares, relative; joints more than twice their fit are left out and the
+    fit repeated: an effect on a few joints does not raise the floor). ``b_k`` is at most 1:
+    a base estimate worse than the probes is not taken for noise, so an effect whose
+    signature resembles a base error is not absorbed into the floor beyond that.
+    """
+    from scipy.optimize import lsq_linear
+
+    e = np.asarray(per_joint, dtype=float)
+    median = max(float(np.median(e)), 1e-12)
+    if predictor.base is None:
+        return np.full(e.shape, median)
+    rng = np.random.default_rng(0)
+    base = predictor.base
+    res0 = predictor.run([c])[0]
+    sens = []
+    for name, sigma in BASE_PROBES:
+        qpos, qvel = base.qpos.copy(), base.qvel.copy()
+        if name == "linear velocity":
+            qvel[:, :3] += sigma * rng.standard_normal(qvel[:, :3].shape)
+        elif name == "angular velocity":
+            qvel[:, 3:] += sigma * rng.standard_normal(qvel[:, 3:].shape)
+        else:
+            qpos[:, 2] += sigma * rng.standard_normal(len(qpos))
+        moved = predictor.with_base(qpos, qvel).run([c])[0]
+        sens.append(np.sqrt(np.mean((moved - res0) ** 2, axis=(0, 1))))
+    a = np.column_stack([np.ones_like(e), np.square(sens).T])
+    y = np.maximum(e, 1e-3 * median) ** 2
+    upper = np.array([np.inf] + [1.0] * len(BASE_PROBES))
+    keep = np.ones(e.size, dtype=bool)
+    fit = np.full(e.shape, median**2)
+    for _ in range(5):
+        w = 1.0 / y[keep]
+        x = lsq_linear(a[keep] * w[:, None], y[keep] * w, bounds=(0.0, upper)).x
+        fit = np.maximum(a @ x, 1e-24)
+        now = y <= 4.0 * fit
+        if (now == keep).all() or now.sum() < a.shape[1]:
+            break
+        keep = now
+    return np.sqrt(fit)
 
 
 def offset_reach(predictor: Predictor, base: Correction) -> np.ndarray:
@@ -840,6 +918,10 @@ def diagnose_log(
         findings = [replace(f, value=v) for f, v in zip(findings, values, strict=True)]
         base = with_kept(start)
         final = score_b.run([start, base])
+        # Once corrected, most joints lack nothing: a claimed effect's joints should come down
+        # to their noise floor.
+        after = np.sqrt(np.mean(final[1][..., 0] ** 2, axis=(0, 1))) * score_b.sigma[0]
+        floor_after = noise_floor(score_b.predictor, base, after)
         claimed, unclaimed = [], []
         for f, (p, v) in zip(findings, kept, strict=True):
             sse0 = float(np.sum(final[0][..., p.joints, :] ** 2))
@@ -847,9 +929,10 @@ def diagnose_log(
             noise = float(final[0][..., p.joints, :].size)  # One floor squared per sample.
             left = max(sse1 - noise, 0.0) / max(sse0 - noise, 1e-30)
             conf = f.confidence * float(np.clip(1.0 - 1.5 * left, 0.0, 1.0))
+            stands = float(np.sqrt(np.mean((after[p.joints] / floor_after[p.joints]) ** 2)))
             if not _sized(p, v) or _at_bound(p, v):  # Nothing, or a proxy (see the two).
                 conf = min(conf, CLAIM - 0.01)
-            g = replace(f, confidence=conf)
+            g = replace(f, confidence=conf, stands_out=stands)
             (claimed if conf >= CLAIM else unclaimed).append((g, p, v))
         if unclaimed:  # Rebuild the correction from the claimed effects only.
             base = start_for(tuple(names[p.index] for _, p, _ in claimed if p.effect == "backlash"))

@@ -261,13 +261,14 @@ def estimate_base(
     n = t.size
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     quat_wb = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
-    heading = 0.0
+    heading = np.zeros(t.size)
     if log.mocap is not None:
         _span(where, "/base_pose", log.mocap.t, t)
-        heading = heading_offset(quat_wb, _interp_quat(log.mocap.t, log.mocap.quat_w, t))
-        q_yaw = np.array([np.cos(heading / 2), 0.0, 0.0, np.sin(heading / 2)])
-        quat_ws = quat_mul(np.broadcast_to(q_yaw, quat_ws.shape), quat_ws)
-        quat_wb = quat_mul(np.broadcast_to(q_yaw, quat_wb.shape), quat_wb)
+        heading = heading_offset(quat_wb, _interp_quat(log.mocap.t, log.mocap.quat_w, t), t)
+        q_yaw = np.zeros((t.size, 4))
+        q_yaw[:, 0], q_yaw[:, 3] = np.cos(heading / 2), np.sin(heading / 2)
+        quat_ws = quat_mul(q_yaw, quat_ws)
+        quat_wb = quat_mul(q_yaw, quat_wb)
     R_wb = quat_to_matrix(quat_wb)
     r_w = R_wb @ model.site_pos[sid]  # Root origin to the IMU, world axes. Shape: (n, 3).
     omega_w = np.einsum("nij,nj->ni", R_wb, omega_b)
@@ -324,16 +325,43 @@ def estimate_base(
     if not world:
         qpos[:, :2] = 0.0
     source = base_source(world, acc is not None)
-    if abs(heading) > HEADING_NOTE:
-        source += f"; the IMU's heading turned {np.degrees(heading):+.1f} deg onto motion capture's"
+    turn, drift = float(np.mean(heading)), float(np.ptp(heading))
+    if abs(turn) > HEADING_NOTE or drift > HEADING_NOTE:
+        source += f"; the IMU's heading turned {np.degrees(turn):+.1f} deg onto motion capture's"
+        if drift > HEADING_NOTE:
+            source += f", following its drift ({np.degrees(drift):.1f} deg over the log)"
     return BaseEstimate(qpos=qpos, qvel=qvel, source=source, world=world)
 
 
-def heading_offset(quat_imu: np.ndarray, quat_mocap: np.ndarray) -> float:
+HEADING_SMOOTH = 1.0
+"""The IMU's heading offset against motion capture is averaged over this window [s]."""
+
+
+def heading_offset(quat_imu: np.ndarray, quat_mocap: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The yaw [rad] about the world's vertical that turns the IMU's world onto motion
-    capture's: an IMU's tilt is absolute (gravity), its heading is not (it starts anywhere and
-    drifts). The circular mean of the per-sample yaw of ``quat_mocap * conj(quat_imu)``, both
-    world from the root body. Shape of each: (n, 4)."""
+    capture's at each time ``t``: an IMU's tilt is absolute (gravity), its heading is not (it
+    starts anywhere and drifts). The per-sample yaw of ``quat_mocap * conj(quat_imu)`` (both
+    world from the root body, shape (n, 4)), unwrapped and averaged over
+    :data:`HEADING_SMOOTH` about each sample by a straight line (a drift is followed, at the
+    log's ends too, where the window is one-sided). Shape: (n,)."""
     d = quat_to_matrix(quat_mul(quat_mocap, quat_conj(quat_imu)))
-    yaw = np.arctan2(d[:, 1, 0], d[:, 0, 0])
-    return float(np.arctan2(np.mean(np.sin(yaw)), np.mean(np.cos(yaw))))
+    yaw = np.unwrap(np.arctan2(d[:, 1, 0], d[:, 0, 0]))
+    # A line fitted to the samples within half a window of each sample (times may be uneven),
+    # from running sums; its value at the sample.
+    s = np.asarray(t, dtype=float) - t[0]
+    lo = np.searchsorted(s, s - HEADING_SMOOTH / 2, side="left")
+    hi = np.searchsorted(s, s + HEADING_SMOOTH / 2, side="right")
+
+    def window(x: np.ndarray) -> np.ndarray:
+        total = np.concatenate([[0.0], np.cumsum(x)])
+        return total[hi] - total[lo]
+
+    n, sy = (hi - lo).astype(float), window(yaw)
+    st = window(s) - n * s  # Sums of the times relative to each sample, and so on.
+    stt = window(s * s) - 2 * s * window(s) + n * s * s
+    sty = window(s * yaw) - s * sy
+    det = n * stt - st * st
+    flat = det <= 1e-12 * np.maximum(n * stt, 1e-300)  # One sample, or all at one time.
+    line = np.where(flat, sy / n, (sy * stt - st * sty) / np.where(flat, 1.0, det))
+    # Back into (-pi, pi] about the first sample's turn, keeping the series continuous.
+    return line - 2 * np.pi * np.round(line[0] / (2 * np.pi))

@@ -23,12 +23,14 @@ from humimic.real2sim.diagnose import (
     CLAIM,
     FIT_END,
     NOT_SEARCHED,
+    PARTIAL,
     SEARCHED,
     Diagnosis,
     Finding,
     backlash_models,
     diagnose_log,
     fit_predictors,
+    noise_floor,
 )
 from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.residual import KStepError, Predictor
@@ -106,6 +108,8 @@ def _effect_entry(f: Finding) -> dict:
         "confidence": f.confidence,
         "error_reduction": f.error_reduction,
         "scored_on": list(f.joints),
+        "stands_out": f.stands_out,
+        "partial": f.partial,
     }
 
 
@@ -141,10 +145,13 @@ def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
             "seconds": time.perf_counter() - t0}  # fmt: skip
 
 
-def _unexplained(before: KStepError, after: KStepError) -> tuple[float, np.ndarray]:
-    """Share of the error above the noise floor (twice the median joint: most joints lack
-    nothing) left after the correction, and the joints that still stand out."""
-    floor = 2.0 * float(np.median(before.per_joint))
+def _unexplained(
+    before: KStepError, after: KStepError, noise: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """Share of the error above the noise floor (twice each joint's ``noise``, see
+    :func:`~humimic.real2sim.diagnose.noise_floor`) left after the correction, and the joints
+    that still stand out."""
+    floor = 2.0 * noise
 
     def excess(e: np.ndarray) -> float:
         return float(np.sum(np.maximum(e**2 - floor**2, 0.0)))
@@ -202,7 +209,8 @@ def run_diagnosis(
         if f.effect == "payload_mass" and f.confidence >= CLAIM and not floating:
             entry["regression"] = payload_regression(robot, log, f.target)
     names = log.joint_names
-    share, standout = _unexplained(before, after)
+    noise = noise_floor(held, nominal, before.per_joint)
+    share, standout = _unexplained(before, after, noise)
     # Unexplained: much of the excess error is left, and some joint still stands out (a clean
     # log's small excess over the median joint is noise, not something missing).
     unexplained = share > UNEXPLAINED and bool(standout.any())
@@ -236,6 +244,7 @@ def run_diagnosis(
         "unexplained": unexplained,
         "unexplained_share": share,
         "unexplained_joints": [n for n, s in zip(names, standout, strict=True) if s],
+        "noise_floor_rad": dict(zip(names, noise.tolist(), strict=True)),
         "residual_model": net_entry,
         "not_identifiable": [
             {"effect": s.effect, "joints": list(s.joints), "reason": s.reason}
@@ -284,11 +293,36 @@ def _markdown(
     else:
         lines.append("No effect claimed.")
     lines.append("")
+    partial = [f for f in claimed if f.partial]
+    if partial:
+        lines += [
+            "**Partial explanations**: with every claimed effect in the model, their joints "
+            f"keep more than {PARTIAL:g} times their noise floor. Such an effect is right but "
+            "incomplete (another acts on the same joints, or its model differs from the "
+            "robot's, e.g. kp weaker but kd not), or it stands in for an effect outside the "
+            "searched vocabulary; its confidence cannot tell which. Check these before "
+            "relying on their values.",
+            "",
+            *[
+                f"- {f.effect} on {f.target} ({f.value:.4g} {EFFECTS[f.effect].unit}, "
+                f"confidence {f.confidence:.2f}): its joints keep {f.stands_out:.1f} times "
+                "their noise floor"
+                for f in partial
+                if f.stands_out is not None
+            ],
+            "",
+        ]
     if report["unexplained"]:
         lines += [
             f"**Unexplained**: {100 * report['unexplained_share']:.0f}% of the error above the "
             "noise floor is left (joints: " + ", ".join(report["unexplained_joints"]) + "). "
             "No effect of the searched vocabulary accounts for it.",
+            "",
+        ]
+    elif report["unexplained_joints"]:
+        lines += [
+            f"{100 * report['unexplained_share']:.0f}% of the error above the noise floor is "
+            "left; joints still above it: " + ", ".join(report["unexplained_joints"]) + ".",
             "",
         ]
     net = report["residual_model"]

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -416,6 +417,17 @@ class Predictor:
 
     def error(self, c: Correction) -> KStepError:
         return self.report(self.run([c])[0])
+
+    def with_base(self, qpos: np.ndarray, qvel: np.ndarray) -> Predictor:
+        """This predictor with the floating base at the windows' starts replaced (shape as
+        :attr:`base`'s): what the predictions would be had the base been estimated so."""
+        if self.base is None:
+            raise ValueError("with_base: a fixed-base predictor has no base estimate")
+        if qpos.shape != self.base.qpos.shape or qvel.shape != self.base.qvel.shape:
+            raise ValueError("with_base: one base state per window expected")
+        other = copy.copy(self)
+        other.base = replace(self.base, qpos=qpos, qvel=qvel)
+        return other
 
     def report(self, residual: np.ndarray) -> KStepError:
         """Summarize a residual (W, S, J) of this predictor's windows."""
