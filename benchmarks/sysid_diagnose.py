@@ -69,7 +69,8 @@ def diagnosis_summary(r: dict) -> dict:
         "claimed": [{"effect": e["effect"],
                      "target": e.get("group") or e.get("body") or e["joints"][0],
                      "joints": len(e.get("joints", [])),
-                     "value": e["params"]["value"], "confidence": round(e["confidence"], 2)}
+                     "value": e["params"]["value"], "confidence": round(e["confidence"], 2),
+                     "stands_out": e.get("stands_out")}
                     for e in r["effects"] if e["confidence"] >= 0.5],
         "not_identifiable": [{"effect": s["effect"], "joints": len(s["joints"])}
                              for s in r["not_identifiable"]],
