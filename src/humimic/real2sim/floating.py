@@ -334,7 +334,7 @@ def estimate_base(
 
 
 HEADING_SMOOTH = 1.0
-"""The IMU's heading offset against motion capture is averaged over this window [s]."""
+"""The window [s] over which a line is fitted to the IMU's heading offset against motion capture."""
 
 
 def heading_offset(quat_imu: np.ndarray, quat_mocap: np.ndarray, t: np.ndarray) -> np.ndarray:
