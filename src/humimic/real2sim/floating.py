@@ -14,7 +14,7 @@ from humimic.errors import InputError
 from humimic.real2sim.robotlog import RobotLog
 from humimic.sim.joints import JointMap
 from humimic.sim.models import MAX_STEP, PHYSICS_DT, REST_DEPTH, floor_colliders, lowest_point
-from humimic.transforms import quat_conj, quat_mul, quat_slerp, quat_to_matrix
+from humimic.transforms import quat_conj, quat_mul, quat_slerp, quat_to_matrix, quat_to_rotvec
 
 _SLACK = 0.05
 """How far [s] a sample may lie outside a stream's span and still be read (its end value)."""
@@ -214,7 +214,8 @@ def estimate_base(
 
     Orientation and angular velocity come from the IMU (its site's fixed rotation in the root
     body undone; with motion capture, its heading turned onto motion capture's world by
-    :func:`heading_offset`). Position and linear velocity come from the whole log at once
+    :func:`heading_offset`; the gyro's bias, :func:`gyro_bias`, removed where it shows above
+    :data:`GYRO_BIAS_NOTE`). Position and linear velocity come from the whole log at once
     (:func:`smooth_track`, run on the IMU site's track, so that the accelerometer needs no
     angular acceleration): motion capture's position where the log has ``/base_pose``; the
     accelerometer's specific force where it has ``linear_acceleration``; and at every sample
@@ -258,6 +259,16 @@ def estimate_base(
     q_bs = model.site_quat[sid] / np.linalg.norm(model.site_quat[sid])  # Body from site.
     R_bs = quat_to_matrix(q_bs)
     omega_b = _interp(imu.t, imu.gyro_b, t) @ R_bs.T
+    # The gyro's constant bias, against motion capture's orientation where the log has it
+    # (independent of the IMU), else against the IMU's own orientation.
+    if log.mocap is not None:
+        q_ref = quat_mul(log.mocap.quat_w, np.broadcast_to(q_bs, log.mocap.quat_w.shape))
+        bias, bias_se = gyro_bias(log.mocap.t, q_ref, imu.t, imu.gyro_b)
+    else:
+        bias, bias_se = gyro_bias(imu.t, imu.quat_w, imu.t, imu.gyro_b)
+    biased = bool(np.linalg.norm(bias) > max(GYRO_BIAS_NOTE, 5 * np.linalg.norm(bias_se)))
+    if biased:
+        omega_b = omega_b - bias @ R_bs.T
     n = t.size
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     quat_wb = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
@@ -325,12 +336,73 @@ def estimate_base(
     if not world:
         qpos[:, :2] = 0.0
     source = base_source(world, acc is not None)
+    if biased:
+        source += (f"; the gyro's bias ({', '.join(f'{1e3 * b:+.1f}' for b in bias)} mrad/s, IMU "
+                   "axes) removed, measured against "
+                   + ("motion capture's orientation" if log.mocap is not None
+                      else "the IMU's own orientation"))  # fmt: skip
     turn, drift = float(np.mean(heading)), float(np.ptp(heading))
     if abs(turn) > HEADING_NOTE or drift > HEADING_NOTE:
         source += f"; the IMU's heading turned {np.degrees(turn):+.1f} deg onto motion capture's"
         if drift > HEADING_NOTE:
             source += f", following its drift ({np.degrees(drift):.1f} deg over the log)"
     return BaseEstimate(qpos=qpos, qvel=qvel, source=source, world=world)
+
+
+GYRO_BIAS_NOTE = 0.002
+"""A gyro bias [rad/s] larger than this (and than five standard errors) is removed and named."""
+
+
+GYRO_BIAS_SEGMENT = 1.0
+"""Length [s] of the stretches over which the gyro's rotation is compared with a reference's."""
+
+
+def gyro_bias(
+    t_ref: np.ndarray, quat_ref: np.ndarray, t: np.ndarray, gyro: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """A gyro's constant bias [rad/s, its own axes] and the bias's standard error, against an
+    orientation track of the gyro's frame (``quat_ref``: world from gyro, w x y z, at
+    ``t_ref``). The gyro's readings (at ``t``) are integrated into a rotation over each
+    stretch of :data:`GYRO_BIAS_SEGMENT`; the rotation that is left between it and the
+    track's own over the stretch, over its length, is that stretch's bias (integrating over a
+    stretch keeps the track's sample noise out: differentiating it at the sample rate would
+    not). Stretches with a gap (an interval over three times the median) are left out.
+
+    An IMU whose orientation output integrates its own gyro carries the bias into that
+    orientation where gravity does not correct it (the heading): against the IMU's own
+    orientation only the rest shows; against motion capture, all of it.
+    """
+    dt = np.diff(t)
+    if dt.size < 2:
+        return np.zeros(3), np.full(3, np.inf)
+    gap = dt > 3 * np.median(dt)
+    # The gyro's orientation track, from the identity at the first sample: each interval
+    # turns by the mean of its two readings.
+    w = 0.5 * (gyro[:-1] + gyro[1:]) * dt[:, None]
+    angle = np.linalg.norm(w, axis=1)
+    step = np.concatenate([np.cos(angle / 2)[:, None],
+                           (np.sinc(angle / (2 * np.pi)) / 2)[:, None] * w], axis=1)  # fmt: skip
+    track = np.zeros((t.size, 4))
+    track[0] = 1.0, 0.0, 0.0, 0.0
+    for k in range(dt.size):
+        track[k + 1] = quat_mul(track[k], step[k])
+    ref = _interp_quat(t_ref, quat_ref, t)
+    inside = (t >= t_ref[0]) & (t <= t_ref[-1])
+    edges = np.arange(t[inside][0], t[inside][-1], GYRO_BIAS_SEGMENT) if inside.any() else []
+    biases = []
+    for a in edges:
+        i, j = np.searchsorted(t, [a, a + GYRO_BIAS_SEGMENT])
+        j = min(j, t.size - 1)
+        if j - i < 2 or gap[i:j].any() or not (inside[i] and inside[j]):
+            continue
+        moved_gyro = quat_mul(quat_conj(track[i]), track[j])
+        moved_ref = quat_mul(quat_conj(ref[i]), ref[j])
+        left = quat_to_rotvec(quat_mul(quat_conj(moved_gyro), moved_ref))
+        biases.append(-left / (t[j] - t[i]))
+    if len(biases) < 2:
+        return np.zeros(3), np.full(3, np.inf)
+    b = np.array(biases)
+    return b.mean(axis=0), b.std(axis=0, ddof=1) / np.sqrt(len(b))
 
 
 HEADING_SMOOTH = 1.0
