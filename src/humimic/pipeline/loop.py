@@ -272,6 +272,13 @@ def loop(settings: LoopSettings) -> dict:
         "kstep_rmse_mrad_before": 1e3 * diag["error_before"]["kstep_rmse_rad"],
         "kstep_rmse_mrad_after": 1e3 * diag["error_after"]["kstep_rmse_rad"],
         "unexplained": diag["unexplained"],
+        # Claims whose joints stay far above their noise floor (sysid/report.md): right but
+        # incomplete, or stand-ins for an effect outside the vocabulary.
+        "partial": [
+            f"{e['effect']} on {e.get('body') or e.get('group') or ', '.join(e['joints'])}"
+            for e in diag["effects"]
+            if e["confidence"] >= 0.5 and e["partial"]
+        ],
         "residual_model_used": False,  # The training model holds the effects alone.
         "not_identifiable": len(diag["not_identifiable"]),
         "seconds": diag["seconds"],
@@ -339,6 +346,9 @@ def _markdown(r: dict) -> str:
         f"{sy['unexplained']}. Details: `sysid/report.md`.",
         "",
     ]
+    if sy.get("partial"):
+        lines += ["Partial explanations (their joints stay far above their noise floor): "
+                  + "; ".join(sy["partial"]) + ".", ""]  # fmt: skip
     return "\n".join(lines)
 
 
