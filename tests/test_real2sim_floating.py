@@ -246,6 +246,9 @@ def test_a_clean_deployment_log_yields_no_confident_claim(tmp_path: Path) -> Non
     floor = r["noise_floor_rad"]
     median = float(np.median(list(floor.values())))
     assert floor["waist_roll_joint"] > 1.5 * median and floor["left_ankle_pitch_joint"] > median
+    noted = next(line for line in (tmp_path / "diag" / "report.md").read_text().splitlines()
+                 if line.startswith("Noise floor:"))  # fmt: skip
+    assert "waist_roll_joint" in noted
 
 
 def _cable(spec) -> None:

@@ -281,6 +281,18 @@ def _markdown(
             "(they need the contact forces or a play joint in the floor model).",
             "",
         ]
+        floor = report["noise_floor_rad"]
+        least = min(floor.values())  # The median joint's error (noise_floor).
+        high = sorted((n for n in floor if floor[n] > 1.5 * least), key=lambda n: -floor[n])
+        if high:
+            lines += [
+                "Noise floor: errors of the base estimate move some joints' predictions more "
+                f"than others, so their floors are above the least one ({1e3 * least:.2f} "
+                "mrad, the median joint's error): "
+                + ", ".join(f"{n} {1e3 * floor[n]:.2f}" for n in high[:6])
+                + " mrad. A joint is unexplained only above three times its own floor.",
+                "",
+            ]
     claimed = diagnosis.claimed
     if claimed:
         lines += ["Claimed (confidence >= 0.5):", ""]
