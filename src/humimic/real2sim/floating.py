@@ -366,14 +366,15 @@ def gyro_bias(
     stretch of :data:`GYRO_BIAS_SEGMENT`; the rotation that is left between it and the
     track's own over the stretch, over its length, is that stretch's bias (integrating over a
     stretch keeps the track's sample noise out: differentiating it at the sample rate would
-    not). Stretches with a gap (an interval over three times the median) are left out.
+    not). Stretches with a gap in either stream (an interval over three times its median) are
+    left out.
 
     An IMU whose orientation output integrates its own gyro carries the bias into that
     orientation where gravity does not correct it (the heading): against the IMU's own
     orientation only the rest shows; against motion capture, all of it.
     """
     dt = np.diff(t)
-    if dt.size < 2:
+    if dt.size < 2 or t_ref.size < 3:
         return np.zeros(3), np.full(3, np.inf)
     gap = dt > 3 * np.median(dt)
     # The gyro's orientation track, from the identity at the first sample: each interval
@@ -388,6 +389,10 @@ def gyro_bias(
         track[k + 1] = quat_mul(track[k], step[k])
     ref = _interp_quat(t_ref, quat_ref, t)
     inside = (t >= t_ref[0]) & (t <= t_ref[-1])
+    # Where the reference has a gap, its interpolated rotation is not the one it made.
+    dt_ref = np.diff(t_ref)
+    big = dt_ref > 3 * np.median(dt_ref)
+    gap_from, gap_to = t_ref[:-1][big], t_ref[1:][big]
     edges = np.arange(t[inside][0], t[inside][-1], GYRO_BIAS_SEGMENT) if inside.any() else []
     biases = []
     for a in edges:
@@ -395,9 +400,15 @@ def gyro_bias(
         j = min(j, t.size - 1)
         if j - i < 2 or gap[i:j].any() or not (inside[i] and inside[j]):
             continue
+        if np.any((gap_from < t[j]) & (gap_to > t[i])):
+            continue
         moved_gyro = quat_mul(quat_conj(track[i]), track[j])
         moved_ref = quat_mul(quat_conj(ref[i]), ref[j])
-        left = quat_to_rotvec(quat_mul(quat_conj(moved_gyro), moved_ref))
+        left = quat_to_rotvec(quat_mul(quat_conj(moved_gyro), moved_ref))  # End's axes.
+        # The bias acted in the axes of every moment of the stretch: its sum is, to second
+        # order, the bias in the middle's axes, turned into the end's.
+        m = (i + j) // 2
+        left = quat_to_matrix(quat_mul(quat_conj(track[m]), track[j])) @ left
         biases.append(-left / (t[j] - t[i]))
     if len(biases) < 2:
         return np.zeros(3), np.full(3, np.inf)
