@@ -405,8 +405,9 @@ def gyro_bias(
         moved_gyro = quat_mul(quat_conj(track[i]), track[j])
         moved_ref = quat_mul(quat_conj(ref[i]), ref[j])
         left = quat_to_rotvec(quat_mul(quat_conj(moved_gyro), moved_ref))  # End's axes.
-        # The bias acted in the axes of every moment of the stretch: its sum is, to second
-        # order, the bias in the middle's axes, turned into the end's.
+        # The bias acted in the axes of every moment of the stretch: what is left is, to
+        # second order, the bias as the middle's axes hold it, seen in the end's axes; turn
+        # it back into the middle's.
         m = (i + j) // 2
         left = quat_to_matrix(quat_mul(quat_conj(track[m]), track[j])) @ left
         biases.append(-left / (t[j] - t[i]))
