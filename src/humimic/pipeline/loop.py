@@ -230,6 +230,7 @@ def loop(settings: LoopSettings) -> dict:
     5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and
        after (``loop.json``, ``loop.md``).
     """
+    from humimic.real2sim.diagnose import CLAIM
     from humimic.real2sim.report import physics_from_sysid, run_diagnosis
     from humimic.sim.physics import write_physics
 
@@ -277,7 +278,7 @@ def loop(settings: LoopSettings) -> dict:
         "partial": [
             f"{e['effect']} on {e.get('body') or e.get('group') or ', '.join(e['joints'])}"
             for e in diag["effects"]
-            if e["confidence"] >= 0.5 and e["partial"]
+            if e["confidence"] >= CLAIM and e["partial"]
         ],
         "residual_model_used": False,  # The training model holds the effects alone.
         "not_identifiable": len(diag["not_identifiable"]),

@@ -431,11 +431,13 @@ a real robot; the fit on a clean simulated standing G1 log (40 s) came to about 
 12 mrad/s and 1 mm."""
 
 
-def noise_floor(predictor: Predictor, c: Correction, per_joint: np.ndarray) -> np.ndarray:
+def noise_floor(predictor: Predictor, c: Correction, residual: np.ndarray) -> np.ndarray:
     """Each joint's noise floor [rad]: the k-step error it has when the model lacks nothing.
 
-    With a fixed base, the median joint's error (``per_joint``, the RMS error of each joint
-    with ``c``): most joints lack nothing, and the start states' noise reaches every joint
+    ``residual`` is the position residual of ``c`` on ``predictor``'s windows (what its
+    :meth:`~humimic.real2sim.residual.Predictor.run` gives, shape (W, S, J)), which callers
+    have already. With a fixed base, the floor is the median joint's RMS error: most joints
+    lack nothing, and the start states' noise reaches every joint
     alike. On the floor, each window starts from an estimated base state, and an error there
     moves some joints' predictions far more than others (on a standing G1, the ankles and the
     waist roll several times the median joint): the floor of joint j is
@@ -443,7 +445,7 @@ def noise_floor(predictor: Predictor, c: Correction, per_joint: np.ndarray) -> n
     any joint is given), ``s_kj`` how far joint j's prediction moves (RMS) when the base state
     at every window start is off along axis ``k`` by its :data:`BASE_PROBES` size (x, y, z
     of the linear and of the angular velocity, and the height: seven axes), and ``b_k`` are
-    fitted to ``per_joint`` (non-negative least squares on the squares, relative;
+    fitted to the joints' RMS errors (non-negative least squares on the squares, relative;
     joints more than twice their fit are left out and the fit repeated: an effect on a few
     joints does not raise the floor). ``b_k`` is at most 1: a base estimate worse than the
     probes is not taken for noise, so an effect whose signature resembles a base error is not
@@ -452,7 +454,8 @@ def noise_floor(predictor: Predictor, c: Correction, per_joint: np.ndarray) -> n
     """
     from scipy.optimize import lsq_linear
 
-    e = np.asarray(per_joint, dtype=float)
+    res0 = np.asarray(residual, dtype=float)
+    e = np.sqrt(np.mean(res0**2, axis=(0, 1)))
     median = max(float(np.median(e)), 1e-12)
     if predictor.base is None:
         return np.full(e.shape, median)
@@ -462,7 +465,6 @@ def noise_floor(predictor: Predictor, c: Correction, per_joint: np.ndarray) -> n
     # move different joints), so each axis has its own column.
     axes = {"linear velocity": [(1, i) for i in range(3)],
             "angular velocity": [(1, i) for i in range(3, 6)], "height": [(0, 2)]}  # fmt: skip
-    res0 = predictor.run([c])[0]
     columns = []
     for name, sigma in BASE_PROBES:
         for which, i in axes[name]:
@@ -923,8 +925,9 @@ def diagnose_log(
         final = score_b.run([start, base])
         # Once corrected, most joints lack nothing: a claimed effect's joints should come down
         # to their noise floor.
-        after = np.sqrt(np.mean(final[1][..., 0] ** 2, axis=(0, 1))) * score_b.sigma[0]
-        floor_after = noise_floor(score_b.predictor, base, after)
+        residual_after = final[1][..., 0] * score_b.sigma[0]  # Positions [rad].
+        after = np.sqrt(np.mean(residual_after**2, axis=(0, 1)))
+        floor_after = noise_floor(score_b.predictor, base, residual_after)
         claimed, unclaimed = [], []
         for f, (p, v) in zip(findings, kept, strict=True):
             sse0 = float(np.sum(final[0][..., p.joints, :] ** 2))

@@ -209,7 +209,7 @@ def run_diagnosis(
         if f.effect == "payload_mass" and f.confidence >= CLAIM and not floating:
             entry["regression"] = payload_regression(robot, log, f.target)
     names = log.joint_names
-    noise = noise_floor(held, nominal, before.per_joint)
+    noise = noise_floor(held, nominal, before.residual)
     share, standout = _unexplained(before, after, noise)
     # Unexplained: much of the excess error is left, and some joint still stands out (a clean
     # log's small excess over the median joint is noise, not something missing).

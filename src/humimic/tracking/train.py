@@ -394,9 +394,10 @@ def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: Ppo
 
     A PPO checkpoint gives actor, critic and optimizer (its moments; the learning rate is
     this run's ``--ppo.learning-rate``, not the one the checkpoint's run ended at). A
-    student's (``humimic distill``) gives the actor alone: the critic starts fresh (``--ppo.critic-warmup-iterations`` trains
-    it before the actor moves), and the action noise starts at ``--ppo.init-std``: a
-    student's std is the fixed rollout noise of its distillation, not something it learned.
+    student's (``humimic distill``) gives the actor alone: the critic starts fresh
+    (``--ppo.critic-warmup-iterations`` trains it before the actor moves), and the action noise
+    starts at ``--ppo.init-std``: a student's std is the fixed rollout noise of its
+    distillation, not something it learned.
     """
     path, blob = init
     student = "actor_state_dict" not in blob and "student_state_dict" in blob
