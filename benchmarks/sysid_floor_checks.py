@@ -11,9 +11,18 @@
    to its gyro, with and without motion capture: the bias found, and the k-step error of the
    clean log, of the biased log as read before (bias not removed) and as read now; and a
    gyro turning at 0.3 rad/s with a 10 mrad/s bias against a reference with a 2 s gap.
+4. ``tilt`` (thirteenth session): 6 s standing logs (seeds 2, 3, 7) and a 40 s one (seed 11)
+   read by an IMU mounted with a roll and pitch (scipy turns its frame, gyro and
+   accelerometer), with and without motion capture: the tilt found (and whether the base
+   estimate names it), and the k-step error of the clean log, of the tilted log with the
+   tilt left in and with it removed.
+5. ``soft`` (thirteenth session): deployment logs whose foot spheres' contact time constant
+   is set here in the spec (not through the vocabulary), on both feet or one, softer and
+   harder than MuJoCo's 0.02 s: what the diagnosis claims, the held-out error before and
+   after, and the diagnosis's time.
 
 Prints one JSON object per part. Usage: .venv/bin/python benchmarks/sysid_floor_checks.py
-[--only floor|short|gyro]
+[--only floor|short|gyro|tilt|soft]
 """
 
 from __future__ import annotations
@@ -145,9 +154,108 @@ def gyro_part() -> dict:
     }
 
 
+def _mount_tilted(log, degrees: tuple[float, float]):
+    from scipy.spatial.transform import Rotation
+
+    m = Rotation.from_euler("xy", degrees, degrees=True)
+    turned = Rotation.from_quat(log.imu.quat_w[:, [1, 2, 3, 0]]) * m
+    R = m.as_matrix()
+    acc = None if log.imu.acc_b is None else log.imu.acc_b @ R
+    imu = replace(log.imu, quat_w=turned.as_quat()[:, [3, 0, 1, 2]], gyro_b=log.imu.gyro_b @ R,
+                  acc_b=acc)  # fmt: skip
+    return replace(log, imu=imu)
+
+
+def tilt_part() -> dict:
+    model = floating_prediction_spec(get_robot("g1")).compile()
+    found: list = []
+    estimate = floating._segment_mean
+
+    def spy(t, x):
+        out = estimate(t, x)
+        found.append(out)
+        return out
+
+    rows = []
+    floating._segment_mean = spy
+    try:
+        for seed, duration in ((2, 6.0), (3, 6.0), (7, 6.0), (11, 40.0)):
+            log = simulate_log(get_robot("g1"), [],
+                               LogSettings(duration=duration, base="floating", seed=seed))  # fmt: skip
+            model.opt.timestep = prediction_step(log)
+
+            def err(lg, model=model) -> float:
+                p = Predictor(model, lg, horizon=0.5, span=(0.7, 1.0))
+                return 1e3 * p.error(Correction.of(model)).kstep_rmse_rad
+
+            for mocap in (True, False):
+                clean = log if mocap else replace(log, mocap=None)
+                for degrees in ((0.0, 0.0), (0.4, 0.3), (2.0, -3.0), (12.0, 5.0)):
+                    tilted = _mount_tilted(clean, degrees)
+                    found.clear()
+                    base = Predictor(model, tilted, horizon=0.5).base
+                    assert base is not None
+                    e, se = found[0]
+                    old = floating.MOUNT_TILT_NOTE
+                    floating.MOUNT_TILT_NOTE = np.inf  # As read before: the tilt left in.
+                    try:
+                        kept = err(tilted)
+                    finally:
+                        floating.MOUNT_TILT_NOTE = old
+                    rows.append({"seed": seed, "seconds": duration, "mocap": mocap,
+                                 "tilt_deg": list(degrees),
+                                 "found_deg": np.degrees(e[:2]).round(3).tolist(),
+                                 "se_deg": np.degrees(se[:2]).round(4).tolist(),
+                                 "removed": "mount tilt" in base.source,
+                                 "kstep_mrad": {"clean": round(err(clean), 3),
+                                                "tilt left in": round(kept, 3),
+                                                "as read now": round(err(tilted), 3)}})  # fmt: skip
+    finally:
+        floating._segment_mean = estimate
+    return {"part": "tilt", "held_out_kstep": "last 30 % of each log", "rows": rows}
+
+
+SOFT_CASES = (  # (time constant [s], feet, seed, seconds); the first is the default test's.
+    (0.1, ("left_ankle_roll_link", "right_ankle_roll_link"), 6, 8.0),
+    (0.06, ("left_ankle_roll_link", "right_ankle_roll_link"), 3, 8.0),
+    (0.15, ("left_ankle_roll_link", "right_ankle_roll_link"), 4, 8.0),
+    (0.1, ("left_ankle_roll_link",), 5, 8.0),
+    (0.01, ("left_ankle_roll_link", "right_ankle_roll_link"), 7, 8.0),
+    (0.08, ("left_ankle_roll_link", "right_ankle_roll_link"), 11, 40.0),
+)
+
+
+def soft_part(tmp: Path) -> dict:
+    import mujoco
+
+    rows = []
+    for tc, feet, seed, duration in SOFT_CASES:
+
+        def soft(spec, tc=tc, feet=feet) -> None:
+            for foot in feet:
+                for g in spec.body(foot).geoms:
+                    if g.type == mujoco.mjtGeom.mjGEOM_SPHERE:
+                        g.solref = np.array([tc, 1.0])
+
+        log = simulate_log(get_robot("g1"), [],
+                           LogSettings(duration=duration, base="floating", seed=seed), edit=soft)  # fmt: skip
+        name = f"soft_{tc}_{len(feet)}_{seed}"
+        r = run_diagnosis(write_robot_log(log, tmp / f"{name}.mcap"), tmp / name)
+        rows.append({"time_constant_s": tc, "feet": list(feet), "seed": seed, "seconds": duration,
+                     "claimed": [(e["effect"], e.get("group") or e.get("body")
+                                  or e.get("joints"), round(e["params"]["value"], 4),
+                                  round(e["confidence"], 2), e["partial"])
+                                 for e in r["effects"] if e["confidence"] >= 0.5],
+                     "kstep_mrad": [round(1e3 * r["error_before"]["kstep_rmse_rad"], 3),
+                                    round(1e3 * r["error_after"]["kstep_rmse_rad"], 3)],
+                     "unexplained": r["unexplained_joints"],
+                     "diagnosis_s": round(r["seconds"], 1)})  # fmt: skip
+    return {"part": "soft", "rows": rows}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--only", choices=["floor", "short", "gyro"], default=None)
+    parser.add_argument("--only", choices=["floor", "short", "gyro", "tilt", "soft"], default=None)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         tmp = Path(scratch)
@@ -157,6 +265,10 @@ def main() -> None:
             print(json.dumps(short_part(tmp)), flush=True)
         if args.only in (None, "gyro"):
             print(json.dumps(gyro_part()), flush=True)
+        if args.only in (None, "tilt"):
+            print(json.dumps(tilt_part()), flush=True)
+        if args.only in (None, "soft"):
+            print(json.dumps(soft_part(tmp)), flush=True)
 
 
 if __name__ == "__main__":

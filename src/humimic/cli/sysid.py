@@ -212,7 +212,7 @@ def run_diagnose(cmd: SysidDiagnose) -> None:
           f"({report['seconds']:.0f} s)")  # fmt: skip
     for e in report["effects"]:
         if e["confidence"] >= 0.5:
-            where = e.get("body") or ", ".join(e["joints"])
+            where = e.get("body") or ", ".join(e.get("bodies") or e["joints"])
             print(f"claimed: {e['effect']} on {where} = {e['params']['value']:.4g} "
                   f"{e['params']['unit']} (confidence {e['confidence']:.2f})")  # fmt: skip
     for s in report["not_identifiable"]:

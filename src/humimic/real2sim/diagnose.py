@@ -18,7 +18,7 @@ from humimic.real2sim.floating import BaseEstimate
 from humimic.real2sim.residual import Predictor
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.registry import RobotConfig
-from humimic.sim.effects import Correction, apply_effect
+from humimic.sim.effects import EFFECTS, Correction, apply_effect, soft_geoms
 from humimic.sim.joints import JointMap
 
 FIT_END = 0.7
@@ -31,7 +31,8 @@ CLAIM = 0.5
 """Confidence at or above which an effect is claimed."""
 
 SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch", "delay", "lag",
-            "torque_limit", "encoder_offset", "payload_mass", "backlash")  # fmt: skip
+            "torque_limit", "encoder_offset", "payload_mass", "contact_softness",
+            "backlash")  # fmt: skip
 NOT_SEARCHED: tuple[str, ...] = ()
 
 OFFSET_PROBE = 0.05
@@ -67,9 +68,11 @@ class Finding:
 
     Attributes:
         effect: Vocabulary name.
-        target: Joint name, or body name for ``payload_mass``, or the name of a group of
-            joints that share one value (``limb_of_J``: the joints of the limb that starts at
-            joint J; ``limbs_of_J+K``; ``all_joints``), whose joints are ``targets``.
+        target: Joint name, or body name for a body effect (``payload_mass``,
+            ``contact_softness``), or the name of a group that shares one value
+            (``limb_of_J``: the joints of the limb that starts at joint J; ``limbs_of_J+K``;
+            ``all_joints``; ``all_soles``: every body with a sole), whose joints or bodies
+            are ``targets``.
         joints: The joints whose error it was scored on.
         value: Identified parameter: the amount added to the nominal model (friction N m,
             damping N m s/rad, armature kg m^2, payload kg), the delay or filter time constant
@@ -77,7 +80,7 @@ class Finding:
             gain ratio.
         confidence: In [0, 1]; >= 0.5 is a claim.
         error_reduction: Share of its joints' k-step error removed on unseen fit data (B).
-        targets: The joints of a group effect (empty for one joint or body).
+        targets: The joints (bodies) of a group effect (empty for one joint or body).
         stands_out: The RMS position error its joints keep (on B) with every claimed effect in
             the model, in multiples of their noise floors (:func:`noise_floor`): above
             :data:`PARTIAL`, it explains only part of their error (``None``: not scored with
@@ -105,7 +108,7 @@ class Finding:
 
     @property
     def on_body(self) -> bool:
-        return self.effect == "payload_mass"
+        return EFFECTS[self.effect].target == "body"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -141,13 +144,13 @@ class _Pair:
     """A candidate: one effect on one joint (or body), fitted on some joints' residual."""
 
     effect: str
-    index: int  # Joint index, or body id for a payload.
+    index: int  # Joint index, or body id for a body effect.
     joints: np.ndarray  # Joint indices its residual is fitted and scored on.
     lo: float
     hi: float
     none: float  # The value that adds nothing.
     probe: float  # A first, typical value.
-    group: tuple[int, ...] = ()  # Joints one shared value acts on (empty: ``index`` alone).
+    group: tuple[int, ...] = ()  # Joints (bodies) one shared value acts on; empty: ``index``.
     label: str = ""  # The group's name in a finding.
 
     def apply(self, c: Correction, value: float) -> None:
@@ -232,8 +235,29 @@ def _pairs(
                 bodies.add(b)
                 out.append(_Pair(effect="payload_mass", index=b, joints=_chain(model, b),
                                  lo=0.0, hi=PAYLOAD_MAX, none=0.0, probe=0.5))  # fmt: skip
+                if soft_geoms(model, b).size:  # A sole (floating-base logs have a floor).
+                    out.append(_softness(model, (b,)))
+    soles = [b for b in range(model.nbody) if soft_geoms(model, b).size]
+    if len(soles) > 1 and bodies & set(soles):  # A softer floor: every sole alike.
+        out.append(_softness(model, tuple(soles)))
     return out
 
+
+def _softness(model: mujoco.MjModel, soles: tuple[int, ...]) -> _Pair:
+    """The contact-softness candidate of one sole, or of several sharing one value (a softer
+    floor; the group's label is ``all_soles``), scored on the joints that carry them."""
+    now = float(model.geom_solref[soft_geoms(model, soles[0])[0], 0])
+    lo = max(2 * float(model.opt.timestep), SOFTNESS_RANGE[0])
+    joints = np.unique(np.concatenate([_chain(model, b) for b in soles]))
+    group = soles if len(soles) > 1 else ()
+    return _Pair(effect="contact_softness", index=soles[0], joints=joints, lo=lo,
+                 hi=SOFTNESS_RANGE[1], none=now, probe=min(2 * now, SOFTNESS_RANGE[1]),
+                 group=group, label="all_soles" if group else "")  # fmt: skip
+
+
+SOFTNESS_RANGE = (0.005, 0.2)
+"""Contact time constants searched [s] (MuJoCo's default is 0.02; no lower than two physics
+steps, which MuJoCo enforces)."""
 
 GROUPED = ("delay", "gain_mismatch")
 """Effects also searched as one value shared by a group of joints (a latency of the whole
@@ -696,6 +720,7 @@ def diagnose_log(
     max_effects: int = 4,
     candidates_per_round: int = 3,
     backlash_model: Callable[[tuple[str, ...]], mujoco.MjModel] | None = None,
+    base_track: BaseEstimate | None = None,
 ) -> Diagnosis:
     """Find and size the effects the model lacks, by a cross-validated output-error search.
 
@@ -740,6 +765,8 @@ def diagnose_log(
         candidates_per_round: Most joints examined per round.
         backlash_model: The prediction model with play joints on the given joints (see
             :func:`backlash_models`); without it backlash is not searched.
+        base_track: A floating-base log's base estimate, when the caller has one already
+            (:attr:`~humimic.real2sim.residual.Predictor.track`); default: estimated here.
 
     Raises:
         InputError: A log the diagnosis cannot use (see :func:`fit_predictors`), or a
@@ -752,7 +779,7 @@ def diagnose_log(
     # Fits use joint positions only: a logged drive torque jumps with every command step, so
     # its error is discontinuous in a delay (a sample falls before or after the delayed step)
     # and would trap the search. Scoring on B uses both.
-    pred_fit, pred_a, pred_b = fit_predictors(model, log, horizon)
+    pred_fit, pred_a, pred_b = fit_predictors(model, log, horizon, base_track)
     fit_a = _Scorer(pred_fit, False)
     score_a = _Scorer(pred_a, effort)
     score_b = _Scorer(pred_b, effort)
@@ -892,11 +919,12 @@ def diagnose_log(
             i: int, confidence: float, pairs=pairs, values=values, reds=reds, model=model
         ) -> Finding:
             p = pairs[i]
-            target = model.body(p.index).name if p.effect == "payload_mass" else names[p.index]
-            return Finding(effect=p.effect, target=p.label or target,
+            on_body = EFFECTS[p.effect].target == "body"
+            name = (lambda k: model.body(k).name) if on_body else (lambda k: names[k])
+            return Finding(effect=p.effect, target=p.label or name(p.index),
                            joints=tuple(names[j] for j in p.joints), value=values[i],
                            confidence=confidence, error_reduction=reds[i],
-                           targets=tuple(names[j] for j in p.group))  # fmt: skip
+                           targets=tuple(name(k) for k in p.group))  # fmt: skip
 
         for i in order_p[1:4]:  # The best rivals, for the record.
             rival_conf = min(conf, float(np.clip(reds[i] / (2 * MIN_REDUCTION), 0, 1)))

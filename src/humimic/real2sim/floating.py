@@ -106,6 +106,48 @@ def _interp_quat(t_src: np.ndarray, q: np.ndarray, t: np.ndarray) -> np.ndarray:
     return quat_slerp(q[i], q[i + 1], u)
 
 
+def _turned(yaw: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    """``quat`` (n, 4) turned by ``yaw`` (n,) about the world's vertical."""
+    q_yaw = np.zeros((yaw.size, 4))
+    q_yaw[:, 0], q_yaw[:, 3] = np.cos(yaw / 2), np.sin(yaw / 2)
+    return quat_mul(q_yaw, quat)
+
+
+TILT_EVERY = 0.02
+"""Time [s] between the samples whose stance sole the mount tilt reads."""
+
+
+def _sole_tilt(
+    model: mujoco.MjModel, log: RobotLog, quat_wb: np.ndarray, floor: int, colliders: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sole_tilt` at samples :data:`TILT_EVERY` apart whose lowest collider is on a
+    body with a sole (:func:`sole_frames`); nothing found (infinite error) without one."""
+    soles = sole_frames(model, colliders)
+    if not soles:
+        return np.zeros(3), np.full(3, np.inf)
+    fj = free_joint(model)
+    jm = JointMap.of(model)
+    qa = int(model.jnt_qposadr[fj])
+    data = mujoco.MjData(model)
+    picks = np.unique(np.searchsorted(log.t, np.arange(log.t[0], log.t[-1], TILT_EVERY)))
+    ts, up, sole = [], [], []
+    for k in picks:
+        data.qpos[:] = model.qpos0
+        data.qpos[qa : qa + 7] = 0.0, 0.0, 0.0, *quat_wb[k]
+        data.qpos[jm.qadr] = log.q[k]
+        mujoco.mj_kinematics(model, data)
+        body = lowest_point(model, data, floor, colliders)[2]
+        if body not in soles:
+            continue
+        R_wb = quat_to_matrix(quat_wb[k])
+        ts.append(log.t[k])
+        up.append(R_wb[2])  # The world's up in the root's axes.
+        sole.append(R_wb.T @ data.xmat[body].reshape(3, 3) @ soles[body])
+    if not ts:
+        return np.zeros(3), np.full(3, np.inf)
+    return sole_tilt(np.array(ts), np.array(up), np.array(sole))
+
+
 def prediction_step(log: RobotLog) -> float:
     """The physics step [s] for predictions of a floating-base log: the longest step up to
     :data:`~humimic.sim.models.MAX_STEP` that divides the log's state interval (20 ms states:
@@ -215,7 +257,8 @@ def estimate_base(
     Orientation and angular velocity come from the IMU (its site's fixed rotation in the root
     body undone; with motion capture, its heading turned onto motion capture's world by
     :func:`heading_offset`; the gyro's bias, :func:`gyro_bias`, removed where it shows above
-    :data:`GYRO_BIAS_NOTE`). Position and linear velocity come from the whole log at once
+    :data:`GYRO_BIAS_NOTE`; the mount's tilt, :func:`mount_tilt` against motion capture or
+    :func:`sole_tilt` against the stance soles, removed above :data:`MOUNT_TILT_NOTE`). Position and linear velocity come from the whole log at once
     (:func:`smooth_track`, run on the IMU site's track, so that the accelerometer needs no
     angular acceleration): motion capture's position where the log has ``/base_pose``; the
     accelerometer's specific force where it has ``linear_acceleration``; and at every sample
@@ -273,20 +316,35 @@ def estimate_base(
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     quat_wb = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
     heading = np.zeros(t.size)
+    quat_mo = None
     if log.mocap is not None:
         _span(where, "/base_pose", log.mocap.t, t)
-        heading = heading_offset(quat_wb, _interp_quat(log.mocap.t, log.mocap.quat_w, t), t)
-        q_yaw = np.zeros((t.size, 4))
-        q_yaw[:, 0], q_yaw[:, 3] = np.cos(heading / 2), np.sin(heading / 2)
-        quat_ws = quat_mul(q_yaw, quat_ws)
-        quat_wb = quat_mul(q_yaw, quat_wb)
+        quat_mo = _interp_quat(log.mocap.t, log.mocap.quat_w, t)
+        heading = heading_offset(quat_wb, quat_mo, t)
+        quat_ws, quat_wb = _turned(heading, quat_ws), _turned(heading, quat_wb)
+    f, colliders = floor_colliders(model)
+    # The IMU's mount tilt (its frame not quite the site's): against motion capture, or
+    # against the stance soles, which lie flat on the floor.
+    if quat_mo is not None:
+        tilt, tilt_se = mount_tilt(quat_wb, quat_mo, t)
+    else:
+        tilt, tilt_se = _sole_tilt(model, log, quat_wb, f, colliders)
+    tilted = bool(np.linalg.norm(tilt) > max(MOUNT_TILT_NOTE, 5 * np.linalg.norm(tilt_se)))
+    if tilted:
+        angle = float(np.linalg.norm(tilt))
+        q_e = np.array([np.cos(angle / 2), *(np.sin(angle / 2) * tilt / angle)])
+        quat_wb = quat_mul(quat_wb, np.broadcast_to(quat_conj(q_e), quat_wb.shape))
+        omega_b = omega_b @ quat_to_matrix(q_e).T
+        if quat_mo is not None:  # What the tilt held of the heading.
+            more = heading_offset(quat_wb, quat_mo, t)
+            quat_ws, quat_wb = _turned(more, quat_ws), _turned(more, quat_wb)
+            heading = heading + more
     R_wb = quat_to_matrix(quat_wb)
     r_w = R_wb @ model.site_pos[sid]  # Root origin to the IMU, world axes. Shape: (n, 3).
     omega_w = np.einsum("nij,nj->ni", R_wb, omega_b)
     lever_v = np.cross(omega_w, r_w)
     # Stance: the lowest collider rests on the floor, as deep as the model's feet sink when
     # it stands (its contacts are soft), and does not move.
-    f, colliders = floor_colliders(model)
     depth = rest_depth(model)
     jm = JointMap.of(model)
     qa, da = int(model.jnt_qposadr[fj]), int(model.jnt_dofadr[fj])
@@ -341,6 +399,11 @@ def estimate_base(
                    "axes) removed, measured against "
                    + ("motion capture's orientation" if log.mocap is not None
                       else "the IMU's own orientation"))  # fmt: skip
+    if tilted:
+        source += (f"; the IMU's mount tilt ({', '.join(f'{np.degrees(v):+.2f}' for v in tilt[:2])}"
+                   " deg about the root's x and y) removed, measured against "
+                   + ("motion capture's orientation" if quat_mo is not None
+                      else "the stance soles"))  # fmt: skip
     turn, drift = float(np.mean(heading)), float(np.ptp(heading))
     if abs(turn) > HEADING_NOTE or drift > HEADING_NOTE:
         source += f"; the IMU's heading turned {np.degrees(turn):+.1f} deg onto motion capture's"
@@ -415,6 +478,82 @@ def gyro_bias(
         return np.zeros(3), np.full(3, np.inf)
     b = np.array(biases)
     return b.mean(axis=0), b.std(axis=0, ddof=1) / np.sqrt(len(b))
+
+
+MOUNT_TILT_NOTE = np.radians(0.2)
+"""An IMU mount tilt [rad] larger than this (and than five standard errors) is removed and named.
+Standing, the G1's soles lean 0.06 deg (their spheres sink unevenly) and read as that much tilt,
+while 0.5 deg of tilt left in the base's orientation tripled the k-step error of a standing
+log (1.07 -> 3.67 mrad): small, but well above the soles' lean."""
+
+TILT_SEGMENT = 1.0
+"""Length [s] of the stretches whose median tilt the mount's estimate averages."""
+
+SOLE_FLAT = np.radians(10.0)
+"""A stance sole leaning more than this [rad] from the median lean is rolling (heel or toe), or
+the foot is not flat: not read (a median about the lean, not the vertical, so that a mount
+tilted by more than this is still found)."""
+
+
+def _segment_mean(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mean over :data:`TILT_SEGMENT` stretches of the medians of ``x`` (n, d) within each
+    stretch (samples correlate within one; a rolling foot's outliers stay out), and its
+    standard error; ``inf`` with fewer than two stretches."""
+    if t.size == 0:
+        return np.zeros(x.shape[1]), np.full(x.shape[1], np.inf)
+    seg = np.floor((t - t[0]) / TILT_SEGMENT).astype(np.int64)
+    medians = np.array([np.median(x[seg == k], axis=0) for k in np.unique(seg)])
+    if len(medians) < 2:
+        return np.zeros(x.shape[1]), np.full(x.shape[1], np.inf)
+    return medians.mean(axis=0), medians.std(axis=0, ddof=1) / np.sqrt(len(medians))
+
+
+def mount_tilt(
+    quat_wb: np.ndarray, quat_ref: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The IMU mount's tilt against a reference orientation of the root body (motion capture,
+    its heading already the IMU's: see :func:`heading_offset`): the fixed rotation e [rad,
+    root body axes, roll and pitch; the yaw is the heading's] with ``quat_wb = quat_ref *
+    exp(e)``, and its standard error."""
+    d = quat_to_rotvec(quat_mul(quat_conj(quat_ref), quat_wb))
+    e, se = _segment_mean(t, d[:, :2])
+    return np.array([e[0], e[1], 0.0]), np.array([se[0], se[1], 0.0])
+
+
+def sole_frames(model: mujoco.MjModel, colliders: list[int]) -> dict[int, np.ndarray]:
+    """The bodies with a sole: at least three floor colliders whose centers lie on a plane
+    (as the G1's four foot spheres), each with that plane's normal in the body's axes,
+    pointing from the sole to the body's origin. Shape of each: (3,)."""
+    soles: dict[int, np.ndarray] = {}
+    for b in sorted({int(model.geom_bodyid[g]) for g in colliders}):
+        centers = np.array([model.geom_pos[g] for g in colliders if model.geom_bodyid[g] == b])
+        if len(centers) < 3:
+            continue
+        c = centers - centers.mean(axis=0)
+        _, sv, vt = np.linalg.svd(c)
+        if sv[1] < 1e-3 or sv[-1] > 0.05 * sv[1]:  # On a line, or no plane.
+            continue
+        n = vt[-1]
+        soles[b] = n if n @ -centers.mean(axis=0) > 0 else -n
+    return soles
+
+
+def sole_tilt(t: np.ndarray, up_b: np.ndarray, sole_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The IMU mount's tilt from the stance soles: a sole flat on the floor points up, so the
+    rotation that turns the sole's normal onto the estimate's up (both in the root body's
+    axes, at stance samples: ``up_b``, ``sole_b``, shape (n, 3)) is the orientation's error
+    e [rad, root body axes; the component about the up axis is not seen], with
+    ``quat_wb = quat_true * exp(e)``; and its standard error. Samples whose sole leans more
+    than :data:`SOLE_FLAT` from the median lean are a heel or toe rolling, and not read."""
+    # up = exp(-e) sole: e, across the sole, is minus the rotation from the sole to up.
+    cross = np.cross(sole_b, up_b)
+    sin = np.linalg.norm(cross, axis=1)
+    angle = np.arctan2(sin, np.einsum("ni,ni->n", sole_b, up_b))
+    e = -cross * (angle / np.maximum(sin, 1e-12))[:, None]
+    if e.size == 0:
+        return np.zeros(3), np.full(3, np.inf)
+    flat = np.linalg.norm(e - np.median(e, axis=0), axis=1) < SOLE_FLAT
+    return _segment_mean(t[flat], e[flat])
 
 
 HEADING_SMOOTH = 1.0

@@ -98,7 +98,9 @@ def load_robot_log(path: Path) -> tuple[RobotConfig, mujoco.MjModel, RobotLog]:
 
 
 def _effect_entry(f: Finding) -> dict:
-    where: dict[str, Any] = {"body": f.target} if f.on_body else {"joints": list(f.acts_on)}
+    where: dict[str, Any] = {"joints": list(f.acts_on)}
+    if f.on_body:
+        where = {"bodies": list(f.acts_on)} if f.targets else {"body": f.target}
     if f.targets:
         where["group"] = f.target
     return {
@@ -196,11 +198,14 @@ def run_diagnosis(
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
         check_writable(out / name)
     nominal = Correction.of(model)
+    unsearched = "backlash" if floating else "contact_softness"
     before = held.error(nominal)
     # Backlash needs a second hinge per joint in the prediction model; on the floor that
     # model is not built yet, so backlash is searched on gantry logs only.
     plays = None if floating else backlash_models(robot, log.base_pose)
-    diagnosis = diagnose_log(nominal, log, horizon=horizon, backlash_model=plays)
+    diagnosis = diagnose_log(
+        nominal, log, horizon=horizon, backlash_model=plays, base_track=held.track
+    )
     corrected = diagnosis.correction or nominal
     after = held.error(corrected)
     # The second estimate of each claimed payload, before anything is written.
@@ -252,8 +257,9 @@ def run_diagnosis(
         ],
         "base": log.base,
         "base_estimate": held.base.source if held.base is not None else None,
-        "searched_effects": [e for e in SEARCHED if not (floating and e == "backlash")],
-        "not_searched_effects": [*NOT_SEARCHED, *(["backlash"] if floating else [])],
+        # Backlash's play joint is not built into the floor model; a gantry has no floor.
+        "searched_effects": [e for e in SEARCHED if e != unsearched],
+        "not_searched_effects": [*NOT_SEARCHED, unsearched],
         "plots": [p.name for p in plots],
         "seconds": time.perf_counter() - t0,
     }
@@ -364,7 +370,8 @@ def _markdown(
             for f in diagnosis.findings[:16]
         ],
         "",
-        f"Searched: {', '.join(SEARCHED)}. Not searched: {', '.join(NOT_SEARCHED)}. "
+        f"Searched: {', '.join(report['searched_effects'])}. "
+        f"Not searched: {', '.join(report['not_searched_effects'])}. "
         f"Claimed: confidence >= {CLAIM}.",
         "",
         *[
@@ -533,7 +540,7 @@ def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | Non
     for e in report.get("effects", []):
         if e["confidence"] < CLAIM:
             continue
-        targets = (e["body"],) if "body" in e else tuple(e["joints"])
+        targets = (e["body"],) if "body" in e else tuple(e.get("bodies") or e["joints"])
         effects.append(Injection(effect=e["effect"], targets=targets, value=e["params"]["value"]))
     return Physics(
         name=name,

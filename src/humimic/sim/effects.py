@@ -227,6 +227,60 @@ class PayloadMass(Effect):
         _set_const(c.model)
 
 
+def _planes(m: mujoco.MjModel) -> np.ndarray:
+    return np.flatnonzero(m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
+
+
+def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
+    """The geoms of ``body`` that touch the floor (they collide with the model's first plane)
+    and whose contact parameters decide the floor's contact (a higher MuJoCo priority than
+    the plane's, as the G1's feet have; else the two would be mixed). Empty when the body has
+    none or the model no plane."""
+    planes = _planes(m)
+    if planes.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    f = int(planes[0])
+    g = np.flatnonzero(m.geom_bodyid == body)
+    touch = (m.geom_contype[g] & m.geom_conaffinity[f]) | (
+        m.geom_contype[f] & m.geom_conaffinity[g]
+    )
+    g = g[touch != 0]
+    return g if g.size and np.all(m.geom_priority[g] > m.geom_priority[f]) else g[:0]
+
+
+class ContactSoftness(Effect):
+    """The time constant of the contact between a body's floor colliders and the floor
+    (MuJoCo's solref[0], the damping ratio kept): a softer sole, or a softer floor under it,
+    lets the foot sink and rock further under load. ``value`` replaces the model's. On a
+    spec the body's colliding geoms get it; a body whose colliders do not decide the floor's
+    contact (:func:`soft_geoms`) is refused."""
+
+    def on_spec(self, spec: mujoco.MjSpec, target: str, value: float) -> None:
+        b = spec.body(target)
+        if b is None:
+            raise InputError(f"no body {target!r} in the robot")
+        m = spec.copy().compile()
+        ids = soft_geoms(m, m.body(target).id)
+        if ids.size == 0:
+            raise InputError(
+                f"body {target!r} has no geom that decides its contact with the floor (one "
+                "colliding with the model's plane, at a higher geom priority than the plane's)"
+            )
+        names = {m.geom(int(g)).name for g in ids}
+        geoms = [g for g in b.geoms if g.name in names] if all(names) else None
+        if geoms is None or len(geoms) != ids.size:  # Unnamed geoms: by their order in the body.
+            order = np.flatnonzero(m.geom_bodyid == m.body(target).id).tolist()
+            geoms = [b.geoms[order.index(int(g))] for g in ids]
+        for g in geoms:
+            g.solref = np.array([value, g.solref[1]])
+
+    def on_model(self, c: Correction, index: int, value: float) -> None:
+        ids = soft_geoms(c.model, index)
+        if ids.size == 0:
+            raise InputError(f"body {c.model.body(index).name!r} decides no floor contact")
+        c.model.geom_solref[ids, 0] = value
+
+
 class Backlash(Effect):
     """Play of ``value`` rad in the transmission: a second hinge on the same axis (the link
     side), free within +-value/2 and stopped stiffly at the ends; the drive turns the first
@@ -284,6 +338,12 @@ EFFECTS: dict[str, Effect] = {
         PayloadMass(name="payload_mass", unit="kg", target="body",
                expresses="body mass (and inertia)", signature="residual ~ gravity torque of the body",
                meaning="mass added to the body"),
+        ContactSoftness(name="contact_softness", unit="s", target="body",
+               expresses="solref[0] of the body's floor colliders",
+               signature="residual on the stance leg's joints, growing with its load",
+               sign="positive",
+               meaning="the time constant of the body's contact with the floor (MuJoCo's "
+                       "solref[0], 0.02 by default): larger is softer"),
         Backlash(name="backlash", unit="rad", target="joint",
                expresses="a second hinge on the joint's axis (the link side), limited to the play",
                signature="dead zone after velocity reversals",
@@ -364,7 +424,9 @@ def parse_injection(text: str, where: str = "--inject") -> Injection:
         raise InputError(f"{where} {text!r}: {problem}")
     targets = tuple(t for t in targets_text.split(",") if t)
     if not targets:
-        raise InputError(f"{where} {text!r}: name at least one joint (or a body for payload_mass)")
+        raise InputError(
+            f"{where} {text!r}: name at least one joint (or a body for payload_mass or contact_softness)"
+        )
     return Injection(effect=name, targets=targets, value=value, source=f"{where} {text!r}")
 
 
