@@ -49,6 +49,11 @@ RECIPES: dict[str, list[str]] = {
     # A third of the default's noise that stays low: no entropy bonus pushing the std up.
     "std0.1-ent0": ["--ppo.init-std", "0.1", "--ppo.entropy-coef", "0"],
     "delay1": ["--task.feedback-delay", "1"],
+    # DR `wide` (0-2 steps of delay, friction from 0.2, a heavier torso) with the LQR base
+    # designed for the middle of its delays: a 40 ms delay defeats the undelayed design
+    # whatever the residual learns (2026-12-02), and the design for one step held 40 and
+    # 60 ms alone.
+    "wide-delay1": ["--dr", "wide", "--task.feedback-delay", "1"],
     # The actor also reads its proprioceptive history: under DR `default` the policy fell
     # mostly on draws with one step of action delay and low friction, which the history
     # may reveal and the current observation does not.
