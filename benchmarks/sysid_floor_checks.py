@@ -180,8 +180,8 @@ def tilt_part() -> dict:
     floating._segment_mean = spy
     try:
         for seed, duration in ((2, 6.0), (3, 6.0), (7, 6.0), (11, 40.0)):
-            log = simulate_log(get_robot("g1"), [],
-                               LogSettings(duration=duration, base="floating", seed=seed))  # fmt: skip
+            settings = LogSettings(duration=duration, base="floating", seed=seed)
+            log = simulate_log(get_robot("g1"), [], settings)
             model.opt.timestep = prediction_step(log)
 
             def err(lg, model=model) -> float:
@@ -237,8 +237,8 @@ def soft_part(tmp: Path) -> dict:
                     if g.type == mujoco.mjtGeom.mjGEOM_SPHERE:
                         g.solref = np.array([tc, 1.0])
 
-        log = simulate_log(get_robot("g1"), [],
-                           LogSettings(duration=duration, base="floating", seed=seed), edit=soft)  # fmt: skip
+        settings = LogSettings(duration=duration, base="floating", seed=seed)
+        log = simulate_log(get_robot("g1"), [], settings, edit=soft)
         name = f"soft_{tc}_{len(feet)}_{seed}"
         r = run_diagnosis(write_robot_log(log, tmp / f"{name}.mcap"), tmp / name)
         rows.append({"time_constant_s": tc, "feet": list(feet), "seed": seed, "seconds": duration,

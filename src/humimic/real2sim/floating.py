@@ -258,7 +258,8 @@ def estimate_base(
     body undone; with motion capture, its heading turned onto motion capture's world by
     :func:`heading_offset`; the gyro's bias, :func:`gyro_bias`, removed where it shows above
     :data:`GYRO_BIAS_NOTE`; the mount's tilt, :func:`mount_tilt` against motion capture or
-    :func:`sole_tilt` against the stance soles, removed above :data:`MOUNT_TILT_NOTE`). Position and linear velocity come from the whole log at once
+    :func:`sole_tilt` against the stance soles, removed above :data:`MOUNT_TILT_NOTE`).
+    Position and linear velocity come from the whole log at once
     (:func:`smooth_track`, run on the IMU site's track, so that the accelerometer needs no
     angular acceleration): motion capture's position where the log has ``/base_pose``; the
     accelerometer's specific force where it has ``linear_acceleration``; and at every sample

@@ -425,7 +425,8 @@ def parse_injection(text: str, where: str = "--inject") -> Injection:
     targets = tuple(t for t in targets_text.split(",") if t)
     if not targets:
         raise InputError(
-            f"{where} {text!r}: name at least one joint (or a body for payload_mass or contact_softness)"
+            f"{where} {text!r}: name at least one joint (or a body for payload_mass or "
+            "contact_softness)"
         )
     return Injection(effect=name, targets=targets, value=value, source=f"{where} {text!r}")
 
