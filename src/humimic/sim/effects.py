@@ -234,8 +234,8 @@ def _planes(m: mujoco.MjModel) -> np.ndarray:
 def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
     """The geoms of ``body`` that touch the floor (they collide with the model's first plane)
     and whose contact parameters decide the floor's contact (a higher MuJoCo priority than
-    the plane's, as the G1's feet have; else the two would be mixed). Empty when the body has
-    none or the model no plane."""
+    the plane's, as the G1's feet have; else the two would be mixed), with a time constant
+    (a positive ``solref[0]``). Empty when the body has none or the model no plane."""
     planes = _planes(m)
     if planes.size == 0:
         return np.zeros(0, dtype=np.int64)
@@ -245,7 +245,9 @@ def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
         m.geom_contype[f] & m.geom_conaffinity[g]
     )
     g = g[touch != 0]
-    return g if g.size and np.all(m.geom_priority[g] > m.geom_priority[f]) else g[:0]
+    decides = np.all(m.geom_priority[g] > m.geom_priority[f])
+    timed = np.all(m.geom_solref[g, 0] > 0)  # Not MuJoCo's direct (stiffness, damping) form.
+    return g if g.size and decides and timed else g[:0]
 
 
 class ContactSoftness(Effect):
