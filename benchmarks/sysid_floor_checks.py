@@ -32,6 +32,7 @@ import json
 import tempfile
 from dataclasses import replace
 from pathlib import Path
+from unittest.mock import patch
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from humimic.real2sim.diagnose import BASE_PROBES, noise_floor
 from humimic.real2sim.floating import gyro_bias, prediction_step
 from humimic.real2sim.report import load_robot_log, run_diagnosis
 from humimic.real2sim.residual import Predictor
+from humimic.real2sim.simulate import tilt_imu
 from humimic.robots import get_robot
 from humimic.sim.effects import Correction
 from humimic.sim.models import floating_prediction_spec
@@ -129,12 +131,8 @@ def gyro_part() -> dict:
 
         found = Predictor(model, biased, horizon=0.5).base
         assert found is not None
-        old = floating.GYRO_BIAS_NOTE
-        floating.GYRO_BIAS_NOTE = np.inf  # As read before: the bias not removed.
-        try:
+        with patch.object(floating, "GYRO_BIAS_NOTE", np.inf):  # As read before: left in.
             kept = err(biased)
-        finally:
-            floating.GYRO_BIAS_NOTE = old
         rows.append({"mocap": mocap, "added_mrad_s": (1e3 * bias).tolist(),
                      "base_estimate": found.source.split("; ", 1)[-1],
                      "kstep_mrad": {"clean": err(clean), "biased, not removed": kept,
@@ -152,18 +150,6 @@ def gyro_part() -> dict:
             "found_mrad_s": (1e3 * b).round(3).tolist(),
         },
     }
-
-
-def _mount_tilted(log, degrees: tuple[float, float]):
-    from scipy.spatial.transform import Rotation
-
-    m = Rotation.from_euler("xy", degrees, degrees=True)
-    turned = Rotation.from_quat(log.imu.quat_w[:, [1, 2, 3, 0]]) * m
-    R = m.as_matrix()
-    acc = None if log.imu.acc_b is None else log.imu.acc_b @ R
-    imu = replace(log.imu, quat_w=turned.as_quat()[:, [3, 0, 1, 2]], gyro_b=log.imu.gyro_b @ R,
-                  acc_b=acc)  # fmt: skip
-    return replace(log, imu=imu)
 
 
 def tilt_part() -> dict:
@@ -191,17 +177,13 @@ def tilt_part() -> dict:
             for mocap in (True, False):
                 clean = log if mocap else replace(log, mocap=None)
                 for degrees in ((0.0, 0.0), (0.4, 0.3), (2.0, -3.0), (12.0, 5.0)):
-                    tilted = _mount_tilted(clean, degrees)
+                    tilted = tilt_imu(clean, *degrees)
                     found.clear()
                     base = Predictor(model, tilted, horizon=0.5).base
                     assert base is not None
                     e, se = found[0]
-                    old = floating.MOUNT_TILT_NOTE
-                    floating.MOUNT_TILT_NOTE = np.inf  # As read before: the tilt left in.
-                    try:
+                    with patch.object(floating, "MOUNT_TILT_NOTE", np.inf):  # Left in.
                         kept = err(tilted)
-                    finally:
-                        floating.MOUNT_TILT_NOTE = old
                     rows.append({"seed": seed, "seconds": duration, "mocap": mocap,
                                  "tilt_deg": list(degrees),
                                  "found_deg": np.degrees(e[:2]).round(3).tolist(),

@@ -12,6 +12,7 @@ import re
 from dataclasses import replace
 from functools import cache
 from pathlib import Path
+from unittest.mock import patch
 
 import mujoco
 import numpy as np
@@ -22,6 +23,7 @@ from humimic.errors import InputError
 from humimic.real2sim import LogSettings, RobotLog, read_robot_log, simulate_log, write_robot_log
 from humimic.real2sim.floating import prediction_step, smooth_track
 from humimic.real2sim.residual import Predictor, kstep_error
+from humimic.real2sim.simulate import tilt_imu
 from humimic.robots import get_robot
 from humimic.sim.effects import Correction, parse_injection
 from humimic.sim.models import floating_prediction_spec
@@ -263,6 +265,20 @@ def test_a_clean_deployment_log_yields_no_confident_claim(
     assert "waist_roll_joint" in noted
 
 
+def _floor_log(seed: int, edit) -> RobotLog:
+    """An 8 s floor log of a robot changed by ``edit`` (the test's own spec change)."""
+    settings = LogSettings(duration=8.0, base="floating", seed=seed)
+    return simulate_log(get_robot("g1"), [], settings, edit=edit)
+
+
+def _diagnosed_cli(log: RobotLog, tmp_path: Path) -> dict:
+    """``humimic sysid diagnose`` on the log (written to a file): its report.json."""
+    out = tmp_path / "diag"
+    assert main(["sysid", "diagnose", str(write_robot_log(log, tmp_path / "log.mcap")),
+                 "--out-dir", str(out)]) == 0  # fmt: skip
+    return json.loads((out / "report.json").read_text())
+
+
 def _cable(spec) -> None:
     """A cable pulling the left knee, made here: MuJoCo's joint spring, cubic, about 0.8 rad
     (no effect of the vocabulary is a position-dependent torque)."""
@@ -276,17 +292,12 @@ def test_an_effect_outside_the_vocabulary_is_not_passed_off_as_explained(tmp_pat
     in its place (Coulomb friction on this log) is marked partial, its joints far above their
     noise floor, and the report says so; or nothing is claimed there and the knee is named
     unexplained."""
-    log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=6),
-                       edit=_cable)  # fmt: skip
-    out = tmp_path / "diag"
-    assert main(["sysid", "diagnose", str(write_robot_log(log, tmp_path / "c.mcap")),
-                 "--out-dir", str(out)]) == 0  # fmt: skip
-    r = json.loads((out / "report.json").read_text())
+    r = _diagnosed_cli(_floor_log(6, _cable), tmp_path)
     on_knee = [e for e in r["effects"]
                if e["confidence"] >= 0.5 and "left_knee_joint" in e.get("joints", [])]  # fmt: skip
     if on_knee:
         assert all(e["partial"] and e["stands_out"] > 3.0 for e in on_knee)
-        assert "**Partial explanations**" in (out / "report.md").read_text()
+        assert "**Partial explanations**" in (tmp_path / "diag" / "report.md").read_text()
     else:
         assert r["unexplained"] and "left_knee_joint" in r["unexplained_joints"]
 
@@ -385,12 +396,7 @@ def test_soft_soles_are_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
     physics file it writes carries the effect on both feet."""
     from humimic.real2sim.report import physics_from_sysid
 
-    log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=6),
-                       edit=_soft_soles)  # fmt: skip
-    out = tmp_path / "diag"
-    assert main(["sysid", "diagnose", str(write_robot_log(log, tmp_path / "s.mcap")),
-                 "--out-dir", str(out)]) == 0  # fmt: skip
-    r = json.loads((out / "report.json").read_text())
+    r = _diagnosed_cli(_floor_log(6, _soft_soles), tmp_path)
     claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
     assert [(e["effect"], e.get("group")) for e in claimed] == [("contact_softness", "all_soles")]
     assert sorted(claimed[0]["bodies"]) == ["left_ankle_roll_link", "right_ankle_roll_link"]
@@ -459,21 +465,6 @@ def test_a_gyro_bias_is_found_and_removed() -> None:
     assert raw > 1.3 * Predictor(model, log, horizon=0.5).error(Correction.of(model)).kstep_rmse_rad
 
 
-def _mount_tilted(log: RobotLog, degrees: tuple[float, float]) -> RobotLog:
-    """The log as an IMU mounted with a roll and pitch (degrees, its site's axes) would read
-    it: its frame turned by scipy, its gyro and accelerometer in the turned axes."""
-    from scipy.spatial.transform import Rotation
-
-    assert log.imu is not None
-    m = Rotation.from_euler("xy", degrees, degrees=True)
-    turned = Rotation.from_quat(log.imu.quat_w[:, [1, 2, 3, 0]]) * m
-    R = m.as_matrix()
-    acc = None if log.imu.acc_b is None else log.imu.acc_b @ R
-    imu = replace(log.imu, quat_w=turned.as_quat()[:, [3, 0, 1, 2]], gyro_b=log.imu.gyro_b @ R,
-                  acc_b=acc)  # fmt: skip
-    return replace(log, imu=imu)
-
-
 def test_an_imu_mount_tilt_is_found_and_removed() -> None:
     """An IMU mounted 2 deg in roll and -3 deg in pitch off its site (the pelvis's axes): the
     base would lean that much and every prediction with it. Against motion capture, or
@@ -485,7 +476,7 @@ def test_an_imu_mount_tilt_is_found_and_removed() -> None:
     model = _model()
     for mocap in (True, False):
         clean = _log() if mocap else replace(_log(), mocap=None)
-        tilted = _mount_tilted(clean, (2.0, -3.0))
+        tilted = tilt_imu(clean, 2.0, -3.0)
         p0, p = Predictor(model, clean, horizon=0.5), Predictor(model, tilted, horizon=0.5)
         assert p0.base is not None and "tilt" not in p0.base.source
         assert p.base is not None
@@ -496,8 +487,7 @@ def test_an_imu_mount_tilt_is_found_and_removed() -> None:
         assert ("motion capture's" in p.base.source) == mocap
         before = p0.error(Correction.of(model)).kstep_rmse_rad
         assert p.error(Correction.of(model)).kstep_rmse_rad == pytest.approx(before, rel=0.1)
-        with pytest.MonkeyPatch.context() as mp:  # Not removed: the predictions suffer.
-            mp.setattr(floating, "MOUNT_TILT_NOTE", 1.0)
+        with patch.object(floating, "MOUNT_TILT_NOTE", 1.0):  # Left in: predictions suffer.
             raw = Predictor(model, tilted, horizon=0.5).error(Correction.of(model))
         assert raw.kstep_rmse_rad > 2 * before
 

@@ -246,11 +246,12 @@ def _pairs(
 def _softness(model: mujoco.MjModel, soles: tuple[int, ...]) -> _Pair:
     """The contact-softness candidate of one sole, or of several sharing one value (a softer
     floor; the group's label is ``all_soles``), scored on the joints that carry them."""
-    now = float(model.geom_solref[soft_geoms(model, soles[0])[0], 0])
+    first = soles[0]
+    now = float(model.geom_solref[soft_geoms(model, first)[0], 0])
     lo = max(2 * float(model.opt.timestep), SOFTNESS_RANGE[0])
     joints = np.unique(np.concatenate([_chain(model, b) for b in soles]))
     group = soles if len(soles) > 1 else ()
-    return _Pair(effect="contact_softness", index=soles[0], joints=joints, lo=lo,
+    return _Pair(effect="contact_softness", index=first, joints=joints, lo=lo,
                  hi=SOFTNESS_RANGE[1], none=now, probe=min(2 * now, SOFTNESS_RANGE[1]),
                  group=group, label="all_soles" if group else "")  # fmt: skip
 

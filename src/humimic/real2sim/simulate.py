@@ -228,6 +228,26 @@ def simulate_log(
     )
 
 
+def tilt_imu(log: RobotLog, roll: float, pitch: float) -> RobotLog:
+    """The log as an IMU mounted tilted on its site would have logged it: its frame turned
+    by ``roll`` about the site's x, then ``pitch`` about the new y [deg], its orientation,
+    gyro and accelerometer read in the turned frame (by scipy, not by the base estimate's
+    code: for tests and benchmarks of the mount-tilt estimate)."""
+    from dataclasses import replace
+
+    from scipy.spatial.transform import Rotation
+
+    if log.imu is None:
+        raise InputError(f"{log.where}: no /imu to tilt")
+    m = Rotation.from_euler("xy", [roll, pitch], degrees=True)
+    turned = Rotation.from_quat(log.imu.quat_w[:, [1, 2, 3, 0]]) * m
+    R = m.as_matrix()
+    acc = None if log.imu.acc_b is None else log.imu.acc_b @ R
+    imu = replace(log.imu, quat_w=turned.as_quat()[:, [3, 0, 1, 2]], gyro_b=log.imu.gyro_b @ R,
+                  acc_b=acc)  # fmt: skip
+    return replace(log, imu=imu)
+
+
 def _hold(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> None:
     """The drives have been holding ``target`` (per actuator): their delay lines are full of
     it and their filters settled on it."""
