@@ -169,15 +169,24 @@ def test_a_payload_shows_in_the_prediction_error_of_a_deployment_log() -> None:
 
 
 def test_cli_simulates_and_predicts_a_deployment_log(tmp_path: Path, capsys) -> None:
+    """A deployment log with its IMU mounted 2 deg / -3 deg off: predicted with the tilt found
+    from the soles and removed. A tilt asked of a gantry log exits 2, writing nothing."""
     log = tmp_path / "walk.mcap"
     assert main(["sysid", "simulate", "--base", "floating", "--no-mocap", "--duration", "3",
-                 "--out", str(log)]) == 0  # fmt: skip
+                 "--imu-tilt", "2", "-3", "--out", str(log)]) == 0  # fmt: skip
     assert main(["sysid", "residual", str(log), "--report", str(tmp_path / "r.json")]) == 0
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["base"] == "floating"
     assert "motion capture" not in report["base_estimate"]
+    found = re.search(r"mount tilt \(([-+0-9., ]+) deg", report["base_estimate"])
+    assert found, report["base_estimate"]
+    tilt = [float(v) for v in found.group(1).split(",")]
+    np.testing.assert_allclose(tilt, [2.0, -3.0], atol=0.1)
     assert report["error_nominal"]["kstep_rmse_rad"] < 0.004
     assert "floating base:" in capsys.readouterr().out
+    gantry = tmp_path / "g.mcap"
+    assert main(["sysid", "simulate", "--imu-tilt", "2", "0", "--out", str(gantry)]) == 2
+    assert not gantry.exists()
 
 
 def _rewrite(src: Path, dst: Path, topic: str, edit) -> None:

@@ -33,6 +33,9 @@ class SysidSimulate:
     """fixed: a gantry; floating: on the floor (IMU on /imu)."""
     mocap: bool = True
     """Floating base: log the root body's pose from motion capture (/base_pose)."""
+    imu_tilt: tuple[float, float] = (0.0, 0.0)
+    """Floating base: the IMU mounted tilted by ROLL PITCH degrees off its site (what
+    `humimic sysid diagnose` should find and remove); at most 30 each."""
     out: Path
     """Output .mcap file."""
 
@@ -112,6 +115,7 @@ class SysidCommand:
 def run_simulate(cmd: SysidSimulate) -> None:
     """Run ``humimic sysid simulate``."""
     from humimic.real2sim import LogSettings, simulate_log, write_robot_log
+    from humimic.real2sim.simulate import tilt_imu
     from humimic.robots import get_robot
     from humimic.sim.effects import parse_injection
 
@@ -121,9 +125,16 @@ def run_simulate(cmd: SysidSimulate) -> None:
         raise InputError(f"{cmd.out}: the log must be an .mcap file")
     if not 1.0 <= cmd.duration <= 3600.0:
         raise InputError(f"--duration {cmd.duration}: choose 1 to 3600 s")
+    tilted = any(v != 0.0 for v in cmd.imu_tilt)
+    if tilted and cmd.base != "floating":
+        raise InputError("--imu-tilt: a gantry log has no IMU; use --base floating")
+    if not all(abs(v) <= 30.0 for v in cmd.imu_tilt):  # NaN fails too.
+        raise InputError(f"--imu-tilt {cmd.imu_tilt}: choose -30 to 30 degrees each")
     check_writable(cmd.out)
     settings = LogSettings(duration=cmd.duration, seed=cmd.seed, base=cmd.base, mocap=cmd.mocap)
     log = simulate_log(robot, injections, settings)
+    if tilted:
+        log = tilt_imu(log, *cmd.imu_tilt)
     write_robot_log(log, cmd.out)
     print(f"wrote {cmd.out}: {log.q.shape[0]} states, {log.t_cmd.size} commands, "
           f"{len(log.joint_names)} joints")  # fmt: skip
