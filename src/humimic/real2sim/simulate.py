@@ -230,8 +230,8 @@ def simulate_log(
 
 def tilt_imu(log: RobotLog, roll: float, pitch: float) -> RobotLog:
     """The log as an IMU mounted tilted on its site would have logged it: its frame turned
-    by ``roll`` about the site's x, then ``pitch`` about the new y [deg], its orientation,
-    gyro and accelerometer read in the turned frame (by scipy, not by the base estimate's
+    by ``roll`` about the site's x, then ``pitch`` about the site's y [deg] (fixed axes),
+    its orientation, gyro and accelerometer read in the turned frame (by scipy, not by the base estimate's
     code: for tests and benchmarks of the mount-tilt estimate)."""
     from dataclasses import replace
 
