@@ -210,6 +210,7 @@ def _pairs(
     out: list[_Pair] = []
     bodies: set[int] = set()
     offsets: set[int] = set()
+    soles = [b for b in range(model.nbody) if soft_geoms(model, b).size]
     for j in joints:
         one = np.array([j])
         spec = dict(_SINGLE)
@@ -235,9 +236,8 @@ def _pairs(
                 bodies.add(b)
                 out.append(_Pair(effect="payload_mass", index=b, joints=_chain(model, b),
                                  lo=0.0, hi=PAYLOAD_MAX, none=0.0, probe=0.5))  # fmt: skip
-                if soft_geoms(model, b).size:  # A sole (floating-base logs have a floor).
+                if b in soles:  # A sole (floating-base logs have a floor).
                     out.append(_softness(model, (b,)))
-    soles = [b for b in range(model.nbody) if soft_geoms(model, b).size]
     if len(soles) > 1 and bodies & set(soles):  # A softer floor: every sole alike.
         out.append(_softness(model, tuple(soles)))
     return out

@@ -484,8 +484,9 @@ def gyro_bias(
 MOUNT_TILT_NOTE = np.radians(0.2)
 """An IMU mount tilt [rad] larger than this (and than five standard errors) is removed and named.
 Standing, the G1's soles lean 0.06 deg (their spheres sink unevenly) and read as that much tilt,
-while 0.5 deg of tilt left in the base's orientation tripled the k-step error of a standing
-log (1.07 -> 3.67 mrad): small, but well above the soles' lean."""
+while 0.4 / 0.3 deg of roll / pitch left in the base's orientation tripled the held-out k-step
+error of standing logs (1.06 -> 3.40 mrad on seed 2; ``benchmarks/sysid_floor_checks.py --only
+tilt``): small, but well above the soles' lean."""
 
 TILT_SEGMENT = 1.0
 """Length [s] of the stretches whose median tilt the mount's estimate averages."""
