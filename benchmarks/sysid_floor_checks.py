@@ -20,9 +20,16 @@
    is set here in the spec (not through the vocabulary), on both feet or one, softer and
    harder than MuJoCo's 0.02 s: what the diagnosis claims, the held-out error before and
    after, and the diagnosis's time.
+6. ``solimp`` (fourteenth session): a softness the vocabulary does not express: the foot
+   spheres' contact impedance (MuJoCo's solimp: dmin, dmax, width; set here in the spec,
+   their time constant left at 0.02 s), on both feet or one. The vocabulary's softness
+   edits the time constant only: what the diagnosis claims for a softness of another form.
+7. ``slip`` (fourteenth session): a slippery floor: the foot spheres' sliding friction set
+   here in the spec (0.6 in the model), on both feet or one, 8-40 s, and clean logs: what
+   the diagnosis claims (``contact_friction``), the held-out error before and after.
 
 Prints one JSON object per part. Usage: .venv/bin/python benchmarks/sysid_floor_checks.py
-[--only floor|short|gyro|tilt|soft]
+[--only floor|short|gyro|tilt|soft|solimp|slip]
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ from unittest.mock import patch
 import numpy as np
 
 from humimic.real2sim import LogSettings, floating, simulate_log, write_robot_log
-from humimic.real2sim.diagnose import BASE_PROBES, noise_floor
+from humimic.real2sim.diagnose import BASE_PROBES, FIT_END, noise_floor
 from humimic.real2sim.floating import gyro_bias, prediction_step
 from humimic.real2sim.report import load_robot_log, run_diagnosis
 from humimic.real2sim.residual import Predictor
@@ -207,37 +214,105 @@ SOFT_CASES = (  # (time constant [s], feet, seed, seconds); the first is the def
 )
 
 
-def soft_part(tmp: Path) -> dict:
+SOLIMP_CASES = (  # (solimp dmin, dmax, width [m]; feet, seed, seconds); MuJoCo's: 0.9, 0.95, 0.001.
+    ((0.5, 0.7, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 6, 8.0),
+    ((0.7, 0.8, 0.01), ("left_ankle_roll_link", "right_ankle_roll_link"), 4, 8.0),
+    ((0.3, 0.5, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 3, 8.0),
+    ((0.5, 0.7, 0.005), ("left_ankle_roll_link",), 5, 8.0),
+    ((0.5, 0.7, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 11, 40.0),
+)
+
+
+BOTH = ("left_ankle_roll_link", "right_ankle_roll_link")
+SLIP_CASES = (  # (sliding friction, feet, seed, seconds); 0.6: the model's own, a clean log.
+    (0.07, BOTH, 6, 8.0),  # The default test's.
+    (0.07, BOTH, 3, 8.0),
+    (0.08, BOTH, 5, 8.0),
+    (0.06, BOTH, 4, 8.0),
+    (0.07, ("left_ankle_roll_link",), 2, 8.0),
+    (0.1, BOTH, 6, 8.0),
+    (0.1, BOTH, 9, 8.0),
+    (0.1, BOTH, 8, 12.0),
+    (0.1, BOTH, 4, 16.0),
+    (0.1, BOTH, 11, 40.0),
+    (0.15, BOTH, 7, 16.0),
+    (0.2, BOTH, 3, 8.0),
+    (0.6, BOTH, 5, 8.0),
+    (0.6, BOTH, 11, 40.0),
+)
+
+
+def _sphere_edit(feet: tuple[str, ...], solref=None, solimp=None, friction=None):
+    """A spec edit that sets the foot spheres' contact parameters (this script's own code)."""
     import mujoco
 
+    def edit(spec) -> None:
+        for foot in feet:
+            for g in spec.body(foot).geoms:
+                if g.type == mujoco.mjtGeom.mjGEOM_SPHERE:
+                    if solref is not None:
+                        g.solref = np.array(solref, dtype=np.float64)
+                    if solimp is not None:
+                        g.solimp = np.array([*solimp, 0.5, 2.0], dtype=np.float64)
+                    if friction is not None:
+                        g.friction = np.array([friction, *np.asarray(g.friction)[1:]])
+
+    return edit
+
+
+def _clean_kstep(settings: LogSettings, tmp: Path) -> float:
+    """The nominal model's held-out k-step error [rad] on the same log without the change
+    (what a perfect correction would come down to)."""
+    path = write_robot_log(simulate_log(get_robot("g1"), [], settings), tmp / "clean.mcap")
+    _, model, log = load_robot_log(path)
+    held = Predictor(model, log, horizon=0.5, span=(FIT_END, 1.0))
+    return held.error(Correction.of(model)).kstep_rmse_rad
+
+
+def _soft_rows(tmp: Path, cases, label: str, edit_of) -> list[dict]:
     rows = []
-    for tc, feet, seed, duration in SOFT_CASES:
-
-        def soft(spec, tc=tc, feet=feet) -> None:
-            for foot in feet:
-                for g in spec.body(foot).geoms:
-                    if g.type == mujoco.mjtGeom.mjGEOM_SPHERE:
-                        g.solref = np.array([tc, 1.0])
-
+    for what, feet, seed, duration in cases:
         settings = LogSettings(duration=duration, base="floating", seed=seed)
-        log = simulate_log(get_robot("g1"), [], settings, edit=soft)
-        name = f"soft_{tc}_{len(feet)}_{seed}"
+        log = simulate_log(get_robot("g1"), [], settings, edit=edit_of(what, feet))
+        clean = _clean_kstep(settings, tmp)
+        name = f"{label}_{'_'.join(map(str, np.atleast_1d(what)))}_{len(feet)}_{seed}"
         r = run_diagnosis(write_robot_log(log, tmp / f"{name}.mcap"), tmp / name)
-        rows.append({"time_constant_s": tc, "feet": list(feet), "seed": seed, "seconds": duration,
+        rows.append({label: what, "feet": list(feet), "seed": seed, "seconds": duration,
                      "claimed": [(e["effect"], e.get("group") or e.get("body")
                                   or e.get("joints"), round(e["params"]["value"], 4),
                                   round(e["confidence"], 2), e["partial"])
                                  for e in r["effects"] if e["confidence"] >= 0.5],
                      "kstep_mrad": [round(1e3 * r["error_before"]["kstep_rmse_rad"], 3),
                                     round(1e3 * r["error_after"]["kstep_rmse_rad"], 3)],
+                     "clean_log_kstep_mrad": round(1e3 * clean, 3),
                      "unexplained": r["unexplained_joints"],
                      "diagnosis_s": round(r["seconds"], 1)})  # fmt: skip
+    return rows
+
+
+def soft_part(tmp: Path) -> dict:
+    rows = _soft_rows(tmp, SOFT_CASES, "time_constant_s",
+                      lambda tc, feet: _sphere_edit(feet, solref=(tc, 1.0)))  # fmt: skip
     return {"part": "soft", "rows": rows}
+
+
+def solimp_part(tmp: Path) -> dict:
+    rows = _soft_rows(tmp, SOLIMP_CASES, "solimp",
+                      lambda imp, feet: _sphere_edit(feet, solimp=imp))  # fmt: skip
+    return {"part": "solimp", "rows": rows}
+
+
+def slip_part(tmp: Path) -> dict:
+    rows = _soft_rows(tmp, SLIP_CASES, "friction",
+                      lambda mu, feet: _sphere_edit(feet, friction=mu))  # fmt: skip
+    return {"part": "slip", "rows": rows}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--only", choices=["floor", "short", "gyro", "tilt", "soft"], default=None)
+    parser.add_argument(
+        "--only", choices=["floor", "short", "gyro", "tilt", "soft", "solimp", "slip"], default=None
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
         tmp = Path(scratch)
@@ -251,6 +326,10 @@ def main() -> None:
             print(json.dumps(tilt_part()), flush=True)
         if args.only in (None, "soft"):
             print(json.dumps(soft_part(tmp)), flush=True)
+        if args.only in (None, "solimp"):
+            print(json.dumps(solimp_part(tmp)), flush=True)
+        if args.only in (None, "slip"):
+            print(json.dumps(slip_part(tmp)), flush=True)
 
 
 if __name__ == "__main__":

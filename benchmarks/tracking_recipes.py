@@ -70,6 +70,10 @@ RECIPES: dict[str, list[str]] = {
                          "--ppo.actor-output-gain", "1.0"],
     "feedforward-64envs": ["--task.action-base", "feedforward", "--num-envs", "64"],
     "feedforward-256envs": ["--task.action-base", "feedforward", "--num-envs", "256"],
+    # Not a candidate: a feasibility check. Trained on the shipped `backpack` robot itself,
+    # without DR (DR draws the floor's friction, which would replace the robot's 0.25): can
+    # the recipe perform the clip on that robot at all in the budget?
+    "oracle-backpack": ["--physics", "backpack", "--dr", "none"],
 }  # fmt: skip
 """Recipe name -> the flags it adds to ``humimic train --motion M --out RUN --max-minutes X``
 (``default``: none, the command a user runs)."""

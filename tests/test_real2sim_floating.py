@@ -418,6 +418,45 @@ def test_soft_soles_are_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
     ]
 
 
+def _slippery_soles(spec) -> None:
+    """A slippery floor (wet tiles, ice), made here: the G1's foot spheres, whose friction
+    decides their contact with the floor, slide at 0.07 instead of 0.6."""
+    for foot in ("left_ankle_roll_link", "right_ankle_roll_link"):
+        for g in spec.body(foot).geoms:
+            if g.type == mujoco.mjtGeom.mjGEOM_SPHERE:
+                g.friction = np.array([0.07, *np.asarray(g.friction)[1:]])
+
+
+def test_a_slippery_floor_is_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
+    """Feet that slide as the robot sways: the diagnosis claims one sliding friction for
+    every sole within 30 % and nothing else, the held-out error halves, and the physics file
+    it writes carries the friction on both feet; the same effect written into a spec and set
+    on a compiled model give the same model."""
+    from humimic.real2sim.report import physics_from_sysid
+    from humimic.sim.effects import apply_effect, apply_to_spec
+
+    r = _diagnosed_cli(_floor_log(6, _slippery_soles), tmp_path)
+    claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
+    assert [(e["effect"], e.get("group")) for e in claimed] == [("contact_friction", "all_soles")]
+    assert claimed[0]["params"]["value"] == pytest.approx(0.07, rel=0.3)
+    assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
+    physics = physics_from_sysid(r, name="slippery", robot="g1")
+    assert [(e.effect, sorted(e.targets)) for e in physics.effects] == [
+        ("contact_friction", ["left_ankle_roll_link", "right_ankle_roll_link"])
+    ]
+    spec = floating_prediction_spec(get_robot("g1"))
+    apply_to_spec(spec, [parse_injection("contact_friction:left_ankle_roll_link=0.2")])
+    written = spec.compile()
+    model = _model()
+    c = Correction.of(model).copy()
+    apply_effect(c, "contact_friction", model.body("left_ankle_roll_link").id, 0.2)
+    np.testing.assert_array_equal(c.model.geom_friction, written.geom_friction)
+    changed = np.flatnonzero(written.geom_friction[:, 0] != model.geom_friction[:, 0])
+    assert {written.body(int(written.geom_bodyid[g])).name for g in changed} == {
+        "left_ankle_roll_link"
+    }
+
+
 def test_an_imu_heading_off_motion_capture_is_turned_onto_it() -> None:
     """A real IMU's heading is arbitrary (gravity fixes its tilt only): the IMU's world is
     turned 1.2 rad about the vertical against motion capture's, by scipy here. The estimate

@@ -64,6 +64,32 @@ def test_every_change_reaches_the_model(nominal: mujoco.MjModel, tmp_path: Path)
     assert load_physics(path).as_dict() == ph.as_dict()
 
 
+def test_dr_varies_a_physics_files_friction_instead_of_replacing_it(
+    nominal: mujoco.MjModel,
+) -> None:
+    """DR draws a friction for the robot's own colliders (the G1's foot spheres 0.6, its other
+    colliders and the floor 1.0); on a physics file whose floor is slippery, the same draw is
+    scaled by the file's change, so the file's floor stays under DR (it used to be replaced
+    by the draw). Without a file the draw is set as before."""
+    cfg = g1_tracking("default")
+    colliders = np.flatnonzero((nominal.geom_contype | nominal.geom_conaffinity) != 0)
+    feet = colliders[nominal.geom_priority[colliders] > 0]
+    for physics, expect_feet, expect_rest in ((None, 0.9, 0.9), ({"floor_friction": 0.3},
+                                              0.9 * 0.3 / 0.6, 0.9 * 0.3 / 1.0)):  # fmt: skip
+        c = cfg if physics is None else replace(cfg, physics=parse_physics(physics, "t", "t"))
+        backend = build_backend(c, 2)
+        assert isinstance(backend, MujocoCpuBackend)
+        params = backend.nominal_params(2)
+        params = replace(params, friction=np.array([0.9, 0.45]))
+        backend.set_params(np.arange(2), params)
+        m = backend.model_of(0)
+        assert feet.size == 8
+        np.testing.assert_allclose(m.geom_friction[feet, 0], expect_feet)
+        np.testing.assert_allclose(np.delete(m.geom_friction[colliders, 0],
+                                             np.searchsorted(colliders, feet)), expect_rest)  # fmt: skip
+        np.testing.assert_allclose(backend.model_of(1).geom_friction[feet, 0], expect_feet / 2)
+
+
 @pytest.mark.parametrize(
     ("data", "message"),
     [

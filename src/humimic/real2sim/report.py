@@ -198,7 +198,7 @@ def run_diagnosis(
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
         check_writable(out / name)
     nominal = Correction.of(model)
-    unsearched = "backlash" if floating else "contact_softness"
+    unsearched = ("backlash",) if floating else ("contact_softness", "contact_friction")
     before = held.error(nominal)
     # Backlash needs a second hinge per joint in the prediction model; on the floor that
     # model is not built yet, so backlash is searched on gantry logs only.
@@ -258,8 +258,8 @@ def run_diagnosis(
         "base": log.base,
         "base_estimate": held.base.source if held.base is not None else None,
         # Backlash's play joint is not built into the floor model; a gantry has no floor.
-        "searched_effects": [e for e in SEARCHED if e != unsearched],
-        "not_searched_effects": [*NOT_SEARCHED, unsearched],
+        "searched_effects": [e for e in SEARCHED if e not in unsearched],
+        "not_searched_effects": [*NOT_SEARCHED, *unsearched],
         "plots": [p.name for p in plots],
         "seconds": time.perf_counter() - t0,
     }

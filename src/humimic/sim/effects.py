@@ -8,6 +8,7 @@ recompiling), so an injected effect and an identified one mean the same thing.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -231,11 +232,11 @@ def _planes(m: mujoco.MjModel) -> np.ndarray:
     return np.flatnonzero(m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE)
 
 
-def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
+def floor_colliders(m: mujoco.MjModel, body: int) -> np.ndarray:
     """The geoms of ``body`` that touch the floor (they collide with the model's first plane)
     and whose contact parameters decide the floor's contact (a higher MuJoCo priority than
-    the plane's, as the G1's feet have; else the two would be mixed), with a time constant
-    (a positive ``solref[0]``). Empty when the body has none or the model no plane."""
+    the plane's, as the G1's feet have; else the two would be mixed). Empty when the body has
+    none or the model no plane."""
     planes = _planes(m)
     if planes.size == 0:
         return np.zeros(0, dtype=np.int64)
@@ -246,8 +247,40 @@ def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
     )
     g = g[touch != 0]
     decides = np.all(m.geom_priority[g] > m.geom_priority[f])
-    timed = np.all(m.geom_solref[g, 0] > 0)  # Not MuJoCo's direct (stiffness, damping) form.
-    return g if g.size and decides and timed else g[:0]
+    return g if g.size and decides else g[:0]
+
+
+def soft_geoms(m: mujoco.MjModel, body: int) -> np.ndarray:
+    """:func:`floor_colliders` with a contact time constant (a positive ``solref[0]``, not
+    MuJoCo's direct stiffness-damping form). Empty when ``body`` has none."""
+    g = floor_colliders(m, body)
+    return g if np.all(m.geom_solref[g, 0] > 0) else g[:0]
+
+
+def _spec_geoms(
+    spec: mujoco.MjSpec, target: str, select: Callable[[mujoco.MjModel, int], np.ndarray]
+) -> list[mujoco.MjsGeom]:
+    """The spec geoms of body ``target`` that ``select`` picks on its compiled model.
+
+    Raises:
+        InputError: No such body, or it has no such geom.
+    """
+    b = spec.body(target)
+    if b is None:
+        raise InputError(f"no body {target!r} in the robot")
+    m = spec.copy().compile()
+    ids = select(m, m.body(target).id)
+    if ids.size == 0:
+        raise InputError(
+            f"body {target!r} has no geom that decides its contact with the floor (one "
+            "colliding with the model's plane, at a higher geom priority than the plane's)"
+        )
+    names = {m.geom(int(g)).name for g in ids}
+    geoms = [g for g in b.geoms if g.name in names] if all(names) else None
+    if geoms is None or len(geoms) != ids.size:  # Unnamed geoms: by their order in the body.
+        order = np.flatnonzero(m.geom_bodyid == m.body(target).id).tolist()
+        geoms = [b.geoms[order.index(int(g))] for g in ids]
+    return geoms
 
 
 class ContactSoftness(Effect):
@@ -258,22 +291,7 @@ class ContactSoftness(Effect):
     contact (:func:`soft_geoms`) is refused."""
 
     def on_spec(self, spec: mujoco.MjSpec, target: str, value: float) -> None:
-        b = spec.body(target)
-        if b is None:
-            raise InputError(f"no body {target!r} in the robot")
-        m = spec.copy().compile()
-        ids = soft_geoms(m, m.body(target).id)
-        if ids.size == 0:
-            raise InputError(
-                f"body {target!r} has no geom that decides its contact with the floor (one "
-                "colliding with the model's plane, at a higher geom priority than the plane's)"
-            )
-        names = {m.geom(int(g)).name for g in ids}
-        geoms = [g for g in b.geoms if g.name in names] if all(names) else None
-        if geoms is None or len(geoms) != ids.size:  # Unnamed geoms: by their order in the body.
-            order = np.flatnonzero(m.geom_bodyid == m.body(target).id).tolist()
-            geoms = [b.geoms[order.index(int(g))] for g in ids]
-        for g in geoms:
+        for g in _spec_geoms(spec, target, soft_geoms):
             g.solref = np.array([value, g.solref[1]])
 
     def on_model(self, c: Correction, index: int, value: float) -> None:
@@ -281,6 +299,23 @@ class ContactSoftness(Effect):
         if ids.size == 0:
             raise InputError(f"body {c.model.body(index).name!r} decides no floor contact")
         c.model.geom_solref[ids, 0] = value
+
+
+class ContactFriction(Effect):
+    """The sliding friction coefficient of a body's contact with the floor (MuJoCo's
+    ``friction[0]`` of its floor colliders, which decide the contact: :func:`floor_colliders`):
+    a polished or wet floor, or worn soles, let a loaded foot slide. ``value`` replaces the
+    model's; torsional and rolling friction are kept."""
+
+    def on_spec(self, spec: mujoco.MjSpec, target: str, value: float) -> None:
+        for g in _spec_geoms(spec, target, floor_colliders):
+            g.friction = np.array([value, g.friction[1], g.friction[2]])
+
+    def on_model(self, c: Correction, index: int, value: float) -> None:
+        ids = floor_colliders(c.model, index)
+        if ids.size == 0:
+            raise InputError(f"body {c.model.body(index).name!r} decides no floor contact")
+        c.model.geom_friction[ids, 0] = value
 
 
 class Backlash(Effect):
@@ -346,6 +381,12 @@ EFFECTS: dict[str, Effect] = {
                sign="positive",
                meaning="the time constant of the body's contact with the floor (MuJoCo's "
                        "solref[0], 0.02 by default): larger is softer"),
+        ContactFriction(name="contact_friction", unit="ratio", target="body",
+               expresses="friction[0] of the body's geoms that decide its floor contact",
+               signature="the stance foot slides: residual on the base and the stance leg "
+                         "when the foot's tangential load nears value x its normal load",
+               meaning="the sliding friction coefficient of the body's contact with the "
+                       "floor: 0 is frictionless"),
         Backlash(name="backlash", unit="rad", target="joint",
                expresses="a second hinge on the joint's axis (the link side), limited to the play",
                signature="dead zone after velocity reversals",
@@ -427,8 +468,8 @@ def parse_injection(text: str, where: str = "--inject") -> Injection:
     targets = tuple(t for t in targets_text.split(",") if t)
     if not targets:
         raise InputError(
-            f"{where} {text!r}: name at least one joint (or a body for payload_mass or "
-            "contact_softness)"
+            f"{where} {text!r}: name at least one joint (or a body for payload_mass, "
+            "contact_softness or contact_friction)"
         )
     return Injection(effect=name, targets=targets, value=value, source=f"{where} {text!r}")
 

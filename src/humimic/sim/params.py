@@ -80,6 +80,10 @@ class ModelLayout:
         sensor_slices: Where ``pos``, ``quat``, ``lin``, ``ang``, ``found``, ``force`` sit in a
             row of sensor data.
         nominal: Copies of the :data:`DR_FIELDS` of the model.
+        friction_ratio: Per collider, the model's sliding friction over the robot's own
+            (a physics file's floor or sole friction), which a friction draw is scaled by:
+            DR varies the friction around the file's, instead of replacing it. ``None``:
+            the robot's own (no file changed it). Shape: (G,).
     """
 
     body_names: tuple[str, ...]
@@ -96,6 +100,7 @@ class ModelLayout:
     com_body: int
     sensor_slices: dict[str, slice]
     nominal: dict[str, np.ndarray]
+    friction_ratio: np.ndarray | None = None
 
     @classmethod
     def of(
@@ -174,7 +179,10 @@ class ModelLayout:
         rb, g, dof = self.robot_bodies, self.collider_geoms, self.dof
         n = len(params.friction)
         out = {f: np.repeat(nom[f][None], n, axis=0) for f in DR_FIELDS}
-        out["geom_friction"][:, g, 0] = params.friction[:, None]
+        fr = params.friction[:, None]
+        out["geom_friction"][:, g, 0] = (
+            fr if self.friction_ratio is None else fr * self.friction_ratio
+        )
         out["body_mass"][:, rb] = nom["body_mass"][rb] * params.mass_scale
         out["body_inertia"][:, rb] = nom["body_inertia"][rb] * params.mass_scale[..., None]
         if cb >= 0:

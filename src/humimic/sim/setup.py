@@ -7,10 +7,11 @@ Tracking and dynamics retargeting both describe what they simulate as a :class:`
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import mujoco
+import numpy as np
 import torch
 
 from humimic.errors import InputError
@@ -134,6 +135,28 @@ def build_backend(
     """
     if model is None:
         model = build_model(setup, menagerie_root=menagerie_root)
+    backend = _backend(setup, model, num_envs, per_env_models, device)
+    if per_env_models and setup.physics is not None:
+        # DR's friction draws are stated for the robot's own colliders; a physics file that
+        # changed their friction (a slippery floor, a sysid claim) scales them, rather than
+        # being replaced by them.
+        g = backend.layout.collider_geoms
+        own = build_model(replace(setup, physics=None), menagerie_root=menagerie_root)
+        assert own.ngeom == model.ngeom  # A physics file changes geoms, it adds none.
+        mine, theirs = own.geom_friction[g, 0], model.geom_friction[g, 0]
+        ratio = np.where(mine > 0, theirs / np.where(mine > 0, mine, 1.0), 1.0)
+        if not np.allclose(ratio, 1.0):
+            backend.layout = replace(backend.layout, friction_ratio=ratio)
+    return backend
+
+
+def _backend(
+    setup: SimSetup,
+    model: mujoco.MjModel,
+    num_envs: int,
+    per_env_models: bool,
+    device: str | torch.device,
+) -> PhysicsBackend:
     names = {
         "body_names": setup.body_names,
         "contact_body_names": setup.contact_body_names,
