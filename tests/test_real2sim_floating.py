@@ -361,24 +361,36 @@ def _payload_diagnosed(log: Path, tmp_path: Path, mass: float) -> None:
     assert not (tmp_path / "d2").exists()
 
 
+def _sole_effect_both_ways(
+    effect: str, value: float, field: str
+) -> tuple[mujoco.MjModel, mujoco.MjModel, Correction]:
+    """A sole effect on the left foot written into a spec and set on a compiled model: the
+    two give the same ``field`` (a geom array), changed on the left foot's floor colliders
+    (all four spheres) only. Returns the nominal model, the written one and the correction."""
+    from humimic.sim.effects import apply_effect, apply_to_spec
+
+    spec = floating_prediction_spec(get_robot("g1"))
+    apply_to_spec(spec, [parse_injection(f"{effect}:left_ankle_roll_link={value}")])
+    written = spec.compile()
+    model = _model()
+    c = Correction.of(model).copy()
+    apply_effect(c, effect, model.body("left_ankle_roll_link").id, value)
+    np.testing.assert_array_equal(getattr(c.model, field), getattr(written, field))
+    changed = np.flatnonzero(getattr(written, field)[:, 0] != getattr(model, field)[:, 0])
+    assert {written.body(int(written.geom_bodyid[g])).name for g in changed} == {
+        "left_ankle_roll_link"
+    }
+    assert changed.size == 4
+    return model, written, c
+
+
 def test_contact_softness_means_the_same_on_a_spec_and_on_a_model() -> None:
     """The effect set on a compiled model (what the diagnosis scores) and written into a spec
     (what model.xml and physics files carry) give the same model and the same predictions;
     a body that does not decide its floor contact is refused, naming it."""
-    from humimic.sim.effects import apply_effect, apply_to_spec
+    from humimic.sim.effects import apply_to_spec
 
-    spec = floating_prediction_spec(get_robot("g1"))
-    apply_to_spec(spec, [parse_injection("contact_softness:left_ankle_roll_link=0.08")])
-    written = spec.compile()
-    model = _model()
-    c = Correction.of(model).copy()
-    apply_effect(c, "contact_softness", model.body("left_ankle_roll_link").id, 0.08)
-    np.testing.assert_array_equal(c.model.geom_solref, written.geom_solref)
-    changed = np.flatnonzero(written.geom_solref[:, 0] != model.geom_solref[:, 0])
-    assert {written.body(int(written.geom_bodyid[g])).name for g in changed} == {
-        "left_ankle_roll_link"
-    }
-    assert changed.size >= 3
+    model, written, c = _sole_effect_both_ways("contact_softness", 0.08, "geom_solref")
     log = _log()
     a, b = Predictor(model, log, horizon=0.5), Predictor(written, log, horizon=0.5)
     assert a.error(c).kstep_rmse_rad == pytest.approx(
@@ -433,7 +445,6 @@ def test_a_slippery_floor_is_found_blind_in_a_deployment_log(tmp_path: Path) -> 
     it writes carries the friction on both feet; the same effect written into a spec and set
     on a compiled model give the same model."""
     from humimic.real2sim.report import physics_from_sysid
-    from humimic.sim.effects import apply_effect, apply_to_spec
 
     r = _diagnosed_cli(_floor_log(6, _slippery_soles), tmp_path)
     claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
@@ -444,17 +455,7 @@ def test_a_slippery_floor_is_found_blind_in_a_deployment_log(tmp_path: Path) -> 
     assert [(e.effect, sorted(e.targets)) for e in physics.effects] == [
         ("contact_friction", ["left_ankle_roll_link", "right_ankle_roll_link"])
     ]
-    spec = floating_prediction_spec(get_robot("g1"))
-    apply_to_spec(spec, [parse_injection("contact_friction:left_ankle_roll_link=0.2")])
-    written = spec.compile()
-    model = _model()
-    c = Correction.of(model).copy()
-    apply_effect(c, "contact_friction", model.body("left_ankle_roll_link").id, 0.2)
-    np.testing.assert_array_equal(c.model.geom_friction, written.geom_friction)
-    changed = np.flatnonzero(written.geom_friction[:, 0] != model.geom_friction[:, 0])
-    assert {written.body(int(written.geom_bodyid[g])).name for g in changed} == {
-        "left_ankle_roll_link"
-    }
+    _sole_effect_both_ways("contact_friction", 0.2, "geom_friction")
 
 
 def test_an_imu_heading_off_motion_capture_is_turned_onto_it() -> None:
