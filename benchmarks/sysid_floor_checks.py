@@ -27,9 +27,12 @@
 7. ``slip`` (fourteenth session): a slippery floor: the foot spheres' sliding friction set
    here in the spec (0.6 in the model), on both feet or one, 8-40 s, and clean logs: what
    the diagnosis claims (``contact_friction``), the held-out error before and after.
+8. ``slip_truth`` (fourteenth session): on slippery logs (one noise-free), the held-out error
+   of joint positions and of drive torques with the nominal model and with the true friction:
+   why ``contact_friction`` is scored on positions only.
 
 Prints one JSON object per part. Usage: .venv/bin/python benchmarks/sysid_floor_checks.py
-[--only floor|short|gyro|tilt|soft|solimp|slip]
+[--only floor|short|gyro|tilt|soft|solimp|slip|slip_truth]
 """
 
 from __future__ import annotations
@@ -214,16 +217,16 @@ SOFT_CASES = (  # (time constant [s], feet, seed, seconds); the first is the def
 )
 
 
+BOTH = ("left_ankle_roll_link", "right_ankle_roll_link")
 SOLIMP_CASES = (  # (solimp dmin, dmax, width [m]; feet, seed, seconds); MuJoCo's: 0.9, 0.95, 0.001.
-    ((0.5, 0.7, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 6, 8.0),
-    ((0.7, 0.8, 0.01), ("left_ankle_roll_link", "right_ankle_roll_link"), 4, 8.0),
-    ((0.3, 0.5, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 3, 8.0),
+    ((0.5, 0.7, 0.005), BOTH, 6, 8.0),
+    ((0.7, 0.8, 0.01), BOTH, 4, 8.0),
+    ((0.3, 0.5, 0.005), BOTH, 3, 8.0),
     ((0.5, 0.7, 0.005), ("left_ankle_roll_link",), 5, 8.0),
-    ((0.5, 0.7, 0.005), ("left_ankle_roll_link", "right_ankle_roll_link"), 11, 40.0),
+    ((0.5, 0.7, 0.005), BOTH, 11, 40.0),
 )
 
 
-BOTH = ("left_ankle_roll_link", "right_ankle_roll_link")
 SLIP_CASES = (  # (sliding friction, feet, seed, seconds); 0.6: the model's own, a clean log.
     (0.07, BOTH, 6, 8.0),  # The default test's.
     (0.07, BOTH, 3, 8.0),
@@ -269,7 +272,7 @@ def _clean_kstep(settings: LogSettings, tmp: Path) -> float:
     return held.error(Correction.of(model)).kstep_rmse_rad
 
 
-def _soft_rows(tmp: Path, cases, label: str, edit_of) -> list[dict]:
+def _contact_rows(tmp: Path, cases, label: str, edit_of) -> list[dict]:
     rows = []
     for what, feet, seed, duration in cases:
         settings = LogSettings(duration=duration, base="floating", seed=seed)
@@ -291,27 +294,64 @@ def _soft_rows(tmp: Path, cases, label: str, edit_of) -> list[dict]:
 
 
 def soft_part(tmp: Path) -> dict:
-    rows = _soft_rows(tmp, SOFT_CASES, "time_constant_s",
+    rows = _contact_rows(tmp, SOFT_CASES, "time_constant_s",
                       lambda tc, feet: _sphere_edit(feet, solref=(tc, 1.0)))  # fmt: skip
     return {"part": "soft", "rows": rows}
 
 
 def solimp_part(tmp: Path) -> dict:
-    rows = _soft_rows(tmp, SOLIMP_CASES, "solimp",
+    rows = _contact_rows(tmp, SOLIMP_CASES, "solimp",
                       lambda imp, feet: _sphere_edit(feet, solimp=imp))  # fmt: skip
     return {"part": "solimp", "rows": rows}
 
 
 def slip_part(tmp: Path) -> dict:
-    rows = _soft_rows(tmp, SLIP_CASES, "friction",
+    rows = _contact_rows(tmp, SLIP_CASES, "friction",
                       lambda mu, feet: _sphere_edit(feet, friction=mu))  # fmt: skip
     return {"part": "slip", "rows": rows}
+
+
+SLIP_TRUTH_CASES = (  # (friction, seed, seconds, noise-free)
+    (0.1, 6, 8.0, True),
+    (0.1, 11, 40.0, False),
+    (0.08, 5, 8.0, False),
+)
+
+
+def slip_truth_part(tmp: Path) -> dict:
+    """What the true friction does to the predictions: the held-out error of joint positions
+    and of drive torques with the nominal model and with the log's own friction set on both
+    soles (the vocabulary's effect at the true value), per log."""
+    from humimic.sim.effects import apply_effect
+
+    rows = []
+    for mu, seed, duration, noise_free in SLIP_TRUTH_CASES:
+        settings = LogSettings(duration=duration, base="floating", seed=seed)
+        if noise_free:
+            settings = replace(settings, q_noise=0.0, qd_noise=0.0, effort_noise=0.0,
+                               gyro_noise=0.0, acc_noise=0.0, quat_noise=0.0, mocap_noise=0.0)  # fmt: skip
+        log = simulate_log(get_robot("g1"), [], settings, edit=_sphere_edit(BOTH, friction=mu))
+        _, model, log = load_robot_log(write_robot_log(log, tmp / "truth.mcap"))
+        held = Predictor(model, log, horizon=0.5, span=(FIT_END, 1.0))
+        nominal = Correction.of(model)
+        true = nominal.copy()
+        for foot in BOTH:
+            apply_effect(true, "contact_friction", model.body(foot).id, mu)
+        res = held.run([nominal, true], effort=True)  # (2, W, S, J, 2)
+        rms = np.sqrt(np.mean(res**2, axis=(1, 2, 3)))
+        rows.append({"friction": mu, "seed": seed, "seconds": duration, "noise_free": noise_free,
+                     "position_mrad": [round(1e3 * float(rms[0, 0]), 3),
+                                       round(1e3 * float(rms[1, 0]), 3)],
+                     "torque_nm": [round(float(rms[0, 1]), 4), round(float(rms[1, 1]), 4)]})  # fmt: skip
+    return {"part": "slip_truth", "nominal_then_true": True, "rows": rows}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument(
-        "--only", choices=["floor", "short", "gyro", "tilt", "soft", "solimp", "slip"], default=None
+        "--only",
+        choices=["floor", "short", "gyro", "tilt", "soft", "solimp", "slip", "slip_truth"],
+        default=None,
     )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as scratch:
@@ -330,6 +370,8 @@ def main() -> None:
             print(json.dumps(solimp_part(tmp)), flush=True)
         if args.only in (None, "slip"):
             print(json.dumps(slip_part(tmp)), flush=True)
+        if args.only in (None, "slip_truth"):
+            print(json.dumps(slip_truth_part(tmp)), flush=True)
 
 
 if __name__ == "__main__":

@@ -71,8 +71,8 @@ RECIPES: dict[str, list[str]] = {
     "feedforward-64envs": ["--task.action-base", "feedforward", "--num-envs", "64"],
     "feedforward-256envs": ["--task.action-base", "feedforward", "--num-envs", "256"],
     # Not a candidate: a feasibility check. Trained on the shipped `backpack` robot itself,
-    # without DR (DR draws the floor's friction, which would replace the robot's 0.25): can
-    # the recipe perform the clip on that robot at all in the budget?
+    # nothing drawn around it (no DR): can the recipe perform the clip on that robot at all
+    # in the budget?
     "oracle-backpack": ["--physics", "backpack", "--dr", "none"],
 }  # fmt: skip
 """Recipe name -> the flags it adds to ``humimic train --motion M --out RUN --max-minutes X``

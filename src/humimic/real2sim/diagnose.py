@@ -336,7 +336,8 @@ hangs on the foot's velocity, which the base estimate gives to a few mm/s: the t
 set by velocities, are then off by spikes where the slip starts and stops, while the
 positions integrate over them. Measured on a noise-free 8 s standing log on a floor of
 friction 0.1: the true friction brought the held-out position error from 2.31 to 1.11 mrad
-and the torque error from 0.119 up to 0.145 N m."""
+and the torque error from 0.119 up to 0.145 N m (``benchmarks/sysid_floor_checks.py --only
+slip_truth``)."""
 
 
 def _channels(p: _Pair, n: int) -> list[int]:
