@@ -8,6 +8,7 @@ tests that write into a run folder work on a copy of it.
 from __future__ import annotations
 
 import csv
+import os
 import re
 import shutil
 import typing
@@ -125,6 +126,11 @@ def _bad_checkpoint(kind: str, run: Path, path: Path) -> Path:
         path.write_text("iter: 2\nactor_state_dict: weights\n")
     elif kind == "tensor":
         torch.save(torch.zeros(3), path)
+    elif kind == "nan":  # A run that diverged: one weight of the actor is NaN.
+        blob = torch.load(good, weights_only=True)
+        key = next(k for k in blob["actor_state_dict"] if k.endswith("0.weight"))
+        blob["actor_state_dict"][key][0, 0] = float("nan")
+        torch.save(blob, path)
     else:  # Another shape: the actor's first layer takes one input fewer.
         blob = torch.load(good, weights_only=True)
         key = next(k for k in blob["actor_state_dict"] if k.endswith("0.weight"))
@@ -133,7 +139,7 @@ def _bad_checkpoint(kind: str, run: Path, path: Path) -> Path:
     return path
 
 
-@pytest.mark.parametrize("kind", ["random", "truncated", "text", "tensor", "shape"])
+@pytest.mark.parametrize("kind", ["random", "truncated", "text", "tensor", "shape", "nan"])
 def test_damaged_checkpoint_exits_2_naming_it(
     kind: str, run: Path, motion_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -172,6 +178,40 @@ def test_resume_refuses_a_newest_checkpoint_that_does_not_fit(
         "model_000001.pt",
         "model_000002.pt",
     ]
+
+
+@pytest.mark.parametrize("kind", ["nan", "folder", "fifo"])
+def test_a_newest_checkpoint_that_does_not_load_is_named_not_passed_over(
+    kind: str, run: Path, tmp_path: Path, motion_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """eval and export read the run's newest checkpoint: one with NaN weights, a folder or a
+    FIFO in its place is refused by name (an older one was taken in silence), and nothing is
+    written. ``train --resume`` passes over a damaged or NaN one, saying so on stderr, but not
+    a folder or FIFO (no crash leaves one)."""
+    folder = _copy(run, tmp_path / "run")
+    newest = folder / "checkpoints" / "model_000003.pt"
+    if kind == "nan":
+        _bad_checkpoint("nan", run, newest)
+    elif kind == "folder":
+        newest.mkdir()
+    else:
+        os.mkfifo(newest)
+    before = _snapshot(folder)
+    calls = [["eval", str(folder), "--episodes", "1", "--out", str(tmp_path / "eval.json")],
+             ["export", str(folder), "--out", str(tmp_path / "p.onnx")]]  # fmt: skip
+    if kind != "nan":
+        calls.append(_train_args(motion_file, folder, 4, "--resume"))
+    why = {"nan": "NaN", "folder": "a folder", "fifo": "not a regular file"}[kind]
+    for args in calls:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err
+        assert "model_000003.pt" in err and why in err and len(err.strip().splitlines()) == 1
+    assert _snapshot(folder) == before
+    assert not (tmp_path / "eval.json").exists() and not (tmp_path / "p.onnx").exists()
+    if kind == "nan":
+        assert main(_train_args(motion_file, folder, 3, "--resume")) == 0
+        err = capsys.readouterr().err
+        assert "warning: skipping" in err and "model_000003.pt" in err and why in err, err
 
 
 # --- 3. nonsensical settings -----------------------------------------------------------------

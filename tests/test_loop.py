@@ -124,6 +124,58 @@ def test_bad_input_exits_2_and_writes_nothing(base_run: Path, tmp_path: Path) ->
     assert not out.exists()
 
 
+def test_a_loop_that_fails_after_deploying_leaves_nothing_behind(
+    base_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """The diagnosis refusing the deployment log (as a too short one is) came after the
+    deployment had written before/ and deployment.mcap, which stayed; now a failed loop
+    removes what it wrote, in a folder it made or in the empty one it was given."""
+    import humimic.real2sim.report as report_mod
+    from humimic.errors import InputError
+
+    def refuse(log: Path, *args, **kwargs):
+        assert log.is_file()  # The deployment log was written.
+        raise InputError(f"{log}: too short for --horizon 0.5 s windows")
+
+    monkeypatch.setattr(report_mod, "run_diagnosis", refuse)
+    given = tmp_path / "given"
+    given.mkdir()
+    for out in (tmp_path / "made", given):
+        args = ["loop", "--run", str(base_run), "--real", "worn_knees", "--out", str(out),
+                "--episodes", "1", "--iterations", "1", "--sysid-duration", "5", "--quiet"]  # fmt: skip
+        assert main(args) == 2
+        assert "too short" in capsys.readouterr().err
+        assert not (tmp_path / "made").exists() and list(given.iterdir()) == []
+
+
+def test_loop_checks_the_policy_and_its_output_before_deploying(
+    base_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A NaN checkpoint ended the loop in a traceback after an empty before/ was made; an
+    --out inside the run folder wrote into the input."""
+    import shutil
+
+    import torch
+
+    run = shutil.copytree(base_run, tmp_path / "run")
+    newest = sorted((run / "checkpoints").glob("model_*.pt"))[-1]
+    blob = torch.load(newest, weights_only=True)
+    key = next(k for k in blob["actor_state_dict"] if k.endswith("0.weight"))
+    blob["actor_state_dict"][key][0, 0] = float("nan")
+    torch.save(blob, newest)
+    files = sorted(p for p in run.rglob("*"))
+    out = tmp_path / "loop"
+    base = ["loop", "--real", "worn_knees", "--episodes", "1", "--iterations", "1", "--quiet"]
+    assert main([*base, "--run", str(run), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert newest.name in err and "NaN" in err and err.count("\n") == 1, err
+    assert main([*base, "--run", str(base_run), "--out", str(base_run / "loop")]) == 2
+    assert "inside the run folder" in capsys.readouterr().err
+    assert not out.exists() and not (base_run / "loop").exists()
+    assert sorted(p for p in run.rglob("*")) == files
+
+
 def test_a_gantry_session_records_the_real_robot(tmp_path: Path) -> None:
     """``--sysid-log gantry``: the real robot's effects and floor, hanging in a gantry, as
     ``humimic sysid simulate`` would log them with those effects injected."""

@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from archives import zip_bytes
 from humimic.cli.main import main
-from humimic.real2sim import LogSettings, RobotLog, simulate_log
+from humimic.real2sim import LogSettings, RobotLog, imports, simulate_log
 from humimic.real2sim.report import load_robot_log
 from humimic.robots import get_robot
 
@@ -351,6 +352,39 @@ def test_a_corrupt_npz_exits_2(tmp_path: Path, capsys) -> None:
     src.write_text("time,q_0\n")
     assert _import(tmp_path, src)[0] == 2
     assert "not a zip archive" in capsys.readouterr().err
+
+
+def test_an_npz_whose_header_claims_a_huge_array_exits_2_before_allocating(
+    tmp_path: Path, capsys
+) -> None:
+    """A header that claims shape (1e10, 36) of float64 (2.9 TB): numpy allocated it and
+    died with a MemoryError traceback."""
+    header = "{'descr': '<f8', 'fortran_order': False, 'shape': (10000000000, 36), }"
+    header += " " * (117 - len(header)) + "\n"
+    npy = b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header.encode() + b"\0" * 64
+    src = tmp_path / "huge.npz"
+    src.write_bytes(zip_bytes({"q.npy": npy}))
+    assert _import(tmp_path, src)[0] == 2
+    err = capsys.readouterr().err
+    assert str(src) in err and "'q'" in err and "limit" in err, err
+    assert not (tmp_path / "imported.mcap").exists()
+
+
+def test_an_npz_bomb_is_refused_from_its_directory_before_it_is_unpacked(
+    tmp_path: Path, capsys, monkeypatch
+) -> None:
+    """A deflated member that unpacks to more than the cap (here lowered to 1 MiB, so that
+    the test stays small; the shipped cap is 4 GiB) is refused from the sizes the zip
+    directory declares: ``np.load`` unpacked all of it first (6 GB for a 5.76 GB member)."""
+    monkeypatch.setattr(imports, "MAX_LOG_ARRAY_BYTES", 1 << 20)
+    arrays = {"q": np.zeros((2 << 20) // 8)}
+    src = tmp_path / "bomb.npz"
+    np.savez_compressed(src, **arrays)
+    assert src.stat().st_size < 64 << 10
+    assert _import(tmp_path, src)[0] == 2
+    err = capsys.readouterr().err
+    assert str(src) in err and "declares" in err and "1 MiB limit" in err, err
+    assert not (tmp_path / "imported.mcap").exists()
 
 
 def test_unmapped_motor_slots_and_bad_maps_exit_2(tmp_path: Path, capsys) -> None:

@@ -163,7 +163,7 @@ def gantry_session(s: LoopSettings, robot: str, path: Path) -> Path:
 
 def _check(s: LoopSettings) -> Any:
     from humimic.sim.physics import load_physics
-    from humimic.tracking.runs import run_config
+    from humimic.tracking.runs import resolve_checkpoint, run_config
 
     s.validate()
     load_physics(s.real)  # Read and checked now: a bad value fails before the first deploy.
@@ -176,6 +176,10 @@ def _check(s: LoopSettings) -> Any:
                          "be deployed; run the loop on a deployable variant")  # fmt: skip
     if s.motion is not None and not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
+    if s.out.resolve().is_relative_to(s.run.resolve()):
+        raise InputError(f"--out {s.out}: inside the run folder {s.run}, which the loop reads; "
+                         "choose a folder outside it")  # fmt: skip
+    resolve_checkpoint(s.run, None)  # The policy deploys: a damaged or NaN one fails now.
     if s.out.exists() and not s.out.is_dir():
         raise InputError(f"--out {s.out}: exists and is not a folder")
     if s.out.exists() and any(s.out.iterdir()):
@@ -229,11 +233,11 @@ def loop(settings: LoopSettings) -> dict:
        (``finetune_nominal/``), to tell the correction's gain from that of more training.
     5. **Redeploy** on the real robot (``after/``, ``after_nominal/``) and report before and
        after (``loop.json``, ``loop.md``).
-    """
-    from humimic.real2sim.diagnose import CLAIM
-    from humimic.real2sim.report import physics_from_sysid, run_diagnosis
-    from humimic.sim.physics import write_physics
 
+    What can be checked comes before the first deployment (the settings, the physics file,
+    the run's checkpoint, ``--out`` empty and outside the run); a loop that fails later
+    removes what it wrote.
+    """
     s = settings
     out = s.out
     created = not out.exists()
@@ -242,17 +246,34 @@ def loop(settings: LoopSettings) -> dict:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputPathError(f"--out {out}: cannot create the folder: {e.strerror or e}") from None
+    try:
+        return _stages(s, run, out)
+    except (Exception, KeyboardInterrupt):
+        # A loop that fails takes away what it wrote: a folder it made, or what it put in
+        # the empty one it was given.
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        else:
+            for entry in out.iterdir():
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
+        raise
+
+
+def _stages(s: LoopSettings, run: Any, out: Path) -> dict:
+    """The loop's five stages into ``out`` (made, empty); returns ``loop.json``'s content."""
+    from humimic.real2sim.diagnose import CLAIM
+    from humimic.real2sim.report import physics_from_sysid, run_diagnosis
+    from humimic.sim.physics import write_physics
+
     t0 = time.perf_counter()
     report: dict[str, Any] = {"run": str(s.run), "motion": str(s.motion or run.motion),
                               "real": s.real, "iterations": s.iterations}  # fmt: skip
 
     print(f"[1/5] deploying {s.run} on the real robot")
-    try:
-        before = deploy(s, s.run, out / "before")
-    except InputError:
-        if created:  # Nothing ran: leave nothing behind.
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    before = deploy(s, s.run, out / "before")
     report["before"] = _summary(before)
     if s.sysid_log == "gantry":
         print(f"[2/5] gantry session on the real robot ({s.sysid_duration:.0f} s)")

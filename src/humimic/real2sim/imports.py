@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import csv
 import os
-import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 
 from humimic.errors import InputError, first_line
 from humimic.io import read_yaml
+from humimic.npyio import read_npz_members
 from humimic.real2sim.robotlog import QUAT_TOL, ImuLog, PoseTrack, RobotLog
 
 if TYPE_CHECKING:
@@ -319,17 +319,25 @@ def _assemble(
 # --- Unitree low-state arrays (NPZ, CSV) ---------------------------------------------------
 
 
+MAX_LOG_ARRAY_BYTES = 4 << 30
+"""Most bytes the arrays of one ``.npz`` robot log may take (as a motion file)."""
+
+
 def _load_npz(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` log, read by :func:`humimic.npyio.read_npz_members`: the
+    sizes its headers and zip directory claim are checked before anything is allocated
+    (at most :data:`MAX_LOG_ARRAY_BYTES`), never a pickle."""
     try:
         with path.open("rb") as f:
             magic = f.read(4)
-        if magic != b"PK\x03\x04":
-            raise ValueError("not a zip archive of .npy arrays, as numpy.savez writes")
-        with np.load(path, allow_pickle=False) as z:
-            return {k: np.asarray(z[k]) for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        why = "an array holds pickled objects" if "pickle" in str(e) else first_line(e)
-        raise InputError(f"{path}: not a readable .npz archive ({why})") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read: {e.strerror or first_line(e)}") from None
+    if magic != b"PK\x03\x04":
+        raise InputError(
+            f"{path}: not a readable .npz archive (not a zip archive of .npy arrays, as "
+            "numpy.savez writes)"
+        )
+    return read_npz_members(path, max_bytes=MAX_LOG_ARRAY_BYTES, kinds="biufc", error=InputError)
 
 
 def _load_csv(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:

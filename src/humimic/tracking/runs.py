@@ -12,6 +12,8 @@ import csv
 import io
 import math
 import os
+import re
+import sys
 from dataclasses import asdict, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -45,10 +47,14 @@ def yaml_ready(value: Any) -> Any:
 
 
 def checkpoint_files(run: Path) -> list[Path]:
+    """The run's ``checkpoints/model_<iterations done>.pt`` entries, oldest first (any kind of
+    entry: :func:`read_checkpoint` refuses one that is not a regular file)."""
     folder = run / "checkpoints"
     if not folder.is_dir():
         return []
-    return sorted(folder.glob("model_*.pt"), key=lambda p: int(p.stem.split("_")[1]))
+    found = [(int(m.group(1)), p) for p in folder.glob("model_*.pt")
+             if (m := re.fullmatch(r"model_(\d+)\.pt", p.name))]  # fmt: skip
+    return [p for _, p in sorted(found)]
 
 
 def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:
@@ -58,8 +64,11 @@ def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:
         InputError: The file is missing, damaged (truncated, random bytes, text) or holds
             something else than a humimic checkpoint; names ``flag`` and the file.
     """
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{flag} {path}: no such file")
+    if not path.is_file():
+        what = "a folder" if path.is_dir() else "not a regular file"
+        raise InputError(f"{flag} {path}: {what}, expected a checkpoint file")
     try:
         blob = torch.load(path, weights_only=True, map_location="cpu")
     except OSError as e:
@@ -79,7 +88,33 @@ def read_checkpoint(path: Path, flag: str = "--checkpoint") -> dict:
             f"{flag} {path}: not a humimic checkpoint (expected 'iter' and the networks' "
             "state dicts)"
         )
+    bad = _non_finite_tensor(blob)
+    if bad is not None:
+        raise InputError(
+            f"{flag} {path}: {bad} holds NaN or infinite values (a training run that "
+            "diverged): refusing to use it"
+        )
     return blob
+
+
+def _non_finite_tensor(blob: Any, where: str = "") -> str | None:
+    """The first floating-point tensor of a checkpoint (state dicts nested in dicts and
+    lists) with a NaN or an infinity, named by its keys; None when all are finite."""
+    if isinstance(blob, torch.Tensor):
+        if blob.is_floating_point() or blob.is_complex():
+            return None if bool(torch.isfinite(blob).all()) else (where or "a tensor")
+        return None
+    if isinstance(blob, dict):
+        items = blob.items()
+    elif isinstance(blob, list | tuple):
+        items = enumerate(blob)
+    else:
+        return None
+    for key, value in items:
+        found = _non_finite_tensor(value, f"{where}.{key}" if where else str(key))
+        if found is not None:
+            return found
+    return None
 
 
 def load_weights(runner: Any, blob: dict, path: Path, flag: str = "--checkpoint") -> None:
@@ -96,13 +131,31 @@ def load_weights(runner: Any, blob: dict, path: Path, flag: str = "--checkpoint"
         ) from None
 
 
-def latest_checkpoint(run: Path) -> tuple[Path, dict] | None:
-    """The newest checkpoint of a run that loads (a damaged one is skipped, and said so)."""
-    for path in reversed(checkpoint_files(run)):
+def latest_checkpoint(run: Path, *, skip_damaged: bool = False) -> tuple[Path, dict] | None:
+    """The newest checkpoint of a run (None: it has none yet).
+
+    Args:
+        run: The run folder.
+        skip_damaged: Pass over newer files that do not load (damaged, NaN weights), each
+            said on stderr, for the newest that does (``--resume`` after a crash). An entry
+            that is not a regular file is refused all the same: no crash leaves one.
+
+    Raises:
+        InputError: The newest one does not load (or, with ``skip_damaged``, is not a
+            regular file, or none loads): named, never passed over in silence.
+    """
+    files = checkpoint_files(run)
+    for path in reversed(files):
         try:
             return path, read_checkpoint(path, "checkpoint")
         except InputError as e:
-            print(f"humimic: skipping {e}")
+            if not skip_damaged or not path.is_file():
+                raise InputError(
+                    f"{e} (the run's newest; move it out of checkpoints/ to use the one before)"
+                ) from None
+            print(f"humimic: warning: skipping {e}", file=sys.stderr)
+    if files:
+        raise InputError(f"{run}: none of its {len(files)} checkpoints loads")
     return None
 
 

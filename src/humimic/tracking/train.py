@@ -527,7 +527,7 @@ def fit(
     start = 0
     ranks = ranks or Ranks()
     if s.resume:
-        found = latest_checkpoint(run)
+        found = latest_checkpoint(run, skip_damaged=True)
         if found is not None:
             path, blob = found
             load_weights(runner, blob, path, "--resume: checkpoint")
