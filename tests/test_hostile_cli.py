@@ -76,7 +76,7 @@ def test_an_output_that_is_a_device_or_pipe_is_refused_not_replaced(
     ("flags", "named"),
     [
         (["--dyn.samples", "99999999999999999999"], "dyn.samples"),
-        (["--dyn.horizon-s", "1e308"], "dyn.horizon_s"),
+        (["--dyn.horizon-s", "1e308"], "--dyn.horizon-s 1e+308"),
         (["--dyn.horizon-s", "1000"], "dyn.horizon_s"),
         (["--dyn.noise", "1e308"], "dyn.noise"),
         (["--dyn.ensemble", "99999999999999999999"], "dyn.ensemble"),
@@ -99,10 +99,10 @@ def test_refine_refuses_settings_that_crashed_or_never_ended(
     ("flags", "named"),
     [
         (["--ik.damping", "1e308"], "ik.damping"),
-        (["--ik.smooth-weight", "1e20"], "ik.smooth_weight"),
+        (["--ik.smooth-weight", "1e20"], "--ik.smooth-weight 1e+20"),
         (["--ik.scale", "1e308"], "ik.scale"),
         (["--ik.contact-min-frames", "-1"], "ik.contact_min_frames"),
-        (["--mesh.stick-weight", "1e308"], "mesh.stick_weight"),
+        (["--mesh.stick-weight", "1e308"], "--mesh.stick-weight 1e+308"),
     ],
 )
 def test_retarget_refuses_settings_beyond_any_use(
@@ -172,7 +172,7 @@ def test_a_new_run_does_not_overwrite_files_in_a_folder_that_is_no_run(
     folder.mkdir()
     (folder / "progress.csv").write_text("my numbers\n")
     source = ["--motion", str(tmp_path / "m.npz")] if cmd == "train" else ["--teacher", "t"]
-    _refused([cmd, *source, "--out", str(folder)], capsys, str(folder), "progress.csv")
+    _refused([cmd, *source, "--out", str(folder)], capsys, str(folder), "not empty")
     assert (folder / "progress.csv").read_text() == "my numbers\n"
     assert _files(tmp_path) == {"mine", "mine/progress.csv"}
 
@@ -222,6 +222,7 @@ def test_loop_out_that_is_a_file_or_cannot_be_made_exits_2(
         variant = "beyondmimic"
 
     monkeypatch.setattr(runs_module, "run_config", lambda run: ({}, _Run()))
+    monkeypatch.setattr(runs_module, "resolve_checkpoint", lambda run, given: (run, {}))
     afile = tmp_path / "afile"
     afile.write_text("x\n")
     base = ["loop", "--run", str(tmp_path / "run"), "--real", "backpack"]

@@ -367,12 +367,18 @@ def test_train_refuses_a_physics_file_of_the_wrong_sign(
 # -- 3. Logs and horizons the residual and the diagnosis cannot use -------------------------
 
 
-@pytest.mark.parametrize("horizon", ["0", "-0.5", "nan", "inf"])
+@pytest.mark.parametrize(
+    ("horizon", "why"),
+    [("0", "expected a positive number of seconds"),
+     ("-0.5", "expected a positive number of seconds"),
+     ("11", "expected a positive number of seconds, at most 10"),
+     ("nan", "must be a finite number"), ("inf", "must be a finite number")],
+)  # fmt: skip
 def test_a_bad_horizon_is_refused(
-    clean_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], horizon: str
+    clean_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], horizon: str, why: str
 ) -> None:
     for err in _refused(clean_log, tmp_path, capsys, "--horizon", horizon):
-        assert f"--horizon {float(horizon)}: expected a positive number of seconds" in err
+        assert f"--horizon {float(horizon)}: {why}" in err
 
 
 def test_a_horizon_below_the_state_interval_is_refused(

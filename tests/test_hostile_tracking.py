@@ -29,6 +29,7 @@ from humimic.configs.runs import (
     LoopSettings,
     TrainSettings,
 )
+from humimic.errors import InputError
 from humimic.motion import motion_from_qpos, save_motion
 from humimic.robots import get_robot, nominal_model
 
@@ -212,6 +213,65 @@ def test_a_newest_checkpoint_that_does_not_load_is_named_not_passed_over(
         assert main(_train_args(motion_file, folder, 3, "--resume")) == 0
         err = capsys.readouterr().err
         assert "warning: skipping" in err and "model_000003.pt" in err and why in err, err
+
+
+def test_a_run_folder_being_written_is_refused_to_a_second_writer(
+    run: Path, tmp_path: Path, motion_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two trainings on one --out, started 2 s apart, both ran and mixed their files. While a
+    process holds the folder (here: this test, through the same kernel lock a training
+    takes), train --resume and distill into it are refused; once it lets go, resuming works
+    (a killed run's lock goes with it: test_kill_9_then_resume_loses_nothing...)."""
+    from humimic.tracking.runs import run_folder_lock
+
+    folder = _copy(run, tmp_path / "run")
+    before = _snapshot(folder)
+    with run_folder_lock(folder, has_run=True):
+        assert main(_train_args(motion_file, folder, 3, "--resume")) == 2
+        err = capsys.readouterr().err
+        assert "another humimic process is writing" in err and str(folder) in err, err
+        distill = ["distill", "--teacher", str(run), "--out", str(folder), "--resume",
+                   "--num-envs", "2", "--max-iterations", "3", "--quiet"]  # fmt: skip
+        assert main(distill) == 2
+        assert "another humimic process is writing" in capsys.readouterr().err
+        assert _snapshot(folder) == before
+    assert main(_train_args(motion_file, folder, 3, "--resume")) == 0
+
+
+def test_a_run_started_meanwhile_in_the_same_folder_is_refused(
+    run: Path, tmp_path: Path, motion_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The lock is taken after the settings are checked: a run written into the folder in
+    between (by a process that has ended) is found under the lock, not overwritten."""
+    from humimic.tracking.runs import run_folder_lock
+
+    folder = _copy(run, tmp_path / "run")
+    meanwhile = "another run was started in this folder meanwhile"
+    with pytest.raises(InputError, match=meanwhile), run_folder_lock(folder, has_run=False):
+        pass
+
+
+@pytest.mark.parametrize("case", ["resume-missing", "resume-no-run", "new-nonempty"])
+def test_train_needs_a_run_to_resume_and_an_empty_folder_to_start(
+    case: str, tmp_path: Path, motion_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--resume on a missing folder started a new run; a new run went into a folder of other
+    files."""
+    out = tmp_path / "out"
+    if case != "resume-missing":
+        out.mkdir()
+        (out / "notes.txt").write_text("mine\n")
+    extra = () if case == "new-nonempty" else ("--resume",)
+    assert main(_train_args(motion_file, out, 1, *extra)) == 2
+    err = capsys.readouterr().err
+    want = {"resume-missing": "no such folder", "resume-no-run": "holds no run",
+            "new-nonempty": "not empty"}[case]  # fmt: skip
+    assert want in err and str(out) in err and err.count("\n") == 1, err
+    assert (
+        (not out.exists())
+        if case == "resume-missing"
+        else [p.name for p in out.iterdir()] == ["notes.txt"]
+    )
 
 
 # --- 3. nonsensical settings -----------------------------------------------------------------

@@ -11,6 +11,7 @@ from typing import Annotated, Any
 import tyro
 
 from humimic.cli import fetch, retarget, robots, sysid, track, view
+from humimic.cli.flags import validate_command
 from humimic.configs.runs import (
     DistillSettings,
     EvalSettings,
@@ -96,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
 def _run(argv: list[str]) -> int:
     cmd = parse(argv)
     try:
+        validate_command(cmd)
         return RUNNERS[type(cmd)](cmd) or 0
     except InputError as e:
         print(f"humimic: error: {e}", file=sys.stderr)

@@ -69,6 +69,14 @@ class RetargetCommand:
     quiet: bool = False
     """No progress bars; print only the report summary."""
 
+    def validate(self) -> None:
+        """Check the settings before any clip is read; :class:`InputError` names the flag."""
+        self.ik.validate()
+        self.mesh.validate()
+        self.dyn.validate()
+        if self.start is not None and self.start < 0:
+            raise InputError(f"--start {self.start}: must be a frame number >= 0")
+
 
 def scan_preset(argv: list[str]) -> str:
     """The ``--preset`` on a command line, before it is parsed (``default`` without one)."""
@@ -114,6 +122,14 @@ class RefineCommand:
     quiet: bool = False
     """No progress bar."""
 
+    def validate(self) -> None:
+        """Check the settings before the motion is read; :class:`InputError` names the flag."""
+        self.dyn.validate()
+        if self.backend == "warp":
+            check_device(self.device)
+        if not 0 <= self.robustness <= MAX_ROBUSTNESS:
+            raise InputError(f"--robustness {self.robustness}: must be in 0 to {MAX_ROBUSTNESS}")
+
 
 @dataclass(frozen=True, kw_only=True)
 class ReplayCommand:
@@ -124,6 +140,11 @@ class ReplayCommand:
     """A motion with a dynamic section (humimic refine), .npz or .mcap."""
     tol: float = 1e-9
     """Largest accepted difference of qpos and qvel."""
+
+    def validate(self) -> None:
+        """Check ``--tol``; :class:`InputError` names it."""
+        if not self.tol >= 0:  # NaN fails too: it would call every replay different.
+            raise InputError(f"--tol {self.tol}: must be a number >= 0")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -138,6 +159,11 @@ class DemoCommand:
     """Which climbing sequence (0-2)."""
     quiet: bool = False
     """No progress bars; print only the report."""
+
+    def validate(self) -> None:
+        """Check ``--clip`` before anything is fetched (its upper end: the fetched clips)."""
+        if self.clip < 0:
+            raise InputError(f"--clip {self.clip}: must be a sequence number >= 0")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -281,13 +307,9 @@ def run_refine(cmd: RefineCommand) -> None:
     from humimic.pipeline.batch import save_with_report
     from humimic.retarget.dynamics import refine
 
-    cmd.dyn.validate()
-    if cmd.backend == "warp":
-        check_device(cmd.device)
+    cmd.validate()
     if cmd.out.suffix != ".npz":
         raise InputError(f"{cmd.out}: the refined motion must end in .npz")
-    if not 0 <= cmd.robustness <= MAX_ROBUSTNESS:
-        raise InputError(f"--robustness: must be in 0 to {MAX_ROBUSTNESS}, got {cmd.robustness}")
     check_not_input(cmd.out, {"the motion": cmd.motion}, "--out")
     check_not_input(cmd.report, {"the motion": cmd.motion, "--out": cmd.out}, "--report")
     check_writable(cmd.out)
@@ -307,8 +329,7 @@ def run_replay(cmd: ReplayCommand) -> int:
     from humimic.pipeline.files import read_any_motion
     from humimic.retarget.dynamics import check_replay
 
-    if not cmd.tol >= 0:  # NaN fails too: it would call every replay different.
-        raise InputError(f"--tol {cmd.tol}: must be a number >= 0")
+    cmd.validate()
     r = check_replay(read_any_motion(cmd.motion))
     ok = max(r["max_qpos_error"], r["max_qvel_error"]) <= cmd.tol
     print(f"{int(r['steps'])} physics steps replayed: max |qpos| error {r['max_qpos_error']:.2e}, "

@@ -10,8 +10,21 @@ from typing import Annotated, Literal
 import tyro
 
 from humimic.configs.choices import RobotName
+from humimic.configs.runs import MAX_SEED
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
+
+MAX_HORIZON_S = 10.0
+"""Longest prediction window of ``sysid residual`` and ``diagnose`` [s]."""
+
+
+def check_horizon(horizon: float) -> None:
+    """``--horizon`` in (0, :data:`MAX_HORIZON_S`] s (NaN refused); a window shorter than the
+    log's state interval is refused when the log is read."""
+    if not 0.0 < horizon <= MAX_HORIZON_S:
+        raise InputError(
+            f"--horizon {horizon}: expected a positive number of seconds, at most {MAX_HORIZON_S:g}"
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,6 +52,17 @@ class SysidSimulate:
     out: Path
     """Output .mcap file."""
 
+    def validate(self) -> None:
+        """Check the numbers before anything is simulated; :class:`InputError` names the flag."""
+        if not 1.0 <= self.duration <= 3600.0:  # NaN fails too.
+            raise InputError(f"--duration {self.duration}: choose 1 to 3600 s")
+        if not 0 <= self.seed <= MAX_SEED:
+            raise InputError(f"--seed {self.seed}: must be in 0 to {MAX_SEED}")
+        if not all(abs(v) <= 30.0 for v in self.imu_tilt):  # NaN fails too.
+            raise InputError(f"--imu-tilt {self.imu_tilt}: choose -30 to 30 degrees each")
+        if any(v != 0.0 for v in self.imu_tilt) and self.base != "floating":
+            raise InputError("--imu-tilt: a gantry log has no IMU; use --base floating")
+
 
 @dataclass(frozen=True, kw_only=True)
 class SysidResidual:
@@ -51,6 +75,10 @@ class SysidResidual:
     """Prediction window [s]."""
     report: Path | None = None
     """Write the numbers as JSON here."""
+
+    def validate(self) -> None:
+        """Check ``--horizon`` before the log is read; :class:`InputError` names it."""
+        check_horizon(self.horizon)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -66,6 +94,10 @@ class SysidDiagnose:
     """Prediction window [s]."""
     residual_net: Literal["auto", "always", "never"] = "auto"
     """Fit a residual actuator network: when the effects leave the log unexplained (auto)."""
+
+    def validate(self) -> None:
+        """Check ``--horizon`` before the log is read; :class:`InputError` names it."""
+        check_horizon(self.horizon)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -123,13 +155,8 @@ def run_simulate(cmd: SysidSimulate) -> None:
     injections = [parse_injection(text) for text in cmd.inject]
     if cmd.out.suffix != ".mcap":
         raise InputError(f"{cmd.out}: the log must be an .mcap file")
-    if not 1.0 <= cmd.duration <= 3600.0:
-        raise InputError(f"--duration {cmd.duration}: choose 1 to 3600 s")
+    cmd.validate()
     tilted = any(v != 0.0 for v in cmd.imu_tilt)
-    if tilted and cmd.base != "floating":
-        raise InputError("--imu-tilt: a gantry log has no IMU; use --base floating")
-    if not all(abs(v) <= 30.0 for v in cmd.imu_tilt):  # NaN fails too.
-        raise InputError(f"--imu-tilt {cmd.imu_tilt}: choose -30 to 30 degrees each")
     check_writable(cmd.out)
     settings = LogSettings(duration=cmd.duration, seed=cmd.seed, base=cmd.base, mocap=cmd.mocap)
     log = simulate_log(robot, injections, settings)

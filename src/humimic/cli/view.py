@@ -38,6 +38,16 @@ class ViewCommand:
     duration: float | None = None
     """Stop after this many seconds (default: run until Ctrl-C)."""
 
+    def validate(self) -> None:
+        """Check the numbers before anything is read; :class:`InputError` names the flag."""
+        from humimic.viewer.app import check_port
+
+        check_port(self.port)
+        if self.frame < 0:
+            raise InputError(f"--frame {self.frame}: must be a frame number >= 0")
+        if self.duration is not None and not self.duration >= 0:  # 0: start, then stop.
+            raise InputError(f"--duration {self.duration}: must be a number of seconds >= 0")
+
 
 def run_view(cmd: ViewCommand) -> None:
     """Run ``humimic view``."""
@@ -47,13 +57,11 @@ def run_view(cmd: ViewCommand) -> None:
     from humimic.pipeline.files import load_rollout, read_any_motion
     from humimic.robots import get_robot, nominal_model
     from humimic.viewer import Viewer, load_scene_meshes
-    from humimic.viewer.app import check_host, check_port
+    from humimic.viewer.app import check_host
 
     t0 = time.perf_counter()
-    check_port(cmd.port)  # Bad addresses fail at once, before the motion loads.
+    cmd.validate()  # Bad addresses fail at once, before the motion loads.
     check_host(cmd.host)
-    if cmd.duration is not None and not cmd.duration >= 0:  # NaN fails too; 0: start, stop.
-        raise InputError(f"--duration {cmd.duration}: must be a number of seconds >= 0")
     if cmd.screenshot is not None:
         inputs = {"the motion": cmd.motion, "--human": cmd.human, "--rollout": cmd.rollout}
         check_not_input(cmd.screenshot, inputs, "--screenshot")

@@ -12,6 +12,9 @@ MAX_SCENE_POINTS = 10_000
 """Most scene points one frame's interaction mesh may take (``--mesh.max_scene_points``); the
 mesh refuses more than 20,000 points in all (``retarget.interaction_mesh.MAX_MESH_POINTS``)."""
 
+MAX_ITERATIONS = 10_000
+"""Most solver iterations per frame (or per window) any ``--ik``, ``--mesh`` or ``--dyn``
+iteration flag may ask for."""
 MAX_SETTING = 1e6
 """The largest value of any real-valued setting (a weight, a scale, a length): larger ones
 overflow the solvers' arithmetic (as the maps' weights, bounded the same)."""
@@ -123,6 +126,10 @@ class RetargetConfig:
                      "contact_min_frames"):  # fmt: skip
             if getattr(self, name) < 0:
                 raise InputError(f"ik.{name}: must be >= 0")
+            if name != "contact_min_frames" and getattr(self, name) > MAX_ITERATIONS:
+                raise InputError(
+                    f"ik.{name}: at most {MAX_ITERATIONS} per frame, got {getattr(self, name)}"
+                )
         if self.stage1_iters + self.stage2_iters < 1:
             raise InputError("ik.stage1_iters + ik.stage2_iters: at least one QP per frame")
         if not 0 < self.collision_gain <= 1:
@@ -252,6 +259,11 @@ class InteractionConfig:
                 f"mesh.max_scene_points: at most {MAX_SCENE_POINTS} (a Delaunay mesh of more "
                 f"points per frame is beyond this method), got {self.max_scene_points}"
             )
+        if max(self.iterations, self.reattach_iterations) > MAX_ITERATIONS:
+            raise InputError(
+                f"mesh.iterations and mesh.reattach_iterations: at most {MAX_ITERATIONS} per "
+                f"frame, got {self.iterations} and {self.reattach_iterations}"
+            )
         if self.iterations < 1 or self.max_scene_points < 0 or self.reattach_iterations < 0:
             raise InputError(
                 "mesh.iterations must be >= 1, mesh.max_scene_points and "
@@ -293,7 +305,8 @@ class DynamicsConfig:
         anneal: See ``noise``.
         upper_body_noise: Noise of the waist and arm joints relative to the legs'.
         temperature: MPPI temperature on costs normalized by the elites' spread.
-        elites: The lowest-cost samples that the MPPI mean averages.
+        elites: The lowest-cost samples that the MPPI mean averages (all of them when there
+            are no more samples than this).
         body_weight: Cost of the mean squared tracked-body position error, per (10 cm)^2.
         root_weight: Cost of the pelvis height error per (10 cm)^2 and of its tilt against
             the reference's per (0.3 rad)^2.
@@ -370,7 +383,9 @@ class DynamicsConfig:
             raise InputError(f"dyn.robust: mean or worst, got {self.robust!r}")
         if self.horizon_s > MAX_HORIZON_S:
             raise InputError(f"dyn.horizon_s: at most {MAX_HORIZON_S:g} s, got {self.horizon_s:g}")
-        most = {"samples": MAX_SAMPLES, "ensemble": MAX_ENSEMBLE, "seed": MAX_SEED}
+        most = {"samples": MAX_SAMPLES, "elites": MAX_SAMPLES, "ensemble": MAX_ENSEMBLE,
+                "seed": MAX_SEED,
+                "iterations": MAX_ITERATIONS, "polish_iterations": MAX_ITERATIONS}  # fmt: skip
         for name, high in most.items():
             if getattr(self, name) > high:
                 raise InputError(f"dyn.{name}: must be at most {high}, got {getattr(self, name)}")

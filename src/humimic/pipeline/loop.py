@@ -179,12 +179,12 @@ def _check(s: LoopSettings) -> Any:
     if s.out.resolve().is_relative_to(s.run.resolve()):
         raise InputError(f"--out {s.out}: inside the run folder {s.run}, which the loop reads; "
                          "choose a folder outside it")  # fmt: skip
-    resolve_checkpoint(s.run, None)  # The policy deploys: a damaged or NaN one fails now.
     if s.out.exists() and not s.out.is_dir():
         raise InputError(f"--out {s.out}: exists and is not a folder")
     if s.out.exists() and any(s.out.iterdir()):
         raise InputError(f"--out {s.out}: exists and is not empty")
     check_writable(s.out / "loop.json")
+    resolve_checkpoint(s.run, None)  # The policy deploys: a damaged or NaN one fails now.
     return run
 
 

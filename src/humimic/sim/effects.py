@@ -418,6 +418,11 @@ class Injection:
         return self.source or f"{self.effect} on {', '.join(self.targets)}"
 
 
+MAX_EFFECT_VALUE = 1e6
+"""Largest size of any effect's parameter in its unit: beyond every physical value (a
+``payload_mass`` of 1e308 kg overflowed MuJoCo's inertia)."""
+
+
 def value_problem(effect: str, value: float) -> str | None:
     """Why ``value`` is not a physical value of ``effect`` (``None``: it is).
 
@@ -428,6 +433,9 @@ def value_problem(effect: str, value: float) -> str | None:
     e = EFFECTS[effect]
     if not np.isfinite(value):
         return f"{effect} must be a finite number of {e.unit}, got {value}"
+    if abs(value) > MAX_EFFECT_VALUE:
+        return (f"{effect} must be at most {MAX_EFFECT_VALUE:g} {e.unit} in size "
+                f"({e.meaning}), got {value:g}")  # fmt: skip
     if e.sign == "nonnegative" and value < 0:
         return f"{effect} must be >= 0 {e.unit} ({e.meaning}), got {value:g}"
     if e.sign == "positive" and value <= 0:

@@ -277,6 +277,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         resolved_source,
         run_config,
         run_files,
+        run_folder_lock,
         run_rsl_cfg,
         yaml_ready,
     )
@@ -333,41 +334,44 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     created = not run.exists()
     check_writable(run / "config.yaml", create=True)
 
-    torch.manual_seed(s.seed)
-    env = run_env(task, motion, s, created)
-    try:
-        venv = StudentView(env, teacher_base) if moved else env
-        runner = make_runner(venv, cfg, log_dir=run / "tensorboard", device=s.device)
-        try:  # The teacher's actor -> the teacher model, before anything is written.
-            runner.alg.load(teacher_blob, None, True)
-        except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:
-            if created:  # Leave nothing behind for a run that never started.
-                shutil.rmtree(run, ignore_errors=True)
-            flag = "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
-            raise InputError(
-                f"{flag} {ckpt}: does not fit the teacher's actor ({first_line(e)})"
-            ) from None
-        (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-        if not has_run:
-            # Paths absolute, as a training run's config records them.
-            recorded = replace(
-                s,
-                teacher=s.teacher.resolve(),
-                out=s.out.resolve(),
-                teacher_checkpoint=None if s.teacher_checkpoint is None else ckpt.resolve(),
-                dr=resolved_source(s.dr, DR_PROFILES),
-            )
-            blob = {
-                "kind": "student",
-                "settings": yaml_ready(asdict(teacher)),
-                "distill": yaml_ready(asdict(recorded)),
-                "tracking": yaml_ready(task),
-                "rsl": yaml_ready(cfg),
-            }
-            atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
-        return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
-    finally:
-        env.close()
+    with run_folder_lock(run, has_run):  # Until the student's last checkpoint.
+        torch.manual_seed(s.seed)
+        env = run_env(task, motion, s, created)
+        try:
+            venv = StudentView(env, teacher_base) if moved else env
+            runner = make_runner(venv, cfg, log_dir=run / "tensorboard", device=s.device)
+            try:  # The teacher's actor -> the teacher model, before anything is written.
+                runner.alg.load(teacher_blob, None, True)
+            except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:
+                if created:  # Leave nothing behind for a run that never started.
+                    shutil.rmtree(run, ignore_errors=True)
+                flag = (
+                    "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
+                )
+                raise InputError(
+                    f"{flag} {ckpt}: does not fit the teacher's actor ({first_line(e)})"
+                ) from None
+            (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+            if not has_run:
+                # Paths absolute, as a training run's config records them.
+                recorded = replace(
+                    s,
+                    teacher=s.teacher.resolve(),
+                    out=s.out.resolve(),
+                    teacher_checkpoint=None if s.teacher_checkpoint is None else ckpt.resolve(),
+                    dr=resolved_source(s.dr, DR_PROFILES),
+                )
+                blob = {
+                    "kind": "student",
+                    "settings": yaml_ready(asdict(teacher)),
+                    "distill": yaml_ready(asdict(recorded)),
+                    "tracking": yaml_ready(task),
+                    "rsl": yaml_ready(cfg),
+                }
+                atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
+            return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
+        finally:
+            env.close()
 
 
 def _check_outputs(s: DistillSettings) -> None:

@@ -7,13 +7,16 @@ A run folder holds ``config.yaml`` (everything resolved: the settings, the task,
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
+import fcntl
 import io
 import math
 import os
 import re
 import sys
+from collections.abc import Iterator
 from dataclasses import asdict, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -44,6 +47,44 @@ def yaml_ready(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return str(value)
     return value
+
+
+@contextlib.contextmanager
+def run_folder_lock(run: Path, has_run: bool, flag: str = "--out") -> Iterator[None]:
+    """Hold an existing run folder for writing while the block runs: a second ``train`` or
+    ``distill`` on it is refused while this one lives. The lock is the kernel's (``flock`` on
+    the folder itself), so it leaves no file behind and ends with the process however it
+    ends (``kill -9`` too): a killed run's folder is never locked out.
+
+    Args:
+        run: The run folder (it exists).
+        has_run: Whether it held a run (``config.yaml``) when the settings were checked: a
+            run that another process started meanwhile is refused too.
+        flag: What messages name.
+
+    Raises:
+        InputError: Another process holds the folder, or wrote a run there meanwhile.
+    """
+    fd = os.open(run, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(
+                f"{flag} {run}: another humimic process is writing this run folder; wait for "
+                "it to end, or choose another folder"
+            ) from None
+        except OSError as e:  # A file system without locks (some network mounts).
+            print(f"humimic: warning: {run}: cannot lock the run folder ({e.strerror or e}); "
+                  "nothing stops a second run from writing into it", file=sys.stderr)  # fmt: skip
+        if (run / "config.yaml").exists() and not has_run:
+            raise InputError(
+                f"{flag} {run}: another run was started in this folder meanwhile; choose "
+                "another folder"
+            )
+        yield
+    finally:
+        os.close(fd)
 
 
 def checkpoint_files(run: Path) -> list[Path]:

@@ -6,6 +6,7 @@ training that produces NaN stops with a clear error and leaves the last good che
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import shutil
@@ -37,6 +38,7 @@ from humimic.tracking.runs import (
     resolve_checkpoint,
     resolved_settings,
     run_files,
+    run_folder_lock,
     run_rsl_cfg,
     settings_differences,
     trim_progress,
@@ -342,9 +344,11 @@ def train(
         device = distributed.start(ranks, s.device)
         agree([0], device)  # Every rank has checked the run folder before rank 0 writes it.
     created = not run.exists() and ranks.main
+    hold = contextlib.ExitStack()  # The run folder's lock, from its creation to the end.
     try:
         if ranks.main:
             check_writable(run / "config.yaml", create=True)
+            hold.enter_context(run_folder_lock(run, has_run))
         torch.manual_seed(seed)
         env = run_env(task, motion, s, created, device=device)
         try:
@@ -368,6 +372,7 @@ def train(
         finally:
             env.close()
     finally:
+        hold.close()
         distributed.stop()
 
 
@@ -487,16 +492,19 @@ def check_run_settings(s: Any) -> bool:
     has_run = (s.out / "config.yaml").exists()
     if has_run and not s.resume:
         raise InputError(f"--out {s.out}: holds a run already; pass --resume to continue it")
+    if s.resume and not has_run:
+        what = "no such folder" if not s.out.exists() else "it holds no run (no config.yaml)"
+        raise InputError(f"--resume --out {s.out}: {what}, nothing to continue; drop --resume "
+                         "to start a new run")  # fmt: skip
     init = getattr(s, "init_from", None)  # One inside --out: _check_train_outputs says so.
     inside = init is not None and s.out.resolve() in (init.resolve(), *init.resolve().parents)
-    if not has_run and not s.resume and not inside and s.out.is_dir():
-        # A new run writes these: files of the same names there would be overwritten.
-        clash = [n for n in ("progress.csv", "checkpoints") if (s.out / n).exists()]
-        if clash:
-            raise InputError(
-                f"--out {s.out}: holds {' and '.join(clash)} but no run (no config.yaml), "
-                "which a new run would overwrite; choose a new or empty folder"
-            )
+    if not has_run and not inside and s.out.is_dir() and any(s.out.iterdir()):
+        # A run folder is a run's alone: its files beside others' would be mixed up, and
+        # files of the names it writes overwritten.
+        raise InputError(
+            f"--out {s.out}: exists and is not empty (and holds no run); choose a new or empty "
+            "folder"
+        )
     return has_run
 
 
