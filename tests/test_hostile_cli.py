@@ -177,6 +177,20 @@ def test_a_new_run_does_not_overwrite_files_in_a_folder_that_is_no_run(
     assert _files(tmp_path) == {"mine", "mine/progress.csv"}
 
 
+def test_retarget_never_writes_into_an_input_folder(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``retarget DIR --out DIR/out`` wrote its motions and reports into the input folder."""
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    (clips / "walk.bvh").write_bytes((shared_data / "cmu" / "09_01.bvh").read_bytes())
+    for out in (clips / "out", clips):
+        _refused(
+            ["retarget", str(clips), "--out", str(out)], capsys, "--out", "inside the input folder"
+        )
+    assert _files(tmp_path) == {"clips", "clips/walk.bvh"}
+
+
 def _robot_folder_copy(root: Path) -> Path:
     """A copy of the G1's Menagerie folder (its XML files; the meshes linked, not copied)."""
     from humimic.robots.model import _nominal_spec
@@ -284,6 +298,42 @@ def test_mcap_writer_fails_with_one_line_and_writes_usual_permissions(tmp_path: 
     os.umask(umask)
     assert stat.S_IMODE((tmp_path / "log.mcap").stat().st_mode) == 0o666 & ~umask
     assert _files(tmp_path) == {"log.mcap"}
+
+
+@pytest.mark.parametrize("cmd", ["simulate", "import"])
+def test_an_mcap_write_cut_short_exits_2_with_one_line_and_no_file(
+    cmd: str, tmp_path: Path
+) -> None:
+    """A write that fails mid-file (here a 64 KiB file size limit, as a full disk would)
+    ended sysid simulate and sysid import in the MCAP writer's OSError traceback."""
+    import subprocess
+    import sys
+
+    src = tmp_path / "low.npz"
+    if cmd == "import":  # A Unitree low-state log of 2 s (the import's own test makes one).
+        log = tmp_path / "seed.mcap"
+        assert main(["sysid", "simulate", "--duration", "2", "--base", "floating",
+                     "--out", str(log)]) == 0  # fmt: skip
+        from humimic.real2sim.report import load_robot_log
+
+        _, _, lg = load_robot_log(log)
+        assert lg.imu is not None
+        idx = lg.command_index(lg.t)
+        np.savez(src, time=lg.t, q=lg.q, dq=lg.qd, cmd_q=lg.cmd_q[idx], cmd_dq=lg.cmd_qd[idx],
+                 cmd_tau=lg.cmd_tau[idx], cmd_kp=lg.kp[idx], cmd_kd=lg.kd[idx],
+                 quaternion=lg.imu.quat_w, gyroscope=lg.imu.gyro_b)  # fmt: skip
+        log.unlink()
+    out = tmp_path / "out.mcap"
+    argv = (["sysid", "simulate", "--duration", "20", "--out", str(out)] if cmd == "simulate"
+            else ["sysid", "import", str(src), "--out", str(out), "--base", "floating"])  # fmt: skip
+    script = ("import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, (65536, 65536)); "
+              "from humimic.cli.main import main; sys.exit(main(sys.argv[1:]))")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True, text=True,
+                       timeout=300)  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith("humimic: error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert str(out) in r.stderr and "cannot write" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["low.npz"] if cmd == "import" else [])
 
 
 def test_refine_reports_rollouts_that_all_diverge_as_one_line(

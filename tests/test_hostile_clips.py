@@ -118,6 +118,25 @@ def test_yaml_at_the_depth_limit_loads(tmp_path: Path) -> None:
     assert read_yaml(text) == {"note": "[]" * 500}
 
 
+def test_a_key_given_twice_is_refused_naming_it_and_its_line(tmp_path: Path) -> None:
+    """A physics file naming floor_friction twice kept the last value in silence; a merge key
+    (<<) that an explicit key overrides is ordinary YAML and still loads."""
+    dup = tmp_path / "physics.yaml"
+    dup.write_text("name: twice\nfloor_friction: 0.2\nmass_scale: 1.0\nfloor_friction: 1.0\n")
+    for load in (read_yaml, load_physics):
+        with pytest.raises(
+            InputError, match=r"physics\.yaml.*'floor_friction' appears twice.*line 4"
+        ):
+            load(dup)
+    nested = tmp_path / "nested.yaml"
+    nested.write_text("a:\n  b: 1\n  b: 2\n")
+    with pytest.raises(InputError, match="'b' appears twice"):
+        read_yaml(nested)
+    merged = tmp_path / "merged.yaml"
+    merged.write_text("base: &x {b: 1, c: 3}\nmine:\n  <<: *x\n  b: 2\n")
+    assert read_yaml(merged) == {"base": {"b": 1, "c": 3}, "mine": {"b": 2, "c": 3}}
+
+
 def test_deeply_nested_map_is_refused_by_the_cli(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

@@ -260,6 +260,38 @@ def test_train_refuses_a_zero_quaternion_before_any_work(
     _only(tmp_path, "zero.npz")
 
 
+@pytest.mark.parametrize("cmd", ["convert", "train"])
+def test_a_root_copy_that_is_not_body_0s_pose_is_refused(
+    cmd: str, tmp_path: Path, motion: Motion, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """root_quat_w all zeros (what mjlab's tracker reads as the root) passed convert and
+    train: humimic read body_quat_w and never looked at the copy."""
+    arrays = _arrays(motion, tmp_path)
+    arrays["root_quat_w"] = np.zeros_like(arrays["root_quat_w"])
+    bad = tmp_path / "root.npz"
+    np.savez(bad, **arrays)  # type: ignore[arg-type]
+    argv = (["convert", str(bad), str(tmp_path / "out.mcap")] if cmd == "convert"
+            else ["train", "--motion", str(bad), "--out", str(tmp_path / "run")])  # fmt: skip
+    _refused(capsys, argv, "root.npz", "root_quat_w frame 0", "body_quat_w[:, 0]")
+    _only(tmp_path, "root.npz")
+
+
+@pytest.mark.parametrize(
+    ("label", "why"), [("../../etc", "unknown robot"), ("t1", "not that robot's")]
+)
+def test_convert_refuses_a_motion_labelled_with_another_robot(
+    label: str, why: str, tmp_path: Path, motion: Motion, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """convert wrote a G1 clip labelled ``t1`` (or a path) as it came; train and refine
+    refused it."""
+    arrays = _arrays(motion, tmp_path)
+    arrays["robot"] = np.array(label)
+    bad = tmp_path / "labelled.npz"
+    np.savez(bad, **arrays)  # type: ignore[arg-type]
+    _refused(capsys, ["convert", str(bad), str(tmp_path / "out.mcap")], "labelled.npz", why)
+    _only(tmp_path, "labelled.npz")
+
+
 # --- The dynamic section -------------------------------------------------------------------------
 
 

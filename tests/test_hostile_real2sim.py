@@ -364,6 +364,20 @@ def test_train_refuses_a_physics_file_of_the_wrong_sign(
     assert not run.exists()
 
 
+def test_diagnose_refuses_an_out_dir_of_other_files(
+    clean_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--out-dir a folder of the user's files: the diagnosis wrote its model, report and plots
+    beside them. A folder that holds an earlier diagnosis (report.json) is written again."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine\n")
+    assert main(["sysid", "diagnose", str(clean_log), "--out-dir", str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out-dir {mine}: holds other files" in err and err.count("\n") == 1, err
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+
+
 # -- 3. Logs and horizons the residual and the diagnosis cannot use -------------------------
 
 

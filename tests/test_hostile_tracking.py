@@ -274,6 +274,21 @@ def test_train_needs_a_run_to_resume_and_an_empty_folder_to_start(
     )
 
 
+def test_a_physics_file_with_an_effect_that_adds_joints_is_refused_by_name(
+    run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Backlash adds a play joint: eval said "the actuators must drive the joints after the
+    free joint, in qpos order", naming neither the file nor the effect."""
+    physics = tmp_path / "worn.yaml"
+    physics.write_text("effects:\n  - backlash:left_knee_joint=0.02\n")
+    out = tmp_path / "eval.json"
+    assert main(["eval", str(run), "--episodes", "1", "--physics", str(physics),
+                 "--out", str(out)]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert str(physics) in err and "backlash" in err and "adds joints" in err, err
+    assert err.count("\n") == 1 and not out.exists()
+
+
 # --- 3. nonsensical settings -----------------------------------------------------------------
 
 

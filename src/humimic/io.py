@@ -88,6 +88,28 @@ def _resolved(path: str | os.PathLike[str], label: str) -> Path:
         raise InputError(f"{label} {path}: cannot resolve the path ({e})") from None
 
 
+def check_input_file(path: str | os.PathLike[str], what: str) -> Path:
+    """``path`` as a :class:`Path` if it is a regular file; otherwise one line saying what it
+    is instead (missing, a folder, a pipe or device), before anything opens it (a FIFO
+    would block the reader).
+
+    Args:
+        path: The input.
+        what: What was expected, for the message (``"a motion file"``).
+
+    Raises:
+        InputError: Names the path.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder, expected {what}")
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    if not p.is_file():
+        raise InputError(f"{p}: not a regular file (a pipe or device), expected {what}")
+    return p
+
+
 def file_mode() -> int:
     """The permissions of a new file: 0666 less the umask (what ``open`` would give)."""
     mask = os.umask(0)
@@ -139,6 +161,29 @@ def json_ready(value: Any) -> Any:
     return value
 
 
+def _unique_key_loader() -> Any:
+    """PyYAML's ``SafeLoader``, refusing a mapping that names a key twice (which keeps the
+    last value in silence: ``floor_friction: 0.2`` then ``floor_friction: 1.0``)."""
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+            seen: set[tuple[str, str]] = set()
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag.endswith(":merge"):
+                    continue  # Merge keys (<<) may repeat what they merge in.
+                key = (key_node.tag, key_node.value)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"the key {key_node.value!r} appears twice",
+                        key_node.start_mark,
+                    )  # fmt: skip
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
+    return UniqueKeyLoader
+
+
 def read_yaml(
     path: str | os.PathLike[str], *, max_depth: int = 64, max_values: int = 1_000_000
 ) -> Any:
@@ -186,7 +231,7 @@ def read_yaml(
     if deepest > max_depth:
         raise too_deep
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_unique_key_loader())  # A SafeLoader: no Python objects.
     except RecursionError:
         raise too_deep from None
     except yaml.YAMLError as e:

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError, MotionDataError
-from humimic.io import atomic_write
+from humimic.io import atomic_write, check_input_file
 from humimic.npyio import read_npz_members
 from humimic.transforms import quat_conj, quat_mul, quat_to_rotvec
 
@@ -40,6 +40,9 @@ _DYNAMICS_KEYS = ("initial_state", "ctrl", "qpos", "qvel", "physics_dt")
 
 MAX_MOTION_BYTES = 4 << 30
 """Most bytes of arrays (uncompressed) a motion file may declare; checked before reading."""
+_ROOT_COPY_TOLERANCE = 1e-5
+"""Largest difference of ``root_pos_w`` / ``root_quat_w`` from body 0's pose (float32
+writers)."""
 MAX_ABS_VALUE = 1e6
 """Largest magnitude of a number in a motion (metres, radians, their rates): larger ones are
 corrupt data, and would overflow the float32 arithmetic of training."""
@@ -506,8 +509,7 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
             arrays, or a motion that fails :func:`validate_motion`; names the file and key.
     """
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    check_input_file(p, "a motion file")
     try:
         kind = sniff(p)
     except OSError as e:
@@ -548,7 +550,32 @@ def load_motion(path: str | os.PathLike[str]) -> Motion:
         source=str(p),
     )
     validate_motion(motion, p)
+    _check_root_copies(p, data, motion)
     return motion
+
+
+def _check_root_copies(p: Path, data: dict[str, np.ndarray], motion: Motion) -> None:
+    """``root_pos_w`` and ``root_quat_w``, where a file has them, are copies of body 0's
+    pose for the trackers that read them (mjlab's): they must be that pose, or a tracker
+    would read another motion than humimic does."""
+    for key, body in (("root_pos_w", motion.body_pos_w[:, 0]),
+                      ("root_quat_w", motion.body_quat_w[:, 0])):  # fmt: skip
+        if key not in data:
+            continue
+        v = data[key]
+        if v.shape != body.shape or v.dtype.kind not in "iuf":
+            raise MotionDataError(
+                f"{p}: {key} has shape {v.shape} and dtype {v.dtype}, expected {body.shape} "
+                "numbers (a copy of body 0's pose)"
+            )
+        off = np.abs(v - body).max(axis=-1)
+        if not np.all(off <= _ROOT_COPY_TOLERANCE):  # NaN fails too.
+            t = int(np.argmax(~(off <= _ROOT_COPY_TOLERANCE)))
+            name = "body_pos_w" if key == "root_pos_w" else "body_quat_w"
+            raise MotionDataError(
+                f"{p}: {key} frame {t} is {np.round(v[t], 6).tolist()}, but it must be a copy "
+                f"of {name}[:, 0] ({np.round(body[t], 6).tolist()})"
+            )
 
 
 def _scalar(p: Path, data: dict[str, np.ndarray], key: str, kinds: str, what: str) -> np.ndarray:

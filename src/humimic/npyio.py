@@ -21,6 +21,7 @@ from typing import IO
 import numpy as np
 
 from humimic.errors import InputError, MotionDataError
+from humimic.io import check_input_file
 
 MAX_HEADER_BYTES = 10_000
 """Longest ``.npy`` header read (numpy's own limit for untrusted files)."""
@@ -156,7 +157,7 @@ def read_npy_file(
             :func:`read_array` finds; the message names the file.
     """
     p = Path(path)
-    _check_file(p, ".npy file")
+    check_input_file(p, "an .npy file")
     try:
         f = p.open("rb")
     except OSError as e:
@@ -211,7 +212,7 @@ def read_npz_members(
     """
     _check_kinds(kinds)
     p = Path(path)
-    _check_file(p, ".npz archive")
+    check_input_file(p, "an .npz archive")
     wanted_keys = None if keys is None else list(dict.fromkeys(keys))
     out: dict[str, np.ndarray] = {}
     try:
@@ -325,15 +326,6 @@ def _read_exact(f: IO[bytes], n: int, where: str, error: type[InputError]) -> by
     if len(out) != n:
         raise error(f"{where}: truncated .npy header: {len(out)} of {n} bytes")
     return out
-
-
-def _check_file(p: Path, what: str) -> None:
-    if p.is_dir():
-        raise InputError(f"{p}: is a folder, expected an {what}")
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if not p.is_file():
-        raise InputError(f"{p}: not a regular file, expected an {what}")
 
 
 def _check_kinds(kinds: str) -> None:

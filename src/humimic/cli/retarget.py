@@ -342,11 +342,13 @@ def run_convert(cmd: ConvertCommand) -> None:
     from humimic.formats.mcap import write_motion_mcap
     from humimic.motion import save_motion
     from humimic.pipeline.files import read_any_motion
+    from humimic.robots.model import motion_model
 
     if cmd.dst.suffix not in (".npz", ".mcap"):
         raise InputError(f"{cmd.dst}: convert to .npz or .mcap")
     check_not_input(cmd.dst, {"the source": cmd.src}, "the destination")
     motion = read_any_motion(cmd.src)
+    motion_model(motion, str(cmd.src))  # A motion of the robot it names, or refused.
     if cmd.dst.suffix == ".mcap":
         write_motion_mcap(motion, cmd.dst)
     else:

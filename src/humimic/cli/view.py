@@ -55,7 +55,7 @@ def run_view(cmd: ViewCommand) -> None:
 
     from humimic.datasets import load_clip
     from humimic.pipeline.files import load_rollout, read_any_motion
-    from humimic.robots import get_robot, nominal_model
+    from humimic.robots.model import motion_model
     from humimic.viewer import Viewer, load_scene_meshes
     from humimic.viewer.app import check_host
 
@@ -67,10 +67,7 @@ def run_view(cmd: ViewCommand) -> None:
         check_not_input(cmd.screenshot, inputs, "--screenshot")
         check_writable(cmd.screenshot)
     motion = read_any_motion(cmd.motion)
-    model = nominal_model(get_robot(motion.robot, str(cmd.motion)))
-    names = tuple(model.joint(j).name for j in range(1, model.njnt))
-    if names != motion.joint_names:
-        raise InputError(f"{cmd.motion}: joint names do not match robot {motion.robot}")
+    model = motion_model(motion, str(cmd.motion))
     human = load_clip(cmd.human) if cmd.human is not None else None
     scene = load_scene_meshes(cmd.scene) if cmd.scene is not None else None
     rollout = load_rollout(cmd.rollout, cmd.motion, motion)

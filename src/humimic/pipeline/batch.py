@@ -64,6 +64,11 @@ def clip_files(inputs: tuple[Path, ...], out: Path) -> list[tuple[Path, Path]]:
     files: list[tuple[Path, Path]] = []
     for p in inputs:
         if p.is_dir():
+            if out_dir == p.resolve() or p.resolve() in out_dir.parents:
+                raise InputError(
+                    f"--out {out}: inside the input folder {p}; humimic never writes into "
+                    "its inputs: choose a folder outside it"
+                )
             found = sorted(
                 f
                 for f in p.rglob("*")

@@ -10,9 +10,7 @@ from typing import Any
 from humimic.configs.runs import TrainSettings
 from humimic.errors import InputError
 from humimic.io import check_writable
-
-REFERENCE_FILE = "reference.npz"
-"""The refined reference a run writes into its folder when it refined its motion itself."""
+from humimic.tracking.runs import REFERENCE_FILE
 
 
 def prepare_reference(

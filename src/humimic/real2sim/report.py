@@ -193,6 +193,11 @@ def run_diagnosis(
     held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
     fit_predictors(model, log, horizon, held.track)
     out = out_dir
+    if out.is_dir() and any(out.iterdir()) and not (out / "report.json").is_file():
+        raise InputError(
+            f"--out-dir {out}: holds other files and no earlier diagnosis (no report.json); "
+            "choose a new or empty folder"
+        )
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
         check_not_input(out / name, {"the log": log_path}, "--out-dir")
     for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):

@@ -13,6 +13,7 @@ import numpy as np
 
 from humimic.errors import InputError, OutputPathError, UnknownNameError
 from humimic.io import atomic_write_text, check_not_input, check_writable
+from humimic.motion import Motion
 from humimic.robots.actuators import JointActuator
 from humimic.robots.assets import find_robot_file
 from humimic.robots.registry import RobotConfig
@@ -147,6 +148,37 @@ def nominal_model(
     """
     spec, _, path = _nominal_spec(cfg, menagerie_root)
     return _compile(spec, path)
+
+
+def motion_model(motion: Motion, source: str) -> mujoco.MjModel:
+    """The nominal model of the robot a motion names, after checking that the motion is one
+    of that robot's: a registered name, and its joints (names, in order) and ``qpos`` width.
+
+    Args:
+        motion: The motion.
+        source: What messages name (the file).
+
+    Raises:
+        InputError: An unknown robot name, or joints that are not the robot's.
+    """
+    from humimic.robots.registry import get_robot
+
+    model = nominal_model(get_robot(motion.robot, source))
+    names = tuple(model.joint(j).name for j in range(1, model.njnt))
+    if names != tuple(motion.joint_names):
+        other = next((f"joint {i} is {a!r}, the robot's {b!r}" for i, (a, b)
+                      in enumerate(zip(motion.joint_names, names, strict=False)) if a != b),
+                     f"{len(motion.joint_names)} joints, the robot has {len(names)}")  # fmt: skip
+        raise InputError(
+            f"{source}: labelled robot {motion.robot!r}, but its joints are not that robot's "
+            f"({other})"
+        )
+    if motion.qpos.shape[1] != model.nq:
+        raise InputError(
+            f"{source}: qpos has {motion.qpos.shape[1]} columns, robot {motion.robot!r} has "
+            f"nq = {model.nq}"
+        )
+    return model
 
 
 def _compile(spec: mujoco.MjSpec, path: Path) -> mujoco.MjModel:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 import mujoco
 import numpy as np
@@ -81,6 +81,9 @@ class Effect:
     sign: Literal["signed", "nonnegative", "positive"] = "nonnegative"
     meaning: str = ""
     maximum: float | None = None
+    adds_joints: ClassVar[bool] = False
+    """Whether the effect adds joints to the model (a model with a fixed joint layout, the
+    tracking simulation's, cannot take it)."""
 
     def on_spec(self, spec: mujoco.MjSpec, target: str, value: float) -> None:
         """Add the effect with ``value`` to ``target`` (a joint, or a body) of a spec."""
@@ -323,6 +326,8 @@ class Backlash(Effect):
     side), free within +-value/2 and stopped stiffly at the ends; the drive turns the first
     (the motor side, with the rotor's armature) and the log reports the link, the sum of both.
     On a compiled model the play joint must exist (a model built with it); its range is set."""
+
+    adds_joints = True
 
     def on_spec(self, spec: mujoco.MjSpec, target: str, value: float) -> None:
         j = _joint(spec, target)

@@ -17,6 +17,7 @@ import torch
 from humimic.errors import InputError
 from humimic.robots.registry import get_robot
 from humimic.sim.backend import MujocoCpuBackend, PhysicsBackend, StepMethod
+from humimic.sim.effects import EFFECTS
 from humimic.sim.models import training_model
 from humimic.sim.physics import Physics
 
@@ -103,6 +104,12 @@ def build_model(
     ph = setup.physics
     if ph is not None and ph.robot is not None and ph.robot != setup.robot:
         raise InputError(f"{ph.where}: written for {ph.robot!r}, not {setup.robot!r}")
+    for inj in () if ph is None else ph.effects:
+        if ph is not None and EFFECTS[inj.effect].adds_joints:
+            raise InputError(
+                f"{ph.where}: {inj.where}: {inj.effect} adds joints, which the simulation's "
+                "fixed joint layout cannot take (it is simulated in sysid logs only)"
+            )
     return training_model(
         get_robot(setup.robot),
         body_names=setup.body_names,

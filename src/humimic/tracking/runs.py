@@ -31,6 +31,10 @@ from humimic.sim.randomization import DR_PROFILES
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.rsl import tracking_ppo, train_cfg
 
+REFERENCE_FILE = "reference.npz"
+"""The refined reference a run writes into its folder when it refined its motion itself
+(:mod:`humimic.pipeline.reference`)."""
+
 
 def yaml_ready(value: Any) -> Any:
     """A config as YAML-able data (functions by their import path)."""

@@ -29,6 +29,7 @@ from humimic.tracking.config import TrackingConfig, tracking_task
 from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import make_runner, scale_actor_output, train_cfg
 from humimic.tracking.runs import (
+    REFERENCE_FILE,
     checkpoint_files,
     latest_checkpoint,
     load_weights,
@@ -498,7 +499,13 @@ def check_run_settings(s: Any) -> bool:
                          "to start a new run")  # fmt: skip
     init = getattr(s, "init_from", None)  # One inside --out: _check_train_outputs says so.
     inside = init is not None and s.out.resolve() in (init.resolve(), *init.resolve().parents)
-    if not has_run and not inside and s.out.is_dir() and any(s.out.iterdir()):
+    own = {REFERENCE_FILE}  # A refined reference written for this run before it starts.
+    if (
+        not has_run
+        and not inside
+        and s.out.is_dir()
+        and any(p.name not in own for p in s.out.iterdir())
+    ):
         # A run folder is a run's alone: its files beside others' would be mixed up, and
         # files of the names it writes overwritten.
         raise InputError(

@@ -19,6 +19,7 @@ from mcap.reader import make_reader
 from humimic.errors import HumimicError, InputError
 from humimic.formats.mcap.schemas import TOPICS, McapFormatError
 from humimic.formats.mcap.validate import VALIDATORS, Checker, compile_schema
+from humimic.io import check_input_file
 
 
 @dataclass
@@ -117,9 +118,7 @@ def read_mcap(
             message that does not match its schema (names topic, message index and field); a
             required topic without messages.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    p = check_input_file(path, "an MCAP file")
     _check_is_mcap(p)
     log = McapLog(path=p)
     wanted = None if topics is None else set(topics)

@@ -49,8 +49,10 @@ class McapWriter:
     def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
         if exc_type is None:
             self.close()
-        else:
-            self.abort()
+            return
+        self.abort()
+        if isinstance(exc, OSError):  # A write cut short (a full disk, a file size limit).
+            raise OutputPathError(f"{self.path}: cannot write: {exc.strerror or exc}") from None
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """A metadata record (string to string)."""
