@@ -31,6 +31,7 @@ from humimic.errors import HumimicError
 from humimic.formats.mcap import SCHEMAS, TOPICS, read_mcap, read_motion_mcap, write_motion_mcap
 from humimic.motion import Motion, load_motion, motion_from_qpos, save_motion
 from humimic.robots import get_robot, nominal_model
+from humimic.robots.model import motion_model
 
 FRAMES = 4
 CASES_PER_KIND = 20  # 13 .npz kinds and 10 MCAP kinds: 460 cases.
@@ -488,7 +489,8 @@ def _case(
     src.write_bytes(data)
     read = load_motion if fmt == "npz" else read_motion_mcap
     try:
-        read(src)
+        # convert also refuses a motion whose joints are not those of the robot it names.
+        motion_model(read(src), str(src))
         readable = True
     except HumimicError:
         readable = False

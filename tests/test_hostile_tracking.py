@@ -289,6 +289,48 @@ def test_a_physics_file_with_an_effect_that_adds_joints_is_refused_by_name(
     assert err.count("\n") == 1 and not out.exists()
 
 
+def test_a_copied_run_reads_its_own_reference_and_notices_it_changed(
+    tmp_path: Path, motion_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """config.yaml stored the run's reference (its own reference.npz) by absolute path: a
+    copied run read the original's, ``eval --out COPY/reference.npz`` overwrote the copy's
+    with JSON, and a changed or deleted reference in the copy went unnoticed."""
+    import yaml
+
+    from humimic.tracking.runs import read_run_settings
+
+    first = tmp_path / "first"
+    first.mkdir()
+    shutil.copy(motion_file, first / "reference.npz")  # A run's own (refined) reference.
+    assert main(_train_args(first / "reference.npz", first, 1)) == 0
+    config = yaml.safe_load((first / "config.yaml").read_text())
+    assert config["settings"]["motion"] == "reference.npz" and config["motion_in_run"] is True
+    copy = _copy(first, tmp_path / "copy")
+    shutil.rmtree(first)  # The copy stands alone.
+    assert read_run_settings(copy).motion == (copy / "reference.npz").resolve()
+    assert main(["eval", str(copy), "--episodes", "1", "--out", str(tmp_path / "e.json")]) == 0
+
+    before = (copy / "reference.npz").read_bytes()
+    assert main(["eval", str(copy), "--episodes", "1", "--out", str(copy / "reference.npz")]) == 2
+    assert "would overwrite the run's reference.npz" in capsys.readouterr().err
+    assert (copy / "reference.npz").read_bytes() == before
+
+    # Another motion (of the same robot and length) in the reference's place.
+    m = nominal_model(get_robot("g1"))
+    q = np.tile(m.key_qpos[0], (46, 1))
+    save_motion(motion_from_qpos(m, q, 30.0, "g1"), copy / "reference.npz")
+    out = tmp_path / "changed.json"
+    for args in (["eval", str(copy), "--episodes", "1", "--out", str(out)],
+                 _train_args(copy / "reference.npz", copy, 2, "--resume")):  # fmt: skip
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert "reference.npz has changed since the run recorded it" in err, err
+    assert not out.exists() and not (copy / "checkpoints" / "model_000002.pt").exists()
+    (copy / "reference.npz").unlink()
+    assert main(["eval", str(copy), "--episodes", "1", "--out", str(out)]) == 2
+    assert "reference.npz is missing" in capsys.readouterr().err
+
+
 # --- 3. nonsensical settings -----------------------------------------------------------------
 
 

@@ -51,12 +51,12 @@ def _no_progress(description: str, total: int) -> AbstractContextManager[Callabl
 def clip_files(inputs: tuple[Path, ...], out: Path) -> list[tuple[Path, Path]]:
     """Input files, each with its output name (relative to its input folder, without suffix).
 
-    Folders are searched recursively for clip files; files inside the output folder are
-    skipped, so outputs of an earlier run are not read.
+    Folders are searched recursively for clip files; an output folder inside an input
+    folder is refused (humimic never writes into its inputs).
 
     Raises:
-        InputError: A missing input, a folder without clips, or two inputs that would be
-            written under the same name.
+        InputError: A missing input, a folder without clips, an output inside an input
+            folder, or two inputs that would be written under the same name.
     """
     from humimic.datasets import SUPPORTED_SUFFIXES
 
@@ -69,11 +69,7 @@ def clip_files(inputs: tuple[Path, ...], out: Path) -> list[tuple[Path, Path]]:
                     f"--out {out}: inside the input folder {p}; humimic never writes into "
                     "its inputs: choose a folder outside it"
                 )
-            found = sorted(
-                f
-                for f in p.rglob("*")
-                if f.suffix.lower() in SUPPORTED_SUFFIXES and out_dir not in f.resolve().parents
-            )
+            found = sorted(f for f in p.rglob("*") if f.suffix.lower() in SUPPORTED_SUFFIXES)
             if not found:
                 raise InputError(f"{p}: folder holds no {', '.join(SUPPORTED_SUFFIXES)} files")
             files += [(f, f.relative_to(p).with_suffix("")) for f in found]

@@ -108,10 +108,10 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     from humimic.motion import load_motion
     from humimic.real2sim.robotlog import join_logs, write_robot_log
     from humimic.tracking.evaluate import run_evaluation
-    from humimic.tracking.runs import read_run_settings
+    from humimic.tracking.runs import recorded_motion
 
     motion = s.motion
-    clip = load_motion(motion or read_run_settings(run).motion)
+    clip = load_motion(motion or recorded_motion(run))
     seconds = (clip.num_frames - 1) / clip.fps
     n = int(min(MAX_DEPLOY_EPISODES, max(1, np.ceil(s.sysid_duration / max(seconds, 0.1)))))
     # Another seed than the deploy stage's evaluation: other reset-noise draws.

@@ -273,6 +273,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
+        recorded_motion,
         resolve_checkpoint,
         resolved_source,
         run_config,
@@ -303,8 +304,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         check_not_input(s.out / name, inputs, "--out")
     ckpt, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint,
                                             "--teacher-checkpoint")  # fmt: skip
-    if not teacher.motion.is_file():
-        raise InputError(f"--teacher {s.teacher}: the run's motion {teacher.motion} is missing")
+    recorded_motion(s.teacher)  # There, and unchanged since the teacher trained on it.
     run = s.out
     dr = s.dr or teacher.dr
     task = task_config(teacher.robot, dr, s.seed, teacher.physics, teacher.task)

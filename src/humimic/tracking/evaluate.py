@@ -208,6 +208,7 @@ def run_evaluation(
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
         load_weights,
+        recorded_motion,
         resolve_checkpoint,
         run_config,
         run_rsl_cfg,
@@ -220,13 +221,12 @@ def run_evaluation(
     run = recorded[1]
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
-    motion_path = s.motion if s.motion is not None else run.motion
-    if not motion_path.is_file():
-        raise InputError(
-            f"--motion {motion_path}: no such file"
-            if s.motion is not None
-            else f"{s.run}: the run's motion {motion_path} is missing (moved? pass --motion)"
-        )
+    if s.motion is None:
+        motion_path = recorded_motion(s.run)  # There, and unchanged since the run began.
+    elif not s.motion.is_file():
+        raise InputError(f"--motion {s.motion}: no such file")
+    else:
+        motion_path = s.motion
     motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
     task = replace(
         base,

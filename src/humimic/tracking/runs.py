@@ -11,6 +11,7 @@ import contextlib
 import copy
 import csv
 import fcntl
+import hashlib
 import io
 import math
 import os
@@ -222,6 +223,8 @@ def run_files(run: Path) -> dict[str, Path]:
     path, for :func:`humimic.io.check_not_input`)."""
     files = {"the run's config.yaml": run / "config.yaml",
              "the run's progress.csv": run / "progress.csv"}  # fmt: skip
+    if (run / REFERENCE_FILE).exists():
+        files[f"the run's {REFERENCE_FILE}"] = run / REFERENCE_FILE
     for path in checkpoint_files(run):
         files[f"the run's checkpoint {path.name}"] = path
     return files
@@ -319,9 +322,57 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
 
 
 def write_run_config(run: Path, settings: TrainSettings, task: TrackingConfig, ppo: dict) -> None:
+    """config.yaml: the resolved settings, task and PPO dict. A motion inside the run folder
+    (its refined reference) is recorded relative to it, so that a copied or moved run reads
+    its own; every motion's SHA-256 is recorded, so that one changed since is found
+    (:func:`recorded_motion`)."""
     s = resolved_settings(settings)
-    blob = {"settings": yaml_ready(asdict(s)), "tracking": yaml_ready(task), "ppo": yaml_ready(ppo)}
+    data = yaml_ready(asdict(s))
+    blob: dict[str, Any] = {"settings": data}
+    if s.motion.is_relative_to(run.resolve()):
+        data["motion"] = s.motion.relative_to(run.resolve()).as_posix()
+        blob["motion_in_run"] = True
+    if s.motion.is_file():
+        blob["motion_sha256"] = file_sha256(s.motion)
+    blob |= {"tracking": yaml_ready(task), "ppo": yaml_ready(ppo)}
     atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
+
+
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of a file's bytes, hex."""
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def recorded_motion(run: Path, hint: str = "pass --motion to use a motion as it is now") -> Path:
+    """The motion a run trained on, checked: there, and (where config.yaml holds its SHA-256)
+    unchanged since the run recorded it.
+
+    Args:
+        run: The run folder.
+        hint: What the message advises when the motion changed.
+
+    Raises:
+        InputError: Missing, or changed (names the run and the file).
+    """
+    config, settings = run_config(run)
+    p = settings.motion
+    if not p.is_file():
+        raise InputError(f"{run}: the run's motion {p} is missing (moved? pass --motion)")
+    want = config.get("motion_sha256")
+    try:
+        changed = want is not None and file_sha256(p) != want
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
+    if changed:
+        raise InputError(
+            f"{run}: the run's motion {p} has changed since the run recorded it (its SHA-256 "
+            f"differs from config.yaml's); {hint}"
+        )
+    return p
 
 
 def _started_in(run: Path, recorded_out: Path) -> Path | None:
@@ -357,7 +408,10 @@ def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
         config = yaml.safe_load(path.read_text())
         data = dict(config["settings"])
         start = _started_in(run, Path(data["out"]))
-        data["motion"], data["out"] = _absolute(data["motion"], start), Path(data["out"])
+        if config.get("motion_in_run"):  # The run's own reference, wherever the run is now.
+            data["motion"], data["out"] = (run / data["motion"]).resolve(), Path(data["out"])
+        else:
+            data["motion"], data["out"] = _absolute(data["motion"], start), Path(data["out"])
         if data.get("init_from") is not None:
             data["init_from"] = _absolute(data["init_from"], start)
         for key, names in (("dr", DR_PROFILES), ("physics", _physics_names())):

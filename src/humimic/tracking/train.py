@@ -36,6 +36,7 @@ from humimic.tracking.runs import (
     ppo_for,
     read_checkpoint,
     read_run_settings,
+    recorded_motion,
     resolve_checkpoint,
     resolved_settings,
     run_files,
@@ -320,6 +321,7 @@ def train(
             raise InputError(
                 f"--resume: {', '.join(names)} {verb} from the run's ({', '.join(diff)})"
             )
+        recorded_motion(run, "a resumed run goes on with the motion it began on")
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     ppo = ppo or ppo_for(s)
