@@ -24,7 +24,7 @@ import numpy as np
 from humimic.configs import retarget_default
 from humimic.datasets import load_clip
 from humimic.retarget import Retargeter
-from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX, self_collision_geoms
+from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX
 from humimic.retarget.limits import FloorLimit
 
 DEFAULT_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu" / "35_01.bvh"
@@ -49,7 +49,7 @@ def mink_baseline(rt: Retargeter, clip, iters_per_frame: int) -> float:
         FloorLimit(model, [f.body for f in rt.map.feet.values()]),
         mink.CollisionAvoidanceLimit(
             model,
-            self_collision_geoms(ik.self_collision_pairs),  # type: ignore[arg-type]
+            [([int(a)], [int(b)]) for a, b in ik.self_collision_pairs],  # type: ignore[arg-type]
             minimum_distance_from_collisions=rt.cfg.collision_margin,
             collision_detection_distance=rt.cfg.collision_detection,
         ),

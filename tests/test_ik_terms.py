@@ -154,16 +154,12 @@ def test_point_travel_limit_rows_and_step(arm: mink.Configuration) -> None:
 
 def test_self_collision_limit_row_is_distance_derivative(arm: mink.Configuration) -> None:
     model = arm.model
+    g1, g2 = model.geom("lower_geom").id, model.geom("torso").id
     limit = SelfCollisionLimit(
-        model,
-        [(["lower_geom"], ["torso"])],
-        gain=1.0,
-        minimum_distance_from_collisions=0.0,
-        collision_detection_distance=1.0,
+        model, np.array([[g1, g2]]), np.zeros(1), gain=1.0, collision_detection_distance=1.0
     )
     cons = limit.compute_qp_inequalities(arm, 1.0)
     assert cons.G is not None and cons.h is not None
-    g1, g2 = model.geom("lower_geom").id, model.geom("torso").id
 
     def dist(c: mink.Configuration) -> np.ndarray:
         return np.array([mujoco.mj_geomDistance(model, c.data, g1, g2, 1.0, np.zeros(6))])
@@ -174,7 +170,7 @@ def test_self_collision_limit_row_is_distance_derivative(arm: mink.Configuration
     # Row: -d(dist)/dq; bound: the distance itself (gain 1, zero margin).
     np.testing.assert_allclose(-cons.G[0], fd[0], atol=1e-5)
     assert cons.h[0] == pytest.approx(d0)
-    assert limit.min_distance == pytest.approx(d0)
+    assert limit.min_slack == pytest.approx(d0)
 
 
 def test_self_collision_limit_pushes_out_penetrating_pairs() -> None:
@@ -186,8 +182,9 @@ def test_self_collision_limit_pushes_out_penetrating_pairs() -> None:
     </worldbody></mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
     conf = mink.Configuration(model)
+    pair = np.array([[model.geom("ga").id, model.geom("gb").id]])
     limit = SelfCollisionLimit(
-        model, [(["ga"], ["gb"])], gain=0.5, minimum_distance_from_collisions=0.01
+        model, pair, np.full(1, 0.01), gain=0.5, collision_detection_distance=0.2
     )
     cons = limit.compute_qp_inequalities(conf, 1.0)
     assert cons.G is not None and cons.h is not None
@@ -195,6 +192,11 @@ def test_self_collision_limit_pushes_out_penetrating_pairs() -> None:
     # dx <= -0.5 * (0.05 + 0.01), i.e. a push apart, not merely "no closer".
     assert cons.G[0, 0] * 1.0 > 0
     assert cons.h[0] == pytest.approx(0.5 * (-0.05 - 0.01))
+    # Each pair's own floor: one that overlapped 2 cm at rest may not go deeper than that.
+    limit = SelfCollisionLimit(model, pair, np.full(1, -0.02), gain=0.5,
+                               collision_detection_distance=0.2)  # fmt: skip
+    cons = limit.compute_qp_inequalities(conf, 1.0)
+    assert cons.h is not None and cons.h[0] == pytest.approx(0.5 * (-0.05 + 0.02))
 
 
 def test_rotation_log_and_right_jacobian() -> None:

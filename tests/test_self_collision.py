@@ -2,36 +2,48 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
 
 from humimic.retarget.metrics import evaluate
 from humimic.robots import get_robot, nominal_model
-from humimic.robots.collision import DEFAULT_POSE_CONTACT, robot_geoms, self_collision_pairs
+from humimic.robots.collision import rest_distances, robot_geoms, self_collision_pairs, tree_path
 
 LEG_LINKS = ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll")
 
 
-def _chain_neighbours(model: mujoco.MjModel, a: int, b: int) -> bool:
-    """Same body, parent and child, or at most two hinge joints apart along the tree."""
-    ba, bb = int(model.geom_bodyid[a]), int(model.geom_bodyid[b])
-    if ba == bb or model.body_parentid[ba] == bb or model.body_parentid[bb] == ba:
-        return True
-    up_a, up_b = [ba], [bb]
-    while up_a[-1]:
-        up_a.append(int(model.body_parentid[up_a[-1]]))
-    while up_b[-1]:
-        up_b.append(int(model.body_parentid[up_b[-1]]))
-    joint = [model.body_jntnum[x] if model.body_dofnum[x] < 6 else 0 for x in range(model.nbody)]
-    top = next(x for x in up_a if x in up_b)
-    hinges = sum(joint[x] for x in up_a[: up_a.index(top)] + up_b[: up_b.index(top)])
-    return hinges <= 2
+def _mujoco_filter_pairs(model: mujoco.MjModel, geoms: list[int]) -> set[tuple[int, int]]:
+    """The geom pairs MuJoCo's contact filter lets through whatever the bitmasks, by its
+    documented rule (Computation > Collision detection), written here body pair by body pair:
+    two bodies collide unless they are one weld body, or one's weld body is the other's
+    weld body's parent (filterparent, on by default), or an <exclude> names them."""
+    by_body: dict[int, list[int]] = {}
+    for g in geoms:
+        by_body.setdefault(int(model.geom_bodyid[g]), []).append(g)
+    excluded = set()
+    for k in range(model.nexclude):
+        sig = int(model.exclude_signature[k])
+        excluded |= {(sig >> 16, sig & 0xFFFF), (sig & 0xFFFF, sig >> 16)}
+    weld = [int(model.body(b).weldid[0]) for b in range(model.nbody)]
+    out = set()
+    for b1, g1s in by_body.items():
+        for b2, g2s in by_body.items():
+            w1, w2 = weld[b1], weld[b2]
+            if b1 >= b2 or w1 == w2 or (b1, b2) in excluded:
+                continue
+            if weld[int(model.body_parentid[w1])] == w2 or weld[int(model.body_parentid[w2])] == w1:
+                continue
+            out |= {(min(a, b), max(a, b)) for a in g1s for b in g2s}
+    return out
 
 
 @pytest.mark.parametrize("robot", ["g1", "t1"])
-def test_pairs_are_every_non_adjacent_pair_apart_in_the_default_pose(robot: str) -> None:
-    """Checked against a brute-force count written independently of the function."""
+def test_pairs_are_every_pair_mujocos_contact_filter_tests(robot: str) -> None:
+    """No exemption by proximity at rest or by mechanism: the pairs are exactly those MuJoCo
+    itself would test (same and parent-child bodies and <exclude> pairs left out)."""
     cfg = get_robot(robot)
     model = nominal_model(cfg)
     geoms = [
@@ -40,26 +52,32 @@ def test_pairs_are_every_non_adjacent_pair_apart_in_the_default_pose(robot: str)
         if model.geom_bodyid[g] != 0 and (model.geom_contype[g] or model.geom_conaffinity[g])
     ]
     assert geoms == robot_geoms(model, cfg.root_body)
-    data = mujoco.MjData(model)
-    fromto = np.zeros(6)
-    poses = [model.qpos0] + [model.key_qpos[k] for k in range(model.nkey)]
-    expected = set()
-    for a in geoms:
-        for b in geoms:
-            if a >= b or _chain_neighbours(model, a, b):
-                continue
-            apart = True
-            for q in poses:
-                data.qpos[:] = q
-                mujoco.mj_kinematics(model, data)
-                apart &= (
-                    mujoco.mj_geomDistance(model, data, a, b, 1.0, fromto) >= DEFAULT_POSE_CONTACT
-                )
-            if apart:
-                expected.add((a, b))
+    expected = _mujoco_filter_pairs(model, geoms)
     got = {(int(a), int(b)) for a, b in self_collision_pairs(model, cfg.root_body)}
     assert got == expected
     assert len(got) > 50
+
+
+def test_a_pair_close_at_rest_may_come_no_closer_than_it_is_there() -> None:
+    """The G1's torso and shoulder-yaw links are 7.8 mm apart at rest, under the 10 mm margin:
+    they were dropped from the IK and the report, and the walk put a shoulder-yaw link 26 mm
+    into the torso. Now each pair's floor is its rest distance where that is smaller."""
+    from humimic.configs import retarget_default
+    from humimic.retarget import Retargeter
+
+    rt = Retargeter("g1", "cmu", retarget_default())
+    limit = rt.ik.self_collision
+    assert limit is not None
+    m = rt.ik.model
+    rest = rest_distances(m, np.array(limit.geom_id_pairs), 1.0)
+    names = [tuple(m.body(m.geom_bodyid[g]).name for g in p) for p in limit.geom_id_pairs]
+    shoulder = names.index(("torso_link", "left_shoulder_yaw_link"))
+    assert 0.005 < rest[shoulder] < 0.01
+    assert limit.floors[shoulder] == pytest.approx(rest[shoulder])
+    mechanism = np.array([len(tree_path(m, *m.geom_bodyid[list(p)])) <= 2
+                          for p in limit.geom_id_pairs])  # fmt: skip
+    assert mechanism.sum() > 10  # E.g. the pelvis and each hip-roll link.
+    np.testing.assert_allclose(limit.floors, np.minimum(rest, np.where(mechanism, 0.003, 0.01)))
 
 
 def test_the_ik_constrains_the_pairs_the_report_measures() -> None:
@@ -126,3 +144,57 @@ def test_a_wrist_inside_any_leg_link_is_a_self_collision() -> None:
             assert report.max_self_penetration_mm >= 1e3 * depth - 1e-6, body
             seen.append(body)
     assert len(seen) == 2 * len(LEG_LINKS)
+
+
+def _independent_self_penetration(xml: Path, qpos: np.ndarray) -> tuple[int, float]:
+    """Frames with a robot geom pair deeper than 1 mm inside each other, and the deepest [mm],
+    on the exported model: every pair of geoms of the robot's bodies (parent and child
+    bodies and one body's geoms left out), by ``mj_geomDistance``; this file's own pair
+    list, not the project's."""
+    m = mujoco.MjModel.from_xml_path(str(xml))
+    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0
+             and (m.geom_contype[g] or m.geom_conaffinity[g])]  # fmt: skip
+    body = m.geom_bodyid
+    pairs = [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1 :]
+             if body[a] != body[b] and m.body_parentid[body[a]] != body[b]
+             and m.body_parentid[body[b]] != body[a]]  # fmt: skip
+    data = mujoco.MjData(m)
+    fromto = np.zeros(6)
+    frames, deepest = 0, 0.0
+    for q in qpos:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        depth = max(-mujoco.mj_geomDistance(m, data, a, b, 0.05, fromto) for a, b in pairs)
+        frames += depth > 1e-3
+        deepest = max(deepest, depth)
+    return frames, 1e3 * deepest
+
+
+@pytest.mark.parametrize(("robot", "clip"), [("g1", "35_01"), ("t1", "13_32")])
+def test_the_reports_self_collision_equals_an_independent_all_pairs_check(
+    robot: str, clip: str, shared_data: Path, tmp_path: Path
+) -> None:
+    """On a real clip, with the IK's self-collision limit off (so that there is something to
+    count: the shoulder-yaw links go into the torso) and on: the report's frames and depth
+    are those of the independent check on the exported model."""
+    from dataclasses import replace
+
+    from humimic.configs import retarget_default
+    from humimic.datasets import load_clip
+    from humimic.robots import export_nominal
+
+    xml = export_nominal(get_robot(robot), tmp_path / f"{robot}.xml")
+    source = load_clip(shared_data / "cmu" / f"{clip}.bvh").slice(1)
+    counted = []
+    for on in (False, True):
+        from humimic.retarget import Retargeter
+
+        rt = Retargeter(robot, source.skeleton, replace(retarget_default(), self_collision=on))
+        out = rt.run(source)
+        frames, deepest = _independent_self_penetration(xml, out.motion.qpos)
+        assert out.report["self_collision_frames"] == frames, (on, frames)
+        assert out.report["max_self_penetration_mm"] == pytest.approx(deepest, abs=1e-6)
+        counted.append(frames)
+    if robot == "g1":
+        assert counted[0] > 10  # Off: the walk's arms go into the torso, seen by both.
+    assert counted[1] == 0  # On: no pair deeper than 1 mm.

@@ -232,14 +232,14 @@ class InteractionMeshRetargeter:
         if not robot_geoms or not obj_geoms:
             raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
         floor = model.geom(self.robot.floor_geom).id
+        scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         scene_limit = SelfCollisionLimit(
             model,
-            [(robot_geoms, [*obj_geoms, floor])],  # type: ignore[list-item]
+            np.array(scene_pairs, dtype=int),
+            np.full(len(scene_pairs), icfg.penetration_margin),
             gain=icfg.collision_gain,
-            minimum_distance_from_collisions=icfg.penetration_margin,
             collision_detection_distance=icfg.collision_detection,
         )
-        scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])

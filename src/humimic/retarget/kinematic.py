@@ -31,7 +31,7 @@ from humimic.retarget.limits import (
 )
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask
-from humimic.robots.collision import self_collision_pairs
+from humimic.robots.collision import self_collision_floors, self_collision_pairs
 from humimic.robots.maps import RetargetMap
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
@@ -99,12 +99,6 @@ def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
         and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
         and not model.geom(g).name.startswith(SCENE_BODY_PREFIX)
     ]
-
-
-def self_collision_geoms(pairs: np.ndarray) -> list[tuple[list[int], list[int]]]:
-    """Geom pairs (:func:`~humimic.robots.collision.self_collision_pairs`) as mink's geom-pair
-    groups, one group per pair. Shape of ``pairs``: (P, 2)."""
-    return [([int(a)], [int(b)]) for a, b in pairs]
 
 
 DAQP_SOFT = 8
@@ -239,15 +233,18 @@ class KinematicRetargeter:
         self.limits: list[mink.Limit] = []
         if cfg.floor_limit:
             self.limits.append(FloorLimit(model, foot_bodies))
-        # One set of pairs: what the IK keeps apart is what the report measures.
+        # One set of pairs, all of them: what the IK keeps apart is what the report
+        # measures. Each pair's floor: the margin, less for one mechanism's links, and never
+        # more than its distance at rest (self_collision_floors).
         self.self_collision_pairs = self_collision_pairs(model, robot.root_body)
         self.self_collision: SelfCollisionLimit | None = None
         if cfg.self_collision:
+            pairs = self.self_collision_pairs
             self.self_collision = SelfCollisionLimit(
                 model,
-                self_collision_geoms(self.self_collision_pairs),  # type: ignore[arg-type]
+                pairs,
+                self_collision_floors(model, pairs, cfg.collision_margin),
                 gain=cfg.collision_gain,
-                minimum_distance_from_collisions=cfg.collision_margin,
                 collision_detection_distance=cfg.collision_detection,
             )
             self.limits.append(self.self_collision)
@@ -363,7 +360,7 @@ class KinematicRetargeter:
             return 0
         n = 0
         for _ in range(self.cfg.repair_iters):
-            if limit.active_min_distance(self.configuration) >= 0.5 * self.cfg.collision_margin:
+            if limit.active_min_slack(self.configuration) >= -0.5 * self.cfg.collision_margin:
                 break
             self.configuration.integrate_inplace(self._solve(frame, self.limits), 1.0)
             n += 1

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import mink
 import mujoco
 import numpy as np
@@ -158,18 +160,55 @@ class PointTravelLimit(mink.Limit):
 
 
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
-    """mink's collision avoidance, changed to also push penetrating pairs apart.
+    """mink's collision avoidance on an exact list of geom pairs, each with its own floor,
+    changed to also push penetrating pairs apart.
+
+    The pairs are taken as given, in order (mink's own construction drops pairs by their
+    contact bitmasks and reorders them): what the IK keeps apart is what the report measures.
+    A pair may not come closer than its floor: the margin, or its distance at rest where that
+    is smaller (a pair that nearly touches at rest may not get closer than it is there).
 
     mink lets a pair closer than the minimum distance keep its distance (bound 0), so the
     linearization error of successive iterations can accumulate into penetration. Here the
-    bound stays ``gain * (d - d_min)`` when negative: the QP must restore the margin.
+    bound stays ``gain * (d - floor)`` when negative: the QP must restore the floor.
     Called with ``dt = 1`` (displacements), the bound is in metres.
 
+    Args:
+        model: The model.
+        pairs: Geom-id pairs. Shape: (P, 2).
+        floors: Each pair's smallest allowed distance [m]. Shape: (P,).
+        gain: As mink's.
+        collision_detection_distance: Pairs farther apart than this are not constrained.
+
     Attributes:
-        min_distance: Smallest pair distance found by the last evaluation (inf if none near).
+        min_slack: Smallest ``distance - floor`` found by the last evaluation (inf if none
+            near).
     """
 
-    min_distance: float = np.inf
+    min_slack: float = np.inf
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        pairs: np.ndarray,
+        floors: np.ndarray,
+        *,
+        gain: float,
+        collision_detection_distance: float,
+    ) -> None:
+        self._given = [(int(a), int(b)) for a, b in np.asarray(pairs, dtype=int).reshape(-1, 2)]
+        super().__init__(
+            model,
+            [([a], [b]) for a, b in self._given],  # type: ignore[arg-type]
+            gain=gain,
+            minimum_distance_from_collisions=float(np.max(floors, initial=0.0)),
+            collision_detection_distance=collision_detection_distance,
+        )
+        self.floors = np.asarray(floors, dtype=float).reshape(len(self._given))
+
+    def _construct_geom_id_pairs(self, geom_pairs: Any) -> list[tuple[int, int]]:
+        del geom_pairs  # The given pairs, as given.
+        return list(self._given)
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         model = self.model
@@ -182,7 +221,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             else range(self.max_num_contacts)
         )
         fromto = self._fromto
-        self.min_distance = np.inf
+        self.min_slack = np.inf
         active = []
         for idx in indices:
             g1, g2 = self.geom_id_pairs[idx]
@@ -191,7 +230,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             )
             if abs(dist - self.collision_detection_distance) < 1e-12:
                 continue
-            self.min_distance = min(self.min_distance, dist)
+            self.min_slack = min(self.min_slack, dist - self.floors[idx])
             active.append(idx)
             row = compute_contact_normal_jacobian(
                 model, data, g1, g2, fromto, self._normal, self._jac1, self._jac2
@@ -199,12 +238,13 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             sign = -1.0 if dist >= 0 else 1.0
             G[idx] = sign * row
             # For a penetrating pair the witness normal flips, hence the sign on G.
-            h[idx] = self.gain * (dist - self.minimum_distance_from_collisions) / dt
+            h[idx] = self.gain * (dist - self.floors[idx]) / dt
         self._active = active
         return Constraint(G=G, h=h)
 
-    def active_min_distance(self, configuration: mink.Configuration) -> float:
-        """Smallest distance now among the pairs that were near at the last evaluation.
+    def active_min_slack(self, configuration: mink.Configuration) -> float:
+        """Smallest ``distance - floor`` now among the pairs that were near at the last
+        evaluation.
 
         A cheap final check after the last QP step: pairs farther than the detection distance
         before a (trust-region bounded) step cannot have met.
@@ -220,5 +260,5 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
                 self.collision_detection_distance,
                 self._fromto,
             )
-            out = min(out, d)
+            out = min(out, float(d - self.floors[idx]))
         return out
