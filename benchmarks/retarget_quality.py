@@ -1,9 +1,14 @@
-"""Quality of kinematic retargeting on every real clip in ../shared/data. Prints one JSON object.
+"""Quality of kinematic retargeting on every real clip in ../shared/data, for every robot asked
+for, with independent checks of the output. Prints one JSON object.
 
-For each clip: the report of `humimic retarget` (speed, key-point error, foot skating, ground
-penetration, feet on the floor, joint-limit violations, self-collision, jerk).
+For each clip and robot: the report of `humimic retarget` (speed, key-point error, foot
+skating, ground penetration, feet on the floor, joint-limit violations, self-collision, jerk),
+and the same motion checked by code that shares nothing with the report: every pair of the
+robot's geoms on the exported model (`humimic robots export`; parent and child bodies and one
+body's own geoms left out) by `mujoco.mj_geomDistance` for self-penetration, and the exported
+model's joint ranges for limit violations.
 
-Usage: .venv/bin/python benchmarks/retarget_quality.py [--robot g1] [--data PATH]
+Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1] [--data PATH]
 """
 
 from __future__ import annotations
@@ -12,43 +17,88 @@ import argparse
 import json
 import os
 import platform
+import sys
+import tempfile
 from pathlib import Path
+
+import mujoco
+import numpy as np
 
 from humimic.configs import retarget_default
 from humimic.datasets import load_clip
 from humimic.retarget import Retargeter
+from humimic.robots import export_nominal, get_robot
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+KEYS = ("frames", "frames_per_second", "keypoint_error_mm_mean", "keypoint_error_mm_p95",
+        "foot_skating_mm_per_s", "max_ground_penetration_mm", "median_lowest_foot_mm",
+        "joint_limit_violations", "self_collision_pairs", "self_collision_frames",
+        "max_self_penetration_mm", "worst_self_collision", "relaxed_qp_iterations",
+        "turned_knee_frames")  # fmt: skip
 
 
 def clips(root: Path) -> list[Path]:
     return sorted((root / "cmu").glob("*.bvh")) + sorted((root / "holosoma_climb").glob("*/*.npy"))
 
 
+def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
+    """Self-penetration over every robot geom pair and joint-limit violations, on the exported
+    model, with this file's own pair list."""
+    m = mujoco.MjModel.from_xml_path(str(xml))
+    geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0
+             and (m.geom_contype[g] or m.geom_conaffinity[g])]  # fmt: skip
+    body = m.geom_bodyid
+    pairs = [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1 :]
+             if body[a] != body[b] and m.body_parentid[body[a]] != body[b]
+             and m.body_parentid[body[b]] != body[a]]  # fmt: skip
+    data = mujoco.MjData(m)
+    fromto = np.zeros(6)
+    depth = np.zeros(len(qpos))
+    for t, q in enumerate(qpos):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        depth[t] = max(-mujoco.mj_geomDistance(m, data, a, b, 0.05, fromto) for a, b in pairs)
+    hinge = [j for j in range(m.njnt) if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
+    adr = m.jnt_qposadr[hinge]
+    lo, hi = m.jnt_range[hinge, 0], m.jnt_range[hinge, 1]
+    limited = m.jnt_limited[hinge].astype(bool)
+    outside = ((qpos[:, adr] < lo - 1e-6) | (qpos[:, adr] > hi + 1e-6)) & limited
+    return {"pairs": len(pairs), "self_collision_frames": int(np.sum(depth > 1e-3)),
+            "max_self_penetration_mm": float(1e3 * max(depth.max(), 0.0)),
+            "joint_limit_violations": int(outside.sum())}  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--robot", default="g1")
+    parser.add_argument("--robots", nargs="+", default=["g1", "t1"])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     args = parser.parse_args()
     paths = clips(args.data)
     if not paths:
         raise SystemExit(f"no clips under {args.data} (expected cmu/*.bvh, holosoma_climb/*/*.npy)")
-    retargeters: dict[str, Retargeter] = {}
     out: dict = {
         "benchmark": "retarget_quality",
-        "robot": args.robot,
-        "machine": {"cpu": platform.machine(), "cores": os.cpu_count()},
-        "clips": {},
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count()},
+        "rows": [],
     }
-    for p in paths:
-        clip = load_clip(p)
-        if clip.skeleton == "cmu":
-            clip = clip.slice(1)  # Frame 0 is a T-pose added by the BVH converter.
-        if clip.skeleton not in retargeters:
-            retargeters[clip.skeleton] = Retargeter(args.robot, clip.skeleton, retarget_default())
-        report = retargeters[clip.skeleton].run(clip).report
-        report["input"] = p.name
-        out["clips"][p.name] = report
+    with tempfile.TemporaryDirectory() as tmp:
+        for robot in args.robots:
+            xml = export_nominal(get_robot(robot), Path(tmp) / f"{robot}.xml")
+            retargeters: dict[str, Retargeter] = {}
+            for p in paths:
+                clip = load_clip(p)
+                if clip.skeleton == "cmu":
+                    clip = clip.slice(1)  # Frame 0 is a T-pose added by the BVH converter.
+                if clip.skeleton not in retargeters:
+                    retargeters[clip.skeleton] = Retargeter(
+                        robot, clip.skeleton, retarget_default()
+                    )
+                result = retargeters[clip.skeleton].run(clip)
+                row = {"clip": p.stem.split("_joint_positions")[0], "robot": robot}
+                row |= {k: result.report.get(k) for k in KEYS}
+                row["independent"] = independent_checks(xml, result.motion.qpos)
+                out["rows"].append(row)
+                print(json.dumps(row), flush=True, file=sys.stderr)  # Progress, row by row.
     print(json.dumps(out, indent=2))
 
 

@@ -156,3 +156,28 @@ def test_a_large_object_sampled_coarsely_is_reported(
     spacing = json.loads(report.read_text())["scene_spacing_mm"]["slab"]
     assert spacing > 2 * 1e3 * InteractionConfig().scene_spacing
     assert "slab every" in err and "coarsely" in err
+
+
+def test_a_scene_the_human_never_touches_reports_no_preservation_and_says_so(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A box 20 m from the walk: 0 human-scene contacts gave contact_preservation 1.0, a
+    perfect score over nothing. Now it is null, printed n/a, and a warning says why."""
+    lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
+    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
+    clip = tmp_path / "walk.bvh"
+    clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
+    scene = tmp_path / "far.yaml"
+    scene.write_text(
+        "schema_version: 1\nobjects:\n  - name: far\n    box: [0.5, 0.5, 0.5]\n"
+        "    pos: [20.0, 0.0, 0.25]\n"
+    )
+    out, report = tmp_path / "m.npz", tmp_path / "m.json"
+    argv = ["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(scene)]
+    assert main([*argv, "--out", str(out), "--report", str(report)]) == 0
+    captured = capsys.readouterr()
+    r = json.loads(report.read_text())
+    assert r["human_contacts"] == 0 and r["contact_preservation"] is None
+    assert r["kinematic"]["contact_preservation"] is None
+    assert "contacts kept n/a% of 0" in captured.out
+    assert "never touches the scene" in captured.err

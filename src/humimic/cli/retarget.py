@@ -192,13 +192,20 @@ def _knees(r: dict) -> str:
     return f" | turned knees {n} frames (worst {r['worst_knee_turn_deg']:.0f} deg)"
 
 
+def measured(value: float | None, spec: str, scale: float = 1.0) -> str:
+    """A report figure for a summary line: ``n/a`` where nothing was measured (a metric over
+    zero events is None, never a perfect score)."""
+    return "n/a" if value is None else format(scale * value, spec)
+
+
 def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
     """One line of a retargeting report; with a scene, a second, and a warning for objects
     sampled more coarsely than ``spacing`` [m] (``--mesh.scene_spacing``)."""
     print(
         f"{Path(r['input']).name} -> {path}: {r['frames']} frames at {r['fps']:g} fps, "
         f"{r['frames_per_second']:.0f} frames/s | key points {r['keypoint_error_mm_mean']:.1f} mm "
-        f"(p95 {r['keypoint_error_mm_p95']:.1f}) | skating {r['foot_skating_mm_per_s']:.0f} mm/s | "
+        f"(p95 {r['keypoint_error_mm_p95']:.1f}) | skating "
+        f"{measured(r['foot_skating_mm_per_s'], '.0f')} mm/s | "
         f"ground penetration {r['max_ground_penetration_mm']:.1f} mm | lowest foot (median) "
         f"{r['median_lowest_foot_mm']:.1f} mm | joint-limit violations {r['joint_limit_violations']} "
         f"| self-collision frames {r['self_collision_frames']} "
@@ -211,12 +218,21 @@ def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
             f"  scene: penetration max {r['max_scene_penetration_mm']:.1f} mm in "
             f"{r['scene_penetration_frames']} frames (kinematic: {k['max_scene_penetration_mm']:.1f}"
             f" mm in {k['scene_penetration_frames']}) | contacts kept "
-            f"{100 * r['contact_preservation']:.0f}% of {r['human_contacts']} (kinematic: "
-            f"{100 * k['contact_preservation']:.0f}%) | planted feet {r['planted_foot_gap_mm']:.1f} mm"
-            f" above the surface (kinematic: {k['planted_foot_gap_mm']:.1f}) | skating "
-            f"{r['scene_foot_skating_mm_per_s']:.0f} mm/s | interaction "
+            f"{measured(r['contact_preservation'], '.0f', 100)}% of {r['human_contacts']} "
+            f"(kinematic: {measured(k['contact_preservation'], '.0f', 100)}%) | planted feet "
+            f"{measured(r['planted_foot_gap_mm'], '.1f')} mm above the surface (kinematic: "
+            f"{measured(k['planted_foot_gap_mm'], '.1f')}) | skating "
+            f"{measured(r['scene_foot_skating_mm_per_s'], '.0f')} mm/s | interaction "
             f"{r['interaction_frames_per_second']:.0f} frames/s"
         )
+        if not r["human_contacts"]:
+            print(
+                f"warning: {Path(r['input']).name}: the human never touches the scene (0 "
+                "human-scene contacts), so contact preservation is not measured (n/a); look "
+                "at the clip with its scene (humimic view MOTION --human CLIP --scene SCENE): "
+                "a scene placed off the motion, or contacts beyond the detection distance",
+                file=sys.stderr,
+            )
         wanted = 1e3 * spacing if spacing is not None else None
         coarse = {n: s for n, s in r["scene_spacing_mm"].items() if wanted and s > 1.01 * wanted}
         if coarse:

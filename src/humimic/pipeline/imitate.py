@@ -247,6 +247,10 @@ def _screenshot(screenshot: Screenshot | None, out: Path) -> str | None:
     return str(png)
 
 
+def _measured(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.0f}"
+
+
 def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
     """``report.md`` from the job's numbers."""
     lines = [f"# humimic imitate: {Path(r['clip']).name} on the {r['robot']}", ""]
@@ -254,7 +258,7 @@ def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
         rt = r["retarget"]
         lines += [f"Retargeted: {rt['frames']} frames at {rt['fps']:g} fps, key points "
                   f"{rt['keypoint_error_mm_mean']:.1f} mm, foot skating "
-                  f"{rt['foot_skating_mm_per_s']:.0f} mm/s, ground penetration "
+                  f"{_measured(rt['foot_skating_mm_per_s'])} mm/s, ground penetration "
                   f"{rt['max_ground_penetration_mm']:.1f} mm, joint-limit violations "
                   f"{rt['joint_limit_violations']}.", ""]  # fmt: skip
     t = r["train"]

@@ -46,7 +46,7 @@ class QualityReport:
 
     keypoint_error_mm_mean: float
     keypoint_error_mm_p95: float
-    foot_skating_mm_per_s: float
+    foot_skating_mm_per_s: float | None
     foot_contact_frames: float
     max_ground_penetration_mm: float
     median_lowest_foot_mm: float
@@ -195,7 +195,7 @@ def evaluate(
     touching = foot_bottom < CONTACT_HEIGHT
     both = touching[1:] & touching[:-1]
     speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
-    skating = float(speed[both].mean()) if both.any() else 0.0
+    skating = float(speed[both].mean()) if both.any() else None  # No foot ever rests.
 
     joints = qpos[:, 7:]
     lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
@@ -205,7 +205,7 @@ def evaluate(
     report = QualityReport(
         keypoint_error_mm_mean=float(kp_err.mean() * 1e3),
         keypoint_error_mm_p95=float(np.percentile(kp_err, 95) * 1e3),
-        foot_skating_mm_per_s=skating * 1e3,
+        foot_skating_mm_per_s=None if skating is None else skating * 1e3,
         foot_contact_frames=float(touching.any(axis=1).mean()),
         max_ground_penetration_mm=float(ground_pen.max() * 1e3),
         median_lowest_foot_mm=float(np.median(foot_bottom.min(axis=1)) * 1e3),
@@ -253,7 +253,7 @@ class SceneReport:
             a scene object (:func:`~humimic.retarget.scene.human_contacts`).
         contact_preservation: Share of those in which the robot's body of that key point (any
             of its geoms, visual ones included) is within ``contact_distance`` of the same
-            object (1.0 when there are none).
+            object (None when there are none: nothing was measured).
         scene_foot_skating_mm_per_s: Mean horizontal speed of the feet's contact points while
             they rest (lowest point within 10 mm) on the floor or an object, in two
             consecutive frames.
@@ -268,9 +268,9 @@ class SceneReport:
     mean_scene_penetration_mm: float
     scene_penetration_frames: int
     human_contacts: int
-    contact_preservation: float
-    scene_foot_skating_mm_per_s: float
-    planted_foot_gap_mm: float
+    contact_preservation: float | None
+    scene_foot_skating_mm_per_s: float | None
+    planted_foot_gap_mm: float | None
     floating_planted_feet: int
 
 
@@ -366,9 +366,10 @@ def evaluate_scene(
         mean_scene_penetration_mm=float(pen.mean() * 1e3) if T else 0.0,
         scene_penetration_frames=int(np.sum(pen > 1e-3)),
         human_contacts=contacts,
-        contact_preservation=float(np.sum(preserved == 1) / contacts) if contacts else 1.0,
-        scene_foot_skating_mm_per_s=float(speed[both].mean() * 1e3) if both.any() else 0.0,
-        planted_foot_gap_mm=float(planted_gap.mean() * 1e3) if planted_gap.size else 0.0,
+        # Over zero events a share or a mean is not measured: None, never a perfect score.
+        contact_preservation=float(np.sum(preserved == 1) / contacts) if contacts else None,
+        scene_foot_skating_mm_per_s=float(speed[both].mean() * 1e3) if both.any() else None,
+        planted_foot_gap_mm=float(planted_gap.mean() * 1e3) if planted_gap.size else None,
         floating_planted_feet=int(np.sum(planted_gap > CONTACT_HEIGHT)),
     )
     return report, {"scene_penetration": pen, "contact_preserved": preserved}
