@@ -135,15 +135,21 @@ def test_planted_feet_rest_on_the_floor_while_climbing_down(shared_data: Path) -
     assert r["max_scene_penetration_mm"] <= 10.0 and r["contact_preservation"] >= 0.9
 
 
+def _short_walk(shared_data: Path, folder: Path) -> Path:
+    """The first 13 frames of the CMU walk, as a BVH file in ``folder``."""
+    lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
+    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
+    clip = folder / "walk.bvh"
+    clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
+    return clip
+
+
 def test_a_large_object_sampled_coarsely_is_reported(
     tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A 90 m floor slab cannot be sampled every 5 cm within the point budget: the spacing
     widens, and the report and a warning say by how much (no silent fallback)."""
-    lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
-    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
-    clip = tmp_path / "walk.bvh"
-    clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
+    clip = _short_walk(shared_data, tmp_path)
     scene = tmp_path / "slab.yaml"
     scene.write_text(
         "schema_version: 1\nobjects:\n  - name: slab\n    box: [90.0, 90.0, 0.02]\n"
@@ -163,10 +169,7 @@ def test_a_scene_the_human_never_touches_reports_no_preservation_and_says_so(
 ) -> None:
     """A box 20 m from the walk: 0 human-scene contacts gave contact_preservation 1.0, a
     perfect score over nothing. Now it is null, printed n/a, and a warning says why."""
-    lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
-    i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
-    clip = tmp_path / "walk.bvh"
-    clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
+    clip = _short_walk(shared_data, tmp_path)
     scene = tmp_path / "far.yaml"
     scene.write_text(
         "schema_version: 1\nobjects:\n  - name: far\n    box: [0.5, 0.5, 0.5]\n"
