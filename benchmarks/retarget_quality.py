@@ -31,7 +31,7 @@ from humimic.robots import export_nominal, get_robot
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 KEYS = ("frames", "frames_per_second", "keypoint_error_mm_mean", "keypoint_error_mm_p95",
-        "foot_skating_mm_per_s", "max_ground_penetration_mm", "median_lowest_foot_mm",
+        "foot_skating_mm_per_s", "planted_foot_skating_mm_per_s", "max_ground_penetration_mm", "median_lowest_foot_mm",
         "joint_limit_violations", "self_collision_pairs", "self_collision_frames",
         "max_self_penetration_mm", "worst_self_collision", "relaxed_qp_iterations",
         "turned_knee_frames")  # fmt: skip

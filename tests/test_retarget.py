@@ -218,3 +218,39 @@ def test_floating_base_steps_are_bounded_after_the_first_frame() -> None:
         steps.append(float(np.abs(dq[:6]).max()))
     assert steps[0] > 1.0, steps
     assert steps[1] <= kin.cfg.max_step + 1e-9, steps
+
+
+def test_planted_foot_skating_equals_an_independent_computation(shared_data: Path) -> None:
+    """The report's skating of feet the human has planted, computed again from the motion
+    file alone: the G1's foot spheres (world centres less their radius), their horizontal
+    speed between consecutive frames where a sphere is below 10 mm and the human's foot (the
+    file's ``human_contacts``) is down in both."""
+    import mujoco
+
+    from humimic.robots import get_robot, nominal_model
+
+    out = _retarget(shared_data, "cmu/35_01.bvh")
+    model = nominal_model(get_robot("g1"))
+    data = mujoco.MjData(model)
+    feet = ["left_ankle_roll_link", "right_ankle_roll_link"]
+    spheres = [(g, feet.index(model.body(model.geom_bodyid[g]).name)) for g in range(model.ngeom)
+               if model.body(model.geom_bodyid[g]).name in feet
+               and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE
+               and (model.geom_contype[g] or model.geom_conaffinity[g])]  # fmt: skip
+    assert len(spheres) == 8
+    qpos = out.motion.qpos
+    centre = np.zeros((len(qpos), len(spheres), 3))
+    for t, q in enumerate(qpos):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        centre[t] = [data.geom_xpos[g] for g, _ in spheres]
+    radius = np.array([model.geom_size[g, 0] for g, _ in spheres])
+    down = centre[:, :, 2] - radius < 0.01
+    contacts = np.asarray(out.motion.extras["human_contacts"])  # type: ignore[index]
+    human = np.any(contacts, axis=2)[:, [f for _, f in spheres]]
+    mask = down[1:] & down[:-1] & human[1:] & human[:-1]
+    speed = np.linalg.norm(np.diff(centre[:, :, :2], axis=0), axis=-1) * out.motion.fps
+    expected = 1e3 * speed[mask].mean()
+    assert mask.sum() > 100
+    assert out.report["planted_foot_skating_mm_per_s"] == pytest.approx(expected, rel=1e-9)
+    assert out.report["planted_foot_skating_mm_per_s"] < out.report["foot_skating_mm_per_s"]

@@ -152,6 +152,7 @@ class Retargeter:
             self_collision=self.ik.self_collision_pairs,
             floor_geom=self.robot.floor_geom,
             human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
+            human_foot_contact=np.asarray(tg.contacts.any(axis=2)),
         )
         T = motion.num_frames
         report: dict[str, Any] = {

@@ -23,6 +23,9 @@ class QualityReport:
         keypoint_error_mm_p95: Its 95th percentile.
         foot_skating_mm_per_s: Mean horizontal speed of foot contact points while they touch
             the ground (lowest point below 10 mm in two consecutive frames).
+        planted_foot_skating_mm_per_s: The same over the frames in which the human's foot
+            (that point's foot) is also in contact in both frames: a planted foot that slides
+            (None without per-foot human contacts, or without such frames).
         foot_contact_frames: Share of frames in which some foot point touches the ground.
         max_ground_penetration_mm: Deepest penetration of any robot collision geom into the floor.
         median_lowest_foot_mm: Median over frames of the lowest foot point's height.
@@ -47,6 +50,7 @@ class QualityReport:
     keypoint_error_mm_mean: float
     keypoint_error_mm_p95: float
     foot_skating_mm_per_s: float | None
+    planted_foot_skating_mm_per_s: float | None
     foot_contact_frames: float
     max_ground_penetration_mm: float
     median_lowest_foot_mm: float
@@ -116,6 +120,7 @@ def evaluate(
     self_collision: np.ndarray,
     floor_geom: str = "floor",
     human_contact: np.ndarray | None = None,
+    human_foot_contact: np.ndarray | None = None,
 ) -> tuple[QualityReport, dict[str, np.ndarray]]:
     """Measure a motion: the summary report, and per-frame arrays for the viewer.
 
@@ -129,6 +134,8 @@ def evaluate(
         self_collision: Geom-id pairs that must not interpenetrate. Shape: (P, 2).
         floor_geom: Name of the floor geom.
         human_contact: Frames in which the human has a foot on the ground. Shape: (T,).
+        human_foot_contact: Frames in which each of the human's feet is on the ground, in the
+            order of ``foot_bodies``. Shape: (T, len(foot_bodies)).
 
     Returns:
         The report, and per-frame arrays: ``keypoint_error`` (T,) [m], ``ground_penetration``
@@ -196,6 +203,12 @@ def evaluate(
     both = touching[1:] & touching[:-1]
     speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
     skating = float(speed[both].mean()) if both.any() else None  # No foot ever rests.
+    planted_skating = None
+    if human_foot_contact is not None:
+        foot_of = np.array([[model.body(b).id for b in foot_bodies].index(int(i)) for i in ids])
+        human = np.asarray(human_foot_contact, dtype=bool)[:, foot_of]  # (T, N)
+        planted = both & human[1:] & human[:-1]
+        planted_skating = float(speed[planted].mean()) if planted.any() else None
 
     joints = qpos[:, 7:]
     lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
@@ -206,6 +219,7 @@ def evaluate(
         keypoint_error_mm_mean=float(kp_err.mean() * 1e3),
         keypoint_error_mm_p95=float(np.percentile(kp_err, 95) * 1e3),
         foot_skating_mm_per_s=None if skating is None else skating * 1e3,
+        planted_foot_skating_mm_per_s=None if planted_skating is None else planted_skating * 1e3,
         foot_contact_frames=float(touching.any(axis=1).mean()),
         max_ground_penetration_mm=float(ground_pen.max() * 1e3),
         median_lowest_foot_mm=float(np.median(foot_bottom.min(axis=1)) * 1e3),
