@@ -135,13 +135,24 @@ def test_planted_feet_rest_on_the_floor_while_climbing_down(shared_data: Path) -
     assert r["max_scene_penetration_mm"] <= 10.0 and r["contact_preservation"] >= 0.9
 
 
-def _short_walk(shared_data: Path, folder: Path) -> Path:
-    """The first 13 frames of the CMU walk, as a BVH file in ``folder``."""
+def _walk_beside_one_box(
+    shared_data: Path, folder: Path, name: str, box: list[float], pos: list[float],
+    *, quiet: bool = True,
+) -> dict:  # fmt: skip
+    """``humimic retarget --method interaction-mesh`` of the CMU walk's first 13 frames with a
+    scene of one box (sizes ``box``, centre ``pos``) written in ``folder``; its report."""
     lines = (shared_data / "cmu" / "35_01.bvh").read_text().splitlines(keepends=True)
     i = next(k for k, line in enumerate(lines) if line.startswith("Frames:"))
     clip = folder / "walk.bvh"
     clip.write_text("".join([*lines[:i], "Frames: 13\n", lines[i + 1], *lines[i + 2 : i + 15]]))
-    return clip
+    scene = folder / f"{name}.yaml"
+    scene.write_text(f"schema_version: 1\nobjects:\n  - name: {name}\n    box: {box}\n"
+                     f"    pos: {pos}\n")  # fmt: skip
+    report = folder / "m.json"
+    argv = ["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(scene),
+            "--out", str(folder / "m.npz"), "--report", str(report)]  # fmt: skip
+    assert main([*argv, "--quiet"] if quiet else argv) == 0
+    return json.loads(report.read_text())
 
 
 def test_a_large_object_sampled_coarsely_is_reported(
@@ -149,17 +160,9 @@ def test_a_large_object_sampled_coarsely_is_reported(
 ) -> None:
     """A 90 m floor slab cannot be sampled every 5 cm within the point budget: the spacing
     widens, and the report and a warning say by how much (no silent fallback)."""
-    clip = _short_walk(shared_data, tmp_path)
-    scene = tmp_path / "slab.yaml"
-    scene.write_text(
-        "schema_version: 1\nobjects:\n  - name: slab\n    box: [90.0, 90.0, 0.02]\n"
-        "    pos: [0.0, 0.0, -0.5]\n    quat: [1, 0, 0, 0]\n"
-    )
-    out, report = tmp_path / "m.npz", tmp_path / "m.json"
-    argv = ["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(scene)]
-    assert main([*argv, "--out", str(out), "--report", str(report), "--quiet"]) == 0
+    r = _walk_beside_one_box(shared_data, tmp_path, "slab", [90.0, 90.0, 0.02], [0, 0, -0.5])
     err = capsys.readouterr().err
-    spacing = json.loads(report.read_text())["scene_spacing_mm"]["slab"]
+    spacing = r["scene_spacing_mm"]["slab"]
     assert spacing > 2 * 1e3 * InteractionConfig().scene_spacing
     assert "slab every" in err and "coarsely" in err
 
@@ -169,17 +172,9 @@ def test_a_scene_the_human_never_touches_reports_no_preservation_and_says_so(
 ) -> None:
     """A box 20 m from the walk: 0 human-scene contacts gave contact_preservation 1.0, a
     perfect score over nothing. Now it is null, printed n/a, and a warning says why."""
-    clip = _short_walk(shared_data, tmp_path)
-    scene = tmp_path / "far.yaml"
-    scene.write_text(
-        "schema_version: 1\nobjects:\n  - name: far\n    box: [0.5, 0.5, 0.5]\n"
-        "    pos: [20.0, 0.0, 0.25]\n"
-    )
-    out, report = tmp_path / "m.npz", tmp_path / "m.json"
-    argv = ["retarget", str(clip), "--method", "interaction-mesh", "--scene", str(scene)]
-    assert main([*argv, "--out", str(out), "--report", str(report)]) == 0
+    r = _walk_beside_one_box(shared_data, tmp_path, "far", [0.5, 0.5, 0.5], [20.0, 0, 0.25],
+                             quiet=False)  # fmt: skip
     captured = capsys.readouterr()
-    r = json.loads(report.read_text())
     assert r["human_contacts"] == 0 and r["contact_preservation"] is None
     assert r["kinematic"]["contact_preservation"] is None
     assert "contacts kept n/a% of 0" in captured.out

@@ -4,6 +4,7 @@ and reading YAML with errors that name the file."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import tempfile
@@ -161,6 +162,7 @@ def json_ready(value: Any) -> Any:
     return value
 
 
+@functools.cache
 def _unique_key_loader() -> Any:
     """PyYAML's ``SafeLoader``, refusing a mapping that names a key twice (which keeps the
     last value in silence: ``floor_friction: 0.2`` then ``floor_friction: 1.0``)."""
@@ -207,11 +209,7 @@ def read_yaml(
 
     import yaml
 
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{p}: is a folder, expected a YAML file")
-    if not p.is_file():
-        raise InputError(f"{p}: no such file")
+    p = check_input_file(path, "a YAML file")
     try:
         text = p.read_text(encoding="utf-8-sig")
     except OSError as e:

@@ -165,8 +165,8 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
 
     The pairs are taken as given, in order (mink's own construction drops pairs by their
     contact bitmasks and reorders them): what the IK keeps apart is what the report measures.
-    A pair may not come closer than its floor: the margin, or its distance at rest where that
-    is smaller (a pair that nearly touches at rest may not get closer than it is there).
+    A pair may not come closer than its floor
+    (:func:`~humimic.robots.collision.self_collision_floors`).
 
     mink lets a pair closer than the minimum distance keep its distance (bound 0), so the
     linearization error of successive iterations can accumulate into penetration. Here the

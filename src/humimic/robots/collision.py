@@ -52,7 +52,7 @@ def self_collision_pairs(model: mujoco.MjModel, root_body: str) -> np.ndarray:
     bitmasks: geoms of one body (or of bodies welded together), of a body and its parent (by
     their weld bodies, MuJoCo's ``filterparent``), and the model's ``<exclude>`` pairs. No
     pair is exempt for being close at rest or inside one mechanism: those are the pairs that
-    collide in motion (:func:`rest_distances` gives each its floor instead). The contact
+    collide in motion (:func:`self_collision_floors` gives each its floor instead). The contact
     bitmasks are not used: models often disable self-collision in simulation, but a wrist
     inside a hip is a bad motion all the same.
 

@@ -104,12 +104,13 @@ def build_model(
     ph = setup.physics
     if ph is not None and ph.robot is not None and ph.robot != setup.robot:
         raise InputError(f"{ph.where}: written for {ph.robot!r}, not {setup.robot!r}")
-    for inj in () if ph is None else ph.effects:
-        if ph is not None and EFFECTS[inj.effect].adds_joints:
-            raise InputError(
-                f"{ph.where}: {inj.where}: {inj.effect} adds joints, which the simulation's "
-                "fixed joint layout cannot take (it is simulated in sysid logs only)"
-            )
+    if ph is not None:
+        for inj in ph.effects:
+            if EFFECTS[inj.effect].adds_joints:
+                raise InputError(
+                    f"{ph.where}: {inj.where}: {inj.effect} adds joints, which the simulation's "
+                    "fixed joint layout cannot take (it is simulated in sysid logs only)"
+                )
     return training_model(
         get_robot(setup.robot),
         body_names=setup.body_names,

@@ -304,7 +304,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
         check_not_input(s.out / name, inputs, "--out")
     ckpt, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint,
                                             "--teacher-checkpoint")  # fmt: skip
-    recorded_motion(s.teacher)  # There, and unchanged since the teacher trained on it.
+    recorded_motion(s.teacher, recorded)  # There, unchanged since the teacher trained on it.
     run = s.out
     dr = s.dr or teacher.dr
     task = task_config(teacher.robot, dr, s.seed, teacher.physics, teacher.task)

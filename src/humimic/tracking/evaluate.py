@@ -222,7 +222,7 @@ def run_evaluation(
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
     if s.motion is None:
-        motion_path = recorded_motion(s.run)  # There, and unchanged since the run began.
+        motion_path = recorded_motion(s.run, recorded)  # There, unchanged since the run began.
     elif not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     else:

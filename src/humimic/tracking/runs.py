@@ -347,18 +347,23 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def recorded_motion(run: Path, hint: str = "pass --motion to use a motion as it is now") -> Path:
+def recorded_motion(
+    run: Path,
+    recorded: tuple[dict[str, Any], TrainSettings] | None = None,
+    hint: str = "pass --motion to use a motion as it is now",
+) -> Path:
     """The motion a run trained on, checked: there, and (where config.yaml holds its SHA-256)
     unchanged since the run recorded it.
 
     Args:
         run: The run folder.
+        recorded: What :func:`run_config` already read of it (default: read it).
         hint: What the message advises when the motion changed.
 
     Raises:
         InputError: Missing, or changed (names the run and the file).
     """
-    config, settings = run_config(run)
+    config, settings = recorded or run_config(run)
     p = settings.motion
     if not p.is_file():
         raise InputError(f"{run}: the run's motion {p} is missing (moved? pass --motion)")
@@ -408,10 +413,11 @@ def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
         config = yaml.safe_load(path.read_text())
         data = dict(config["settings"])
         start = _started_in(run, Path(data["out"]))
+        data["out"] = Path(data["out"])
         if config.get("motion_in_run"):  # The run's own reference, wherever the run is now.
-            data["motion"], data["out"] = (run / data["motion"]).resolve(), Path(data["out"])
+            data["motion"] = (run / data["motion"]).resolve()
         else:
-            data["motion"], data["out"] = _absolute(data["motion"], start), Path(data["out"])
+            data["motion"] = _absolute(data["motion"], start)
         if data.get("init_from") is not None:
             data["init_from"] = _absolute(data["init_from"], start)
         for key, names in (("dr", DR_PROFILES), ("physics", _physics_names())):

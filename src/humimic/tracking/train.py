@@ -39,6 +39,7 @@ from humimic.tracking.runs import (
     recorded_motion,
     resolve_checkpoint,
     resolved_settings,
+    run_config,
     run_files,
     run_folder_lock,
     run_rsl_cfg,
@@ -313,7 +314,8 @@ def train(
     has_run = check_run_settings(s)
     if s.resume:
         # Compared with the paths resolved: ./walk.npz and /abs/walk.npz are the same motion.
-        old, new = read_run_settings(run), resolved_settings(s)
+        recorded = run_config(run)
+        old, new = recorded[1], resolved_settings(s)
         diff = settings_differences(old, new, _MUST_MATCH_ON_RESUME)
         if diff:
             names = [d.split("=", 1)[0] for d in diff]
@@ -321,7 +323,7 @@ def train(
             raise InputError(
                 f"--resume: {', '.join(names)} {verb} from the run's ({', '.join(diff)})"
             )
-        recorded_motion(run, "a resumed run goes on with the motion it began on")
+        recorded_motion(run, recorded, "a resumed run goes on with the motion it began on")
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     ppo = ppo or ppo_for(s)
@@ -501,12 +503,12 @@ def check_run_settings(s: Any) -> bool:
                          "to start a new run")  # fmt: skip
     init = getattr(s, "init_from", None)  # One inside --out: _check_train_outputs says so.
     inside = init is not None and s.out.resolve() in (init.resolve(), *init.resolve().parents)
-    own = {REFERENCE_FILE}  # A refined reference written for this run before it starts.
+    # A refined reference written for this run before it starts is the run's own.
     if (
         not has_run
         and not inside
         and s.out.is_dir()
-        and any(p.name not in own for p in s.out.iterdir())
+        and any(p.name != REFERENCE_FILE for p in s.out.iterdir())
     ):
         # A run folder is a run's alone: its files beside others' would be mixed up, and
         # files of the names it writes overwritten.
