@@ -83,6 +83,8 @@ VALID: dict[str, dict[str, set[str]]] = {
         "--ik.stage2-iters": _OFF,
         # Detect self-collision only at contact (retargets a walk: tried by hand).
         "--ik.collision-detection": _OFF,
+        # A height: the clip's floor may be below its world origin, or at it.
+        "--ik.floor-height": {"-1", "0"},
         **{
             f"--mesh.{n}": _OFF
             for n in (

@@ -15,6 +15,9 @@ mesh refuses more than 20,000 points in all (``retarget.interaction_mesh.MAX_MES
 MAX_ITERATIONS = 10_000
 """Most solver iterations per frame (or per window) any ``--ik``, ``--mesh`` or ``--dyn``
 iteration flag may ask for."""
+MAX_POSITION = 1000.0
+"""The largest height [m] a setting may place (as a scene's positions are bounded)."""
+
 MAX_SETTING = 1e6
 """The largest value of any real-valued setting (a weight, a scale, a length): larger ones
 overflow the solvers' arithmetic (as the maps' weights, bounded the same)."""
@@ -69,6 +72,10 @@ class RetargetConfig:
         foot_orientation_weight: Foot orientation cost (per radian) in swing.
         foot_contact_orientation_weight: Foot orientation cost while flat on the ground.
         floor_limit: Keep the feet's contact points above the floor (a hard limit).
+        hold_planted_feet: While the human's foot is down, the robot foot's contact points
+            that touch the floor (lowest point under 10 mm) move at most ``planted_speed``
+            horizontally (a hard limit, frame to frame): a planted foot does not slide.
+        planted_speed: That speed [m/s].
         velocity_limit_scale: Joint speed limits = this times the motors' limits (0 disables).
         self_collision: Keep the robot's self-collision pairs apart (a hard limit).
         collision_margin: Minimum distance kept between self-collision pairs [m].
@@ -82,6 +89,12 @@ class RetargetConfig:
             half the margin.
         scale: Human-to-robot scale of positions (root path, ground, scene); ``None``: the
             robot's leg length over the human's, measured on the clip.
+        floor_height: Height of the floor in the clip's (and its scene's) world frame [m]:
+            a scene is mapped so that this plane lands on the robot's floor. ``None``:
+            measured, from how far the human's toe joints rest above the scene's objects
+            (:func:`humimic.retarget.scene.scene_floor`; z = 0 where they never rest on
+            one, and the report says which). The human is placed from its own planted feet,
+            whatever this is.
     """
 
     fps: float = 50.0
@@ -100,6 +113,8 @@ class RetargetConfig:
     foot_orientation_weight: float = 1.0
     foot_contact_orientation_weight: float = 10.0
     floor_limit: bool = True
+    hold_planted_feet: bool = True
+    planted_speed: float = 0.05
     velocity_limit_scale: float = 1.0
     self_collision: bool = True
     collision_margin: float = 0.01
@@ -109,10 +124,12 @@ class RetargetConfig:
     max_step: float = 0.3
     repair_iters: int = 4
     scale: float | None = None
+    floor_height: float | None = None
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the field (``--ik.<field>`` on the CLI)."""
-        positive = ("fps", "max_step", "contact_speed", "contact_height", "plant_radius")
+        positive = ("fps", "max_step", "contact_speed", "contact_height", "plant_radius",
+                    "planted_speed")  # fmt: skip
         _check_numbers(self, "ik", positive, positive=True)
         if self.fps > 1000:
             raise InputError(f"ik.fps: {self.fps} frames per second is beyond any motion capture")
@@ -130,6 +147,12 @@ class RetargetConfig:
                 raise InputError(
                     f"ik.{name}: at most {MAX_ITERATIONS} per frame, got {getattr(self, name)}"
                 )
+        fh = self.floor_height
+        if fh is not None and not (math.isfinite(fh) and abs(fh) <= MAX_POSITION):
+            raise InputError(
+                f"ik.floor_height: must be a height within {MAX_POSITION:g} m, "
+                f"got {self.floor_height}"
+            )
         if self.stage1_iters + self.stage2_iters < 1:
             raise InputError("ik.stage1_iters + ik.stage2_iters: at least one QP per frame")
         if not 0 < self.collision_gain <= 1:

@@ -116,8 +116,10 @@ class Retargeter:
             ires = self.interaction.run(clip, scene, progress=progress)
             res, qpos, model = ires.kinematic, ires.qpos, ires.model
             scene_part, extras = self._scene_report(ires)
+            z_offset = float(ires.scene_floor["z_offset_m"])
         else:
             res = self.ik.run(clip, progress=progress)
+            z_offset = res.targets.z_offset
             qpos, model = res.qpos, self.ik.model
         tg = res.targets
         motion = motion_from_qpos(
@@ -137,7 +139,7 @@ class Retargeter:
                 "human_origin": [float(x) for x in tg.origin],
                 "human_ground": tg.human_ground,
                 "human_scale": tg.scale,
-                "human_z_offset": tg.z_offset,
+                "human_z_offset": z_offset,  # The scene's placement: the clip's floor on ours.
                 "keypoints": list(self.map.keypoints),
             },
         )
@@ -215,6 +217,7 @@ class Retargeter:
             },
             "scene": ires.scene.source,
             "scene_objects": [o.name for o in ires.scene.objects],
+            "scene_floor": ires.scene_floor,
         }
         extras = {
             **scene_arrays(ires.scene, T),

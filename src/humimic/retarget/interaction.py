@@ -32,7 +32,7 @@ from humimic.retarget.kinematic import (
     scene_geoms,
 )
 from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
-from humimic.retarget.scene import human_contacts
+from humimic.retarget.scene import human_contacts, scene_floor
 from humimic.retarget.targets import RobotGeometry, hold_still_points
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
 from humimic.robots.maps import RetargetMap
@@ -58,6 +58,7 @@ class InteractionResult:
             finely (:meth:`~humimic.datasets.scene.Scene.sampling_spacings`).
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
+        scene_floor: Where the clip's floor was put (:meth:`InteractionMeshRetargeter.scene_placement`).
     """
 
     qpos: np.ndarray
@@ -71,6 +72,7 @@ class InteractionResult:
     mesh_scene_points: np.ndarray
     scene_spacings: list[float]
     human_contacts: np.ndarray
+    scene_floor: dict[str, Any]
 
 
 REPAIR_DEPTH = 1e-3
@@ -200,12 +202,26 @@ class InteractionMeshRetargeter:
 
     def robot_scene(self, clip: HumanClip, scene: Scene) -> Scene:
         """The scene in the robot's frame at the output frame rate, mapped as ``clip`` is."""
+        return self.scene_placement(clip, scene)[0]
+
+    def scene_placement(self, clip: HumanClip, scene: Scene) -> tuple[Scene, dict[str, Any]]:
+        """:meth:`robot_scene`, and where the clip's floor was put (the report's
+        ``scene_floor``: its height in the clip's frame, where that comes from, the human toe
+        joints' resting clearance over the objects, and the height offset used)."""
         tg = self.kin.targets(clip)
+        T = tg.positions.shape[0]
         start_s = float(clip.meta.get("start_frame", 0)) / clip.fps
-        return scene.resample(tg.fps, tg.positions.shape[0], start_s=start_s).to_robot(
-            scale=tg.scale, yaw=tg.yaw, origin=tg.origin, ground=tg.human_ground,
-            z_offset=tg.z_offset,
-        )  # fmt: skip
+        world = scene.resample(tg.fps, T, start_s=start_s)
+        human = clip.resample(tg.fps)
+        toes = np.stack([human.position(self.map.keypoints[f.toe].human)
+                         for f in self.map.feet.values()], axis=1)[:T]  # fmt: skip
+        floor, source, clearance = scene_floor(world, toes, tg.fps, self.cfg.floor_height)
+        z_offset = tg.scale * (tg.human_ground - floor)
+        placed = world.to_robot(scale=tg.scale, yaw=tg.yaw, origin=tg.origin,
+                                ground=tg.human_ground, z_offset=z_offset)  # fmt: skip
+        info = {"floor_m": floor, "from": source, "toe_clearance_m": clearance,
+                "z_offset_m": z_offset}  # fmt: skip
+        return placed, info
 
     def run(
         self, clip: HumanClip, scene: Scene, progress: Callable[[int], Any] | None = None
@@ -213,7 +229,7 @@ class InteractionMeshRetargeter:
         """Retarget ``clip`` in ``scene`` (both in the clip's world frame). ``progress(n)`` is
         called after every frame of each of the two passes (kinematic, then interaction)."""
         icfg = self.icfg
-        scene_r = self.robot_scene(clip, scene)
+        scene_r, placement = self.scene_placement(clip, scene)
         kin = KinematicRetargeter(self.robot, self.map, self.cfg,
                                   menagerie_root=self.menagerie_root, scene=scene_r)  # fmt: skip
         model, conf = kin.model, kin.configuration
@@ -252,7 +268,9 @@ class InteractionMeshRetargeter:
         # A toe the human barely moves horizontally: the front of the robot's sole moves at
         # most still_travel times as fast.
         toe_feet, travel = self._toe_travel(model, kin.foot_points)
-        limits = [*kin.limits, scene_limit, travel]
+        # Not the kinematic pass's planted-foot limit: planted points here are held by the
+        # stick task below (on the floor or on an object), the limit's anchors are stale.
+        limits = [*(lim for lim in kin.limits if lim is not kin.planted), scene_limit, travel]
         samples = scene_r.surface_points(icfg.scene_spacing)
         spacings = scene_r.sampling_spacings(icfg.scene_spacing)
         radius = contact_radii(self.map, kin.geometry)
@@ -415,6 +433,7 @@ class InteractionMeshRetargeter:
             mesh_scene_points=n_scene,
             scene_spacings=spacings,
             human_contacts=contacts,
+            scene_floor=placement,
         )
 
     def _toe_travel(

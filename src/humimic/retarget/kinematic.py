@@ -24,7 +24,9 @@ from humimic.datasets.clip import HumanClip
 from humimic.datasets.scene import Scene
 from humimic.errors import InputError, MapError, RetargetError
 from humimic.retarget.limits import (
+    CONTACT_HEIGHT,
     FloorLimit,
+    PointTravelLimit,
     SelfCollisionLimit,
     contact_point_heights,
     foot_contact_points,
@@ -233,6 +235,14 @@ class KinematicRetargeter:
         self.limits: list[mink.Limit] = []
         if cfg.floor_limit:
             self.limits.append(FloorLimit(model, foot_bodies))
+        # Planted feet: a foot contact point on the floor while the human's foot is down is
+        # held (horizontally) where the previous frame left it; set per frame (_hold_planted).
+        self.planted: PointTravelLimit | None = None
+        if cfg.hold_planted_feet:
+            ids = self.foot_points[0]
+            self.planted = PointTravelLimit(model, ids, self.foot_points[1])
+            self._point_foot = np.array([foot_bodies.index(model.body(int(b)).name) for b in ids])
+            self.limits.append(self.planted)
         # One set of pairs, all of them: what the IK keeps apart is what the report
         # measures. Each pair's floor: the margin, less for one mechanism's links, and never
         # more than its distance at rest (self_collision_floors).
@@ -315,6 +325,7 @@ class KinematicRetargeter:
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             frame.step = step
             self._set_targets(targets, t)
+            self._hold_planted(targets, t)
             frame.tasks = self.tasks
             if t > 0 and cfg.smooth_weight > 0:
                 self.smooth.set_target(out[t - 1])
@@ -350,17 +361,25 @@ class KinematicRetargeter:
         )
 
     def _repair(self, frame: _Frame) -> int:
-        """Extra QPs while a self-collision pair is closer than half the margin.
+        """Extra QPs while a self-collision pair is closer than half the margin, or a held
+        foot point has travelled more than 2 % beyond its radius (the limits are linearized:
+        a large last step can overshoot them).
 
         Checks the pairs found near at the last evaluation (a cheap heuristic: the metrics
         check every pair in every frame, and report what this misses).
         """
-        limit = self.self_collision
-        if limit is None:
+        limit, planted = self.self_collision, self.planted
+        if limit is None and planted is None:
             return 0
         n = 0
         for _ in range(self.cfg.repair_iters):
-            if limit.active_min_slack(self.configuration) >= -0.5 * self.cfg.collision_margin:
+            near = (
+                limit is not None
+                and limit.active_min_slack(self.configuration) < -0.5 * self.cfg.collision_margin
+            )
+            if not near and (
+                planted is None or planted.max_excess(self.configuration.data) <= 0.02
+            ):
                 break
             self.configuration.integrate_inplace(self._solve(frame, self.limits), 1.0)
             n += 1
@@ -423,6 +442,24 @@ class KinematicRetargeter:
                 f"(daqp exit flag {exitflag})"
             )
         return x
+
+    def _hold_planted(self, targets: Targets, t: int) -> None:
+        """Set the planted-foot limit for frame ``t`` (the configuration is frame t-1's
+        solution): a contact point that touches the floor there, on a foot the human has down
+        in both frames, may move at most ``planted_speed / fps`` horizontally."""
+        limit = self.planted
+        if limit is None:
+            return
+        n = len(limit.body_ids)
+        if t == 0:
+            limit.set(np.zeros((n, 3)), np.full(n, np.inf))
+            return
+        down = np.all(np.any(targets.contacts[t - 1 : t + 1], axis=2), axis=0)  # (feet,)
+        ids, pts, rad = self.foot_points
+        world, bottom = contact_point_heights(self.configuration.data, ids, pts, rad)
+        held = down[self._point_foot] & (bottom < CONTACT_HEIGHT)
+        radius = self.cfg.planted_speed / targets.fps
+        limit.set(world, np.where(held, radius, np.inf))
 
     def _set_targets(self, targets: Targets, t: int) -> None:
         self.keypoints.targets = targets.positions[t]

@@ -10,6 +10,9 @@ import numpy as np
 from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
 from mink.limits.limit import Constraint
 
+CONTACT_HEIGHT = 0.010
+"""A foot contact point touches the ground when its lowest point is below this [m]."""
+
 
 def foot_contact_points(
     model: mujoco.MjModel, bodies: list[str]
@@ -142,6 +145,15 @@ class PointTravelLimit(mink.Limit):
         """Anchors (N, 3) [m] and radii (N,) [m]; ``inf`` frees a point."""
         self.anchors = np.asarray(anchors, dtype=float).reshape(len(self.body_ids), 3)
         self.radius = np.asarray(radius, dtype=float).reshape(len(self.body_ids))
+
+    def max_excess(self, data: mujoco.MjData) -> float:
+        """Largest horizontal distance of an active point from its anchor, as a fraction of
+        its radius beyond it (0 inside; ``-inf`` with no active point)."""
+        active = np.isfinite(self.radius)
+        if not active.any():
+            return -np.inf
+        d = np.linalg.norm(self.positions(data)[active, :2] - self.anchors[active, :2], axis=1)
+        return float(np.max(d / self.radius[active] - 1.0))
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         del dt  # A position limit.

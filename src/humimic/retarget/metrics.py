@@ -8,10 +8,7 @@ import mujoco
 import numpy as np
 
 from humimic.datasets.scene import Scene
-from humimic.retarget.limits import contact_point_heights, foot_contact_points
-
-CONTACT_HEIGHT = 0.010
-"""A foot contact point touches the ground when its lowest point is below this [m]."""
+from humimic.retarget.limits import CONTACT_HEIGHT, contact_point_heights, foot_contact_points
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -43,6 +43,72 @@ def human_contacts(
     return out, firm
 
 
+REST_SPEED = 0.1
+"""A human toe joint slower than this [m/s] (horizontally) rests where it is."""
+
+REST_REACH = 0.1
+"""...on an object whose surface is within this distance of it [m]..."""
+
+REST_ABOVE = 0.05
+"""...when it is this much higher than its planted height on the floor [m] (not on the floor)."""
+
+MIN_REST_FRAMES = 10
+"""Fewer resting (frame, toe) samples than this measure no clearance."""
+
+
+def scene_floor(
+    scene: Scene, toes: np.ndarray, fps: float, floor_height: float | None
+) -> tuple[float, str, float | None]:
+    """Where the clip's floor is, in its world frame, for mapping ``scene`` onto the robot: the
+    height under the human's planted toe joints by as much as those joints rest above the
+    scene's objects.
+
+    A toe joint sits above the surface it rests on (inside the foot: 1.3-6 cm on the climbing
+    clips, wherever the capture put it), so the floor is not at the planted toes' height, and
+    a clip's world may not have it at z = 0 either: on the holosoma clips the planted toe
+    joints are 1.5-6.1 cm above z = 0 while they rest 3.4-4.4 cm above the boxes. Measured
+    here: the median distance to the nearest object surface of toe joints that rest on an
+    object (slower than :data:`REST_SPEED`, within :data:`REST_REACH` of a surface, more than
+    :data:`REST_ABOVE` above their planted height), subtracted from the planted height (the
+    2nd percentile of each toe's height, averaged). Mapping that floor onto the robot's puts a
+    box top the human's toes rest on where the robot's soles rest.
+
+    Args:
+        scene: At the toes' frame rate, in the clip's world frame.
+        toes: The human's toe joints. Shape: (T, N, 3).
+        fps: Their frame rate.
+        floor_height: Given by the user: used as it is. ``None``: measured, or 0 (z = 0)
+            where no toe rests on an object (the source says so).
+
+    Returns:
+        The floor height [m], where it comes from (``"given"``, ``"toe rests on objects"``,
+        ``"z = 0 (no toe rests on an object)"``), and the measured clearance [m] (``None``
+        where not measured).
+    """
+    if floor_height is not None:
+        return float(floor_height), "given", None
+    planted = float(np.percentile(toes[:, :, 2], 2.0, axis=0).mean())
+    if not scene.objects or toes.shape[0] < 2:
+        return 0.0, "z = 0 (no toe rests on an object)", None
+    speed = np.zeros(toes.shape[:2])
+    speed[1:] = np.linalg.norm(np.diff(toes[:, :, :2], axis=0), axis=-1) * fps
+    high = toes[:, :, 2] > planted + REST_ABOVE
+    found = []
+    for t in np.flatnonzero(((speed < REST_SPEED) & high).any(axis=1)):
+        k = (speed[t] < REST_SPEED) & high[t]
+        d = np.min(
+            [point_triangle_distance(toes[t, k], o.world_vertices(int(t))[o.faces]).min(axis=1)
+             for o in scene.objects],
+            axis=0,
+        )  # fmt: skip
+        found.append(d[d < REST_REACH])
+    rests = np.concatenate(found) if found else np.zeros(0)
+    if rests.size < MIN_REST_FRAMES:
+        return 0.0, "z = 0 (no toe rests on an object)", None
+    clearance = float(np.median(rests))
+    return planted - clearance, "toe rests on objects", clearance
+
+
 def scene_arrays(scene: Scene, num_frames: int) -> dict[str, np.ndarray]:
     """The motion file's per-frame scene arrays: ``scene_poses``, each object's pose (position,
     wxyz quaternion) in every frame, in scene order. Shape: (T, O, 7)."""
@@ -52,4 +118,4 @@ def scene_arrays(scene: Scene, num_frames: int) -> dict[str, np.ndarray]:
     return {"scene_poses": poses}
 
 
-__all__ = ["human_contacts", "scene_arrays"]
+__all__ = ["human_contacts", "scene_arrays", "scene_floor"]

@@ -56,8 +56,11 @@ class Targets:
         yaw: Rotation about z applied to the human clip (heading alignment) [rad].
         origin: Point of the human clip moved to the world origin (before the rotation) [m].
         z_offset: Height added after scaling: a point of the scene at height ``z`` above the
-            human ground maps to ``scale * z + z_offset`` on the robot's side, as the feet do
-            (a surface the human toes rest on is where the robot's toes rest) [m].
+            human ground maps to ``scale * z + z_offset`` on the robot's side: the clip's
+            floor (``floor_height``) onto the robot's floor. (Not the planted toe joints onto
+            the robot's toes: a toe joint rests 1-6 cm above the surface under it, so that
+            mapping sank the scene by as much and lost every contact of a climbing clip.)
+            [m].
     """
 
     positions: np.ndarray
@@ -267,10 +270,7 @@ def build_targets(
         fps=clip.fps,
         yaw=-yaw0,
         origin=origin,
-        z_offset=float(
-            np.mean(robot.keypoints[foot_keys[:, 1], 2])
-            + scale * (ground - np.mean(planted_h[:, 1]))
-        ),
+        z_offset=scale * (ground - (cfg.floor_height or 0.0)),
     )
 
 
