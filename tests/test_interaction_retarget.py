@@ -185,6 +185,8 @@ def test_a_scene_the_human_never_touches_reports_no_preservation_and_says_so(
     assert r["kinematic"]["contact_preservation"] is None
     assert "contacts kept n/a% of 0" in captured.out
     assert "never touches the scene" in captured.err
+    # Nor does a toe rest on it: the floor is taken at z = 0, and a warning says so.
+    assert r["scene_floor"]["from"].startswith("z = 0") and "--ik.floor-height" in captured.err
 
 
 def _climb_contacts(shared_data: Path, lift: float, sink: float) -> tuple[int, dict]:

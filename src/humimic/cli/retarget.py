@@ -234,6 +234,14 @@ def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
                 "a scene placed off the motion, or contacts beyond the detection distance",
                 file=sys.stderr,
             )
+        floor = r.get("scene_floor") or {}
+        if floor.get("from", "").startswith("z = 0"):
+            print(
+                f"warning: {Path(r['input']).name}: no toe of the human rests on a scene object, "
+                "so the scene's floor is taken at z = 0 of the clip's frame; if it is elsewhere, "
+                "give it: --ik.floor-height H",
+                file=sys.stderr,
+            )
         wanted = 1e3 * spacing if spacing is not None else None
         coarse = {n: s for n, s in r["scene_spacing_mm"].items() if wanted and s > 1.01 * wanted}
         if coarse:
