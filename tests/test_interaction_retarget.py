@@ -16,17 +16,12 @@ from humimic.datasets.scene import Scene, SceneObject, box_mesh
 from humimic.motion import load_motion
 from humimic.retarget import Retargeter, RetargetOutput
 
-PAD_HEIGHT = 0.047  # Human scale [m].
-"""3.5 cm on the robot's side. (These tests were written for an 8 cm pad when the scene was
-sunk by the toe joints' 3.3 cm clearance over the CMU floor: the robot saw 3.5 cm. With the
-scene on the clip's floor, an 8 cm pad is 6 cm on the robot's side, and the robot, stepping
-onto a pad the human walks through, then jumps its pelvis 27 cm on the full walk and ends
-the short one 6.9 mm inside the pad: an open weakness, issue 54's notes.)"""
+PAD_HEIGHT = 0.08  # Human scale [m]: 6 cm on the robot's side.
 
 
 def _pad_under_feet(shared_data: Path) -> tuple[Path, Scene]:
     """The CMU walk (0.8 s) and a pad that covers every footfall: the human walks *through*
-    it (its feet are on the floor, the pad's top is 4.7 cm higher), so the robot must step
+    it (its feet are on the floor, the pad's top is 8 cm higher), so the robot must step
     onto it to keep out."""
     path = shared_data / "cmu" / "35_01.bvh"
     clip = load_clip(path).slice(1, 97)
@@ -50,9 +45,9 @@ def _walk_on_pad(root: Path) -> RetargetOutput:
 def test_kinematic_walks_through_the_pad_interaction_mesh_steps_onto_it(shared_data: Path) -> None:
     r = _walk_on_pad(shared_data).report
     kin = r["kinematic"]
-    # The kinematic warm start ignores the pad: its feet stand inside it (3.5 cm high on the
+    # The kinematic warm start ignores the pad: its feet stand inside it (6 cm high on the
     # robot's side, its bottom on the floor).
-    assert kin["max_scene_penetration_mm"] > 15.0, kin
+    assert kin["max_scene_penetration_mm"] > 25.0, kin
     assert kin["scene_penetration_frames"] >= r["frames"] // 2
     assert r["max_scene_penetration_mm"] <= 10.0, r
     assert r["scene_penetration_frames"] <= 1

@@ -78,6 +78,9 @@ class InteractionResult:
 REPAIR_DEPTH = 1e-3
 """A frame ends with repair steps while a robot geom is deeper than this in an object [m]."""
 
+ADVANCE_HALVINGS = 5
+"""Bisection steps of a frame's warm start that would enter the scene (to 1/32 of it)."""
+
 HAND_CONTACT_RADIUS = 0.05
 """Contact radius of key points that are not foot points [m] (a joint centre inside a limb)."""
 
@@ -320,10 +323,7 @@ class InteractionMeshRetargeter:
             mujoco.mj_kinematics(model, warm)
             if t > 0:
                 mujoco.mj_differentiatePos(model, vel, 1.0, kres.qpos[t - 1], kres.qpos[t])
-                q0 = out[t - 1].copy()
-                mujoco.mj_integratePos(model, q0, vel, 1.0)
-                q0[7:] = np.clip(q0[7:], kin._range_lo, kin._range_hi)
-                conf.update(q0)
+                conf.update(self._advance(model, conf, out[t - 1], vel, scene_pairs, kin))
             else:
                 conf.update(kres.qpos[0])
             pts = self._scene_points(scene_r, samples, tg.scaled[t], t)
@@ -435,6 +435,50 @@ class InteractionMeshRetargeter:
             human_contacts=contacts,
             scene_floor=placement,
         )
+
+    @staticmethod
+    def _advance(
+        model: mujoco.MjModel,
+        conf: mink.Configuration,
+        prev: np.ndarray,
+        vel: np.ndarray,
+        scene_pairs: list[tuple[int, int]],
+        kin: KinematicRetargeter,
+    ) -> np.ndarray:
+        """``prev`` moved by ``vel`` (the warm start's motion), or by the largest share of it
+        (halved up to :data:`ADVANCE_HALVINGS` times) that puts no robot geom more than
+        :data:`REPAIR_DEPTH` into the scene or the floor, where ``prev`` had none there.
+
+        The warm start ignores the scene: moved all the way, a landing foot ends inside a
+        step, nearer its bottom than its top, and the QPs' linearized limits then push it
+        down, into the floor's limit: every QP relaxed and the foot stayed 6.9 mm in a 6 cm
+        pad for the rest of the walk.
+        """
+
+        def moved(share: float) -> np.ndarray:
+            q = prev.copy()
+            mujoco.mj_integratePos(model, q, vel, share)
+            q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
+            return q
+
+        q = moved(1.0)
+        conf.update(q)
+        if _deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH:
+            return q
+        conf.update(prev)
+        if _deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH:
+            return q  # Already inside: the repair steps deal with it.
+        lo, best = 0.0, prev
+        hi = 1.0
+        for _ in range(ADVANCE_HALVINGS):
+            mid = 0.5 * (lo + hi)
+            cand = moved(mid)
+            conf.update(cand)
+            if _deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH:
+                lo, best = mid, cand
+            else:
+                hi = mid
+        return best
 
     def _toe_travel(
         self, model: mujoco.MjModel, foot_points: tuple[np.ndarray, np.ndarray, np.ndarray]
