@@ -10,7 +10,11 @@ from scipy.spatial.transform import Rotation
 
 from humimic.retarget.contacts import detect_contacts, plant_segments, runs
 from humimic.retarget.interaction_mesh import build_mesh
-from humimic.retarget.limits import FloorLimit, PointTravelLimit, SelfCollisionLimit
+from humimic.retarget.limits import (
+    FloorLimit,
+    PointTravelLimit,
+    SelfCollisionLimit,
+)
 from humimic.retarget.tasks import (
     InteractionMeshTask,
     KeypointsTask,
@@ -171,6 +175,45 @@ def test_self_collision_limit_row_is_distance_derivative(arm: mink.Configuration
     np.testing.assert_allclose(-cons.G[0], fd[0], atol=1e-5)
     assert cons.h[0] == pytest.approx(d0)
     assert limit.min_slack == pytest.approx(d0)
+
+
+def test_self_collision_rows_equal_minks_pair_by_pair() -> None:
+    """The limit's rows, built for all near pairs at once, equal mink's own per-pair
+    ``compute_contact_normal_jacobian`` (signed as the limit signs them) on the G1's 579 pairs
+    in random poses."""
+    from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
+
+    from humimic.robots import get_robot, nominal_model
+    from humimic.robots.collision import self_collision_pairs
+
+    robot = get_robot("g1")
+    model = nominal_model(robot)
+    pairs = self_collision_pairs(model, robot.root_body)
+    limit = SelfCollisionLimit(model, pairs, np.zeros(len(pairs)), gain=0.85,
+                               collision_detection_distance=0.04)  # fmt: skip
+    conf = mink.Configuration(model)
+    rng = np.random.default_rng(5)
+    lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
+    ft, normal = np.zeros(6), np.zeros(3)
+    j1, j2 = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    checked = 0
+    for _ in range(5):
+        q = model.qpos0.copy()
+        q[7:] = lo + (hi - lo) * rng.random(lo.size)
+        conf.update(q)
+        cons = limit.compute_qp_inequalities(conf, 1.0)
+        assert cons.G is not None and cons.h is not None
+        for i, (a, b) in enumerate(pairs):
+            d = mujoco.mj_geomDistance(model, conf.data, int(a), int(b), 0.04, ft)
+            if d >= 0.04 - 1e-12:
+                assert np.isinf(cons.h[i])
+                continue
+            row = compute_contact_normal_jacobian(model, conf.data, int(a), int(b), ft, normal,
+                                                  j1, j2)  # fmt: skip
+            np.testing.assert_allclose(cons.G[i], (-1.0 if d >= 0 else 1.0) * row, atol=1e-12)
+            assert cons.h[i] == pytest.approx(0.85 * d)
+            checked += 1
+    assert checked > 30
 
 
 def test_self_collision_limit_pushes_out_penetrating_pairs() -> None:

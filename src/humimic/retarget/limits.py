@@ -7,7 +7,6 @@ from typing import Any
 import mink
 import mujoco
 import numpy as np
-from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
 from mink.limits.limit import Constraint
 
 CONTACT_HEIGHT = 0.010
@@ -84,6 +83,25 @@ def contact_point_heights(
     return world, world[:, 2] - rad
 
 
+def point_jacobians(
+    model: mujoco.MjModel, data: mujoco.MjData, ids: np.ndarray, world: np.ndarray
+) -> np.ndarray:
+    """Translational Jacobians of world points fixed on bodies (after kinematics), ``mj_jac``
+    at each point, into one array.
+
+    Args:
+        ids: Body of each point. Shape: (N,).
+        world: The points' world positions. Shape: (N, 3).
+
+    Returns:
+        Shape: (N, 3, nv).
+    """
+    out = np.empty((len(ids), 3, model.nv))
+    for i in range(len(ids)):
+        mujoco.mj_jac(model, data, out[i], None, world[i], int(ids[i]))
+    return out
+
+
 class FloorLimit(mink.Limit):
     """Keep contact points on or above the floor plane ``z = height``: a hard limit.
 
@@ -100,16 +118,12 @@ class FloorLimit(mink.Limit):
         self.model = model
         self.height = height
         self.ids, self.pts, self.rad = foot_contact_points(model, bodies)
-        self._jac = np.zeros((3, model.nv))
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         del dt  # A position limit.
         data = configuration.data
         world, bottom = contact_point_heights(data, self.ids, self.pts, self.rad)
-        G = np.zeros((len(self.ids), self.model.nv))
-        for i, (b, p) in enumerate(zip(self.ids, world, strict=True)):
-            mujoco.mj_jac(self.model, data, self._jac, None, p, int(b))
-            G[i] = -self._jac[2]
+        G = -point_jacobians(self.model, data, self.ids, world)[:, 2]
         return Constraint(G=G, h=bottom - self.height)
 
 
@@ -135,7 +149,6 @@ class PointTravelLimit(mink.Limit):
         self.points = np.asarray(points, dtype=float).reshape(-1, 3)
         self.anchors = np.zeros((len(self.body_ids), 3))
         self.radius = np.full(len(self.body_ids), np.inf)
-        self._jac = np.zeros((3, model.nv))
 
     def positions(self, data: mujoco.MjData) -> np.ndarray:
         """World positions of the points in ``data`` (after kinematics). Shape: (N, 3)."""
@@ -161,14 +174,12 @@ class PointTravelLimit(mink.Limit):
         active = np.flatnonzero(np.isfinite(self.radius))
         if not active.size:
             return Constraint()
-        world = self.positions(data)
-        rows, h = [], []
-        for i in active:
-            mujoco.mj_jac(self.model, data, self._jac, None, world[i], int(self.body_ids[i]))
-            rows.append(self._NORMALS @ self._jac[:2])
-            d = world[i, :2] - self.anchors[i, :2]
-            h.append(self.radius[i] * np.cos(np.pi / 8) - self._NORMALS @ d)
-        return Constraint(G=np.vstack(rows), h=np.concatenate(h))
+        world = self.positions(data)[active]
+        jac = point_jacobians(self.model, data, self.body_ids[active], world)[:, :2]  # (A,2,nv)
+        G = np.einsum("kj,ajv->akv", self._NORMALS, jac).reshape(-1, self.model.nv)
+        d = world[:, :2] - self.anchors[active, :2]  # (A, 2)
+        h = self.radius[active, None] * np.cos(np.pi / 8) - d @ self._NORMALS.T  # (A, 8)
+        return Constraint(G=G, h=h.ravel())
 
 
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
@@ -233,8 +244,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             else range(self.max_num_contacts)
         )
         fromto = self._fromto
-        self.min_slack = np.inf
-        active = []
+        active, dists, ends = [], [], []
         for idx in indices:
             g1, g2 = self.geom_id_pairs[idx]
             dist = mujoco.mj_geomDistance(
@@ -242,15 +252,30 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             )
             if abs(dist - self.collision_detection_distance) < 1e-12:
                 continue
-            self.min_slack = min(self.min_slack, dist - self.floors[idx])
             active.append(idx)
-            row = compute_contact_normal_jacobian(
-                model, data, g1, g2, fromto, self._normal, self._jac1, self._jac2
-            )
-            sign = -1.0 if dist >= 0 else 1.0
-            G[idx] = sign * row
+            dists.append(dist)
+            ends.append(fromto.copy())
+        self.min_slack = np.inf
+        if active:
+            # The rows of mink's compute_contact_normal_jacobian, all pairs at once: the
+            # normal (from the first witness point to the second) times the difference of the
+            # two points' Jacobians.
+            idx = np.array(active)
+            d = np.array(dists)
+            ft = np.array(ends)  # (A, 6)
+            geoms = np.array([self.geom_id_pairs[i] for i in active])  # (A, 2)
+            bodies = model.geom_bodyid[geoms]
+            jac1 = point_jacobians(model, data, bodies[:, 0], ft[:, :3])
+            jac2 = point_jacobians(model, data, bodies[:, 1], ft[:, 3:])
+            normal = ft[:, 3:] - ft[:, :3]
+            length = np.linalg.norm(normal, axis=1, keepdims=True)
+            # mju_normalize3's answer for a zero vector.
+            normal = np.where(length > 1e-15, normal / np.maximum(length, 1e-300), [1.0, 0, 0])
+            rows = np.einsum("ak,akv->av", normal, jac2 - jac1)
             # For a penetrating pair the witness normal flips, hence the sign on G.
-            h[idx] = self.gain * (dist - self.floors[idx]) / dt
+            G[idx] = np.where(d >= 0, -1.0, 1.0)[:, None] * rows
+            h[idx] = self.gain * (d - self.floors[idx]) / dt
+            self.min_slack = float(np.min(d - self.floors[idx]))
         self._active = active
         return Constraint(G=G, h=h)
 
