@@ -149,7 +149,7 @@ def _case_unknown_joint_names(tmp: Path, data: Path) -> Case:
     src.write_text(src.read_text().replace("LeftUpLeg", "LeftThigh"))
     return Case(
         ["retarget", str(src), "--out", str(tmp / "out" / "m.npz")],
-        ["cmu_g1.yaml", "keypoints.left_hip.human", "'LeftUpLeg'", "LeftThigh"],
+        ["skeletons/cmu.yaml", "keypoints.left_hip.human", "'LeftUpLeg'", "LeftThigh"],
     )
 
 

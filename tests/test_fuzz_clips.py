@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from numpy.lib import format as npformat
 
 from archives import zip_bytes
@@ -27,7 +28,7 @@ from humimic.datasets import load_bvh, load_clip, load_positions
 from humimic.datasets.scene import load_scene
 from humimic.errors import HumimicError
 from humimic.io import read_yaml
-from humimic.robots.maps import builtin_maps, load_map_file
+from humimic.robots.maps import get_map, load_map_file, map_data
 
 # --------------------------------------------------------------------------- valid inputs
 
@@ -82,7 +83,7 @@ PHYSICS = (
     "  - payload_mass:torso_link=6.0\n"
 )
 
-MAP_TEXT = builtin_maps()[("cmu", "g1")].read_text()
+MAP_TEXT = yaml.safe_dump(map_data(get_map("cmu", "g1")), sort_keys=False)
 MAP_BODIES = set(re.findall(r"^\s+body: (\S+)$", MAP_TEXT, flags=re.MULTILINE))
 
 # Values that break parsers: not numbers, not finite, too large for a float, negative, empty.

@@ -213,6 +213,12 @@ def print_summary(r: dict, path: Path, spacing: float | None = None) -> None:
         f"(max {r['max_self_penetration_mm']:.1f} mm) | jerk {r['mean_joint_jerk']:.0f} rad/s^3"
         + _knees(r)
     )
+    if "map_written" in r:
+        print(
+            f"  map: no shipped skeleton map fits {Path(r['input']).name}'s joints; one was "
+            f"proposed from their names and tree: {r['map_written']} (check it, edit it, and "
+            f"give it back with --map {r['map_written']})"
+        )
     if "max_scene_penetration_mm" in r:
         k = r["kinematic"]
         print(

@@ -9,14 +9,18 @@ from __future__ import annotations
 import json
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
+
+import yaml
 
 from humimic.configs import DynamicsConfig, InteractionConfig, RetargetConfig
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
 from humimic.motion import Motion, save_motion
+from humimic.robots.maps import builtin_maps, compose_map, map_data, robot_map_file
+from humimic.robots.maps.detect import match_skeleton, propose_skeleton_map
 
 if TYPE_CHECKING:
     from humimic.datasets import HumanClip
@@ -107,6 +111,8 @@ class ClipJob:
         scene: Its scene (``interaction-mesh``), else None.
         motion_path: Where its motion goes (``.npz``).
         report_path: Where its JSON report goes, or None.
+        map_path: Where the map proposed for its rig goes (``<motion>.map.yaml``), or None
+            where a shipped or given map is used.
     """
 
     source: Path
@@ -114,6 +120,7 @@ class ClipJob:
     scene: Scene | None
     motion_path: Path
     report_path: Path | None
+    map_path: Path | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -174,6 +181,11 @@ class RetargetBatch:
             report = json_ready(
                 {**result.report, **extra, "start_frame": int(clip.meta["start_frame"])}
             )
+            if job.map_path is not None:
+                # Written first: a motion is never left without the map that made it.
+                text = yaml.safe_dump(map_data(retargeter.map), sort_keys=False)
+                atomic_write_text(job.map_path, text)
+                report["map_written"] = str(job.map_path)
             save_with_report(motion, job.motion_path, report, job.report_path)
             yield ClipResult(source=job.source, motion_path=job.motion_path,
                              report_path=job.report_path, report=report)  # fmt: skip
@@ -318,6 +330,24 @@ def plan_retarget(
     retargeters: dict[str, Retargeter] = {}
     for (f, _), (motion_path, report_path) in zip(files, outs, strict=True):
         clip = _read_clip(f, units, up, skeleton, start)
+        rmap, map_path = None, None
+        if map_file is None and skeleton is None and (clip.skeleton, robot) not in builtin_maps():
+            # A rig with no shipped map: a shipped skeleton map its joint names match, or a
+            # map proposed from its joint names and tree (written next to the motion).
+            robot_file = robot_map_file(robot)
+            if robot_file is None:
+                raise InputError(f"--robot {robot}: no shipped robot map; give one with --map")
+            sk = match_skeleton(clip.names) or propose_skeleton_map(
+                clip.names, clip.parents, str(f)
+            )
+            rmap = compose_map(sk, robot_file)
+            if sk.skeleton == "proposed":
+                map_path = motion_path.with_suffix(".map.yaml")
+                check_not_input(map_path, {f"the input {f}": f}, "the proposed map")
+                check_writable(map_path)
+                clip = replace(clip, skeleton=f"proposed:{f}")
+            else:
+                clip = replace(clip, skeleton=sk.skeleton)
         if clip.skeleton not in retargeters:
             retargeters[clip.skeleton] = Retargeter(
                 robot,
@@ -325,6 +355,7 @@ def plan_retarget(
                 ik,
                 map_file=map_file,
                 menagerie_root=menagerie_root,
+                retarget_map=rmap,
                 method="kinematic" if method == "dynamics" else method,
                 mesh=mesh,
             )
@@ -335,7 +366,7 @@ def plan_retarget(
 
             clip_scene = load_scene(f.parent if auto_scene else scene)
         jobs.append(ClipJob(source=f, clip=clip, scene=clip_scene, motion_path=motion_path,
-                            report_path=report_path))  # fmt: skip
+                            report_path=report_path, map_path=map_path))  # fmt: skip
     return RetargetBatch(jobs=jobs, retargeters=retargeters, method=method, fps=ik.fps, dyn=dyn)
 
 

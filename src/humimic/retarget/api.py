@@ -54,6 +54,7 @@ class Retargeter:
         map_file: str | Path | None = None,
         menagerie_root: str | Path | None = None,
         *,
+        retarget_map: RetargetMap | None = None,
         method: str = "kinematic",
         mesh: InteractionConfig | None = None,
     ) -> None:
@@ -62,9 +63,10 @@ class Retargeter:
             raise InputError(f"method {method!r}: expected one of {', '.join(METHODS)}")
         self.method = method
         self.robot = get_robot(robot)
-        self.map: RetargetMap = (
-            load_map_file(map_file) if map_file is not None else get_map(skeleton, robot)
-        )
+        if retarget_map is not None:
+            self.map: RetargetMap = retarget_map
+        else:
+            self.map = load_map_file(map_file) if map_file is not None else get_map(skeleton, robot)
         self.cfg = cfg
         self.interaction: InteractionMeshRetargeter | None = None
         if method == "interaction-mesh":

@@ -1,9 +1,16 @@
-"""Human-to-robot maps: typed, validated data, one YAML file per skeleton/robot pair.
+"""Human-to-robot maps: typed, validated data.
 
 A map names, for each key point, the human joint and the robot point (a body origin plus an
 optional offset in that body's frame) that correspond, the key point's parent in the scaling
 tree, and its task weight. Frames (orientation targets) are derived from key points the same
 way on the human and on the robot, so no per-file rest-pose convention is needed.
+
+The shipped maps are not written per (skeleton, robot) pair: the key points are humimic's
+canonical ones (:data:`CANONICAL_KEYPOINTS`), a *skeleton map* (``skeletons/<name>.yaml``)
+names each one's joint in a skeleton, and a *robot map* (``robots/<name>.yaml``) says where
+each one is on a robot. N skeletons and M robots make N x M maps from N + M files
+(:func:`get_map`). A user's own map (``--map FILE``) is one file in the combined form
+(:func:`parse_map`; :func:`map_data` writes any map in it).
 """
 
 from __future__ import annotations
@@ -18,6 +25,16 @@ from humimic.errors import InputError, MapError
 from humimic.io import read_yaml
 
 SCHEMA_VERSION = 1
+
+CANONICAL_KEYPOINTS = (
+    "pelvis", "neck", "head",
+    "left_hip", "left_knee", "left_ankle", "left_toe",
+    "right_hip", "right_knee", "right_ankle", "right_toe",
+    "left_shoulder", "left_elbow", "left_wrist", "left_hand",
+    "right_shoulder", "right_elbow", "right_wrist", "right_hand",
+)  # fmt: skip
+"""The human key points every shipped skeleton and robot map uses (a robot map may use a
+subset; a skeleton map names a joint for each one it can)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -256,24 +273,142 @@ def load_map_file(path: str | Path) -> RetargetMap:
     return parse_map(data, str(p))
 
 
-def builtin_maps() -> dict[tuple[str, str], Path]:
-    """Shipped maps: (skeleton, robot) -> file."""
-    out: dict[tuple[str, str], Path] = {}
-    for entry in resources.files(__name__).iterdir():
-        name = entry.name
-        if name.endswith(".yaml"):
-            skeleton, robot = name[: -len(".yaml")].rsplit("_", 1)
-            out[(skeleton, robot)] = Path(str(entry))
-    return out
+def _read(path: Path, kind: str) -> dict:
+    try:
+        data = read_yaml(path)
+    except InputError as e:
+        raise MapError(str(e)) from None
+    if not isinstance(data, dict):
+        raise MapError(f"{path}: expected a mapping at the top level")
+    if data.get("schema_version") != SCHEMA_VERSION:
+        raise MapError(
+            f"{path}: schema_version is {data.get('schema_version')!r}, expected {SCHEMA_VERSION}"
+        )
+    if not isinstance(data.get(kind), str):
+        raise MapError(f"{path}: {kind}: expected a name")
+    return data
+
+
+@dataclass(frozen=True, kw_only=True)
+class SkeletonMap:
+    """A skeleton's joint for each canonical key point it has.
+
+    Attributes:
+        skeleton: Its name.
+        joints: Canonical key point -> joint name.
+        source: Where it comes from (a file, or how it was proposed).
+    """
+
+    skeleton: str
+    joints: dict[str, str]
+    source: str
+
+
+def _canonical(value: object, where: str, what: str) -> dict:
+    """``value`` as a non-empty mapping keyed by canonical key points."""
+    if not isinstance(value, dict) or not value:
+        raise MapError(f"{where}: expected a non-empty mapping of {what}")
+    unknown = [k for k in value if k not in CANONICAL_KEYPOINTS]
+    if unknown:
+        raise MapError(
+            f"{where}: {unknown} are not canonical key points ({', '.join(CANONICAL_KEYPOINTS)})"
+        )
+    return value
+
+
+def load_skeleton_map(path: str | Path) -> SkeletonMap:
+    """Read a skeleton map file (``joints``: canonical key point -> joint name)."""
+    p = Path(path)
+    data = _read(p, "skeleton")
+    joints = _canonical(data.get("joints"), f"{p}: joints", "key points to joint names")
+    bad = [k for k, v in joints.items() if not isinstance(v, str) or not v]
+    if bad:
+        raise MapError(f"{p}: joints: {bad}: expected joint names (text)")
+    return SkeletonMap(skeleton=data["skeleton"], joints=dict(joints), source=str(p))
+
+
+def compose_map(skeleton: str | Path | SkeletonMap, robot_file: str | Path) -> RetargetMap:
+    """The (skeleton, robot) map made of a skeleton map (a file or a :class:`SkeletonMap`)
+    and a robot map (the combined form without ``skeleton`` and the key points' ``human``),
+    with errors naming the file and the key point."""
+    sk = skeleton if isinstance(skeleton, SkeletonMap) else load_skeleton_map(skeleton)
+    rp = Path(robot_file)
+    rb = _read(rp, "robot")
+    kps = _canonical(rb.get("keypoints"), f"{rp}: keypoints", "key points")
+    combined = {}
+    for k, v in kps.items():
+        if not isinstance(v, dict):
+            raise MapError(f"{rp}: keypoints.{k}: expected a mapping, got {type(v).__name__}")
+        if "human" in v:
+            raise MapError(f"{rp}: keypoints.{k}.human: a robot map names no human joint")
+        if k not in sk.joints:
+            raise MapError(
+                f"{sk.source}: joints: no joint for the key point {k!r}, which {rp.name} uses"
+            )
+        combined[k] = {"human": sk.joints[k], **v}
+    data = {**rb, "skeleton": sk.skeleton, "keypoints": combined}
+    return parse_map(data, f"{sk.source} + {rp}")
+
+
+def map_data(m: RetargetMap) -> dict:
+    """``m`` in the combined YAML form :func:`parse_map` reads (``--map FILE``)."""
+    kps = {}
+    for name, kp in m.keypoints.items():
+        d: dict = {"human": kp.human, "body": kp.body}
+        if kp.offset != (0.0, 0.0, 0.0):
+            d["offset"] = list(kp.offset)
+        for key in ("parent", "frame"):
+            if getattr(kp, key) is not None:
+                d[key] = getattr(kp, key)
+        d["weight"] = kp.weight
+        kps[name] = d
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "skeleton": m.skeleton,
+        "robot": m.robot,
+        "root": m.root,
+        "posture_weight": m.posture_weight,
+        "keypoints": kps,
+        "frames": {
+            n: {"body": f.body, "left": list(f.left), "up": list(f.up), "weight": f.weight}
+            for n, f in m.frames.items()
+        },
+        "feet": {n: dataclasses.asdict(f) for n, f in m.feet.items()},
+    }
+
+
+def _shipped(kind: str) -> dict[str, Path]:
+    folder = resources.files(__name__).joinpath(kind)
+    return {
+        e.name[: -len(".yaml")]: Path(str(e)) for e in folder.iterdir() if e.name.endswith(".yaml")
+    }
+
+
+def skeleton_maps() -> dict[str, SkeletonMap]:
+    """The shipped skeleton maps, by skeleton name."""
+    return {name: load_skeleton_map(p) for name, p in _shipped("skeletons").items()}
+
+
+def robot_map_file(robot: str) -> Path | None:
+    """The shipped robot map of ``robot``, or None."""
+    return _shipped("robots").get(robot)
+
+
+def builtin_maps() -> dict[tuple[str, str], tuple[Path, Path]]:
+    """Shipped maps: (skeleton, robot) -> (skeleton map file, robot map file), every pair of
+    a shipped skeleton map and a shipped robot map."""
+    skeletons, robots = _shipped("skeletons"), _shipped("robots")
+    return {(s, r): (sp, rp) for s, sp in skeletons.items() for r, rp in robots.items()}
 
 
 def get_map(skeleton: str, robot: str) -> RetargetMap:
     """The shipped map for a skeleton/robot pair."""
     maps = builtin_maps()
     if (skeleton, robot) not in maps:
-        pairs = ", ".join(f"{s}->{r}" for s, r in sorted(maps))
+        skeletons = ", ".join(sorted({s for s, _ in maps}))
+        robots = ", ".join(sorted({r for _, r in maps}))
         raise MapError(
-            f"no map from skeleton {skeleton!r} to robot {robot!r}; shipped maps: {pairs}. "
-            "Pass --map FILE to use your own."
+            f"no map from skeleton {skeleton!r} to robot {robot!r}; shipped skeleton maps: "
+            f"{skeletons}; robot maps: {robots}. Pass --map FILE to use your own."
         )
-    return load_map_file(maps[(skeleton, robot)])
+    return compose_map(*maps[(skeleton, robot)])
