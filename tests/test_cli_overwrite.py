@@ -124,10 +124,10 @@ def test_view_screenshot_is_not_the_motion(
 def test_unknown_robot_names_the_flag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The parser refuses a robot the registry lacks (exit 2), listing the registered ones."""
     with pytest.raises(SystemExit) as info:
-        main(["sysid", "simulate", "--robot", "h1", "--out", str(tmp_path / "x.mcap")])
+        main(["sysid", "simulate", "--robot", "atlas", "--out", str(tmp_path / "x.mcap")])
     assert info.value.code == 2
     err = capsys.readouterr().err
-    assert "--robot" in err and "'h1'" in err and "g1" in err and "t1" in err
+    assert "--robot" in err and "'atlas'" in err and "g1" in err and "t1" in err
     assert list(tmp_path.iterdir()) == []
 
 

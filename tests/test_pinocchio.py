@@ -70,7 +70,7 @@ def _inverse(model: mujoco.MjModel, q: np.ndarray, v: np.ndarray, a: np.ndarray)
     return d.qfrc_inverse.copy()
 
 
-@pytest.mark.parametrize("robot", ["g1", "t1"])
+@pytest.mark.parametrize("robot", ["g1", "h1", "t1"])
 def test_model_matches_mujoco(robot: str) -> None:
     mj = nominal_model(get_robot(robot))
     r = PinocchioRobot.from_mujoco(mj)

@@ -283,3 +283,16 @@ def test_planted_feet_do_not_slide(shared_data: Path, name: str) -> None:
     assert free.report["planted_foot_skating_mm_per_s"] > 1.1e3 * cfg.planted_speed
     ratio = held.report["keypoint_error_mm_mean"] / free.report["keypoint_error_mm_mean"]
     assert ratio <= 1.10
+
+
+def test_the_h1_retargets_the_walk_on_capsule_feet(shared_data: Path) -> None:
+    """The third robot (issue 55), with its own robot map and the CMU skeleton map: its feet
+    are capsules (found as contact points: an enum compared with a numpy integer by ``in``
+    once dropped them and refused the robot), and the walk meets the bars."""
+    r = _retarget(shared_data, "cmu/35_01.bvh", robot="h1").report
+    assert r["joint_limit_violations"] == 0
+    assert r["max_ground_penetration_mm"] <= 5.0
+    assert r["self_collision_frames"] == 0
+    assert r["planted_foot_skating_mm_per_s"] <= 60.0
+    assert r["median_lowest_foot_mm"] <= 15.0
+    assert r["keypoint_error_mm_mean"] <= 25.0

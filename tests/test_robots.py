@@ -27,7 +27,7 @@ from humimic.robots import (
 from humimic.robots.actuators import g1_actuators
 from humimic.robots.assets import envpool_menagerie_root, find_robot_file
 
-ROBOT_NAMES = ["g1", "t1"]
+ROBOT_NAMES = sorted(ROBOTS)
 
 
 def _sig6(x: float) -> float:

@@ -40,7 +40,7 @@ def _mujoco_filter_pairs(model: mujoco.MjModel, geoms: list[int]) -> set[tuple[i
     return out
 
 
-@pytest.mark.parametrize("robot", ["g1", "t1"])
+@pytest.mark.parametrize("robot", ["g1", "h1", "t1"])
 def test_pairs_are_every_pair_mujocos_contact_filter_tests(robot: str) -> None:
     """No exemption by proximity at rest or by mechanism: the pairs are exactly those MuJoCo
     itself would test (same and parent-child bodies and <exclude> pairs left out)."""

@@ -32,7 +32,7 @@ def foot_contact_points(
                 model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
             ):
                 continue
-            t = model.geom_type[g]
+            t = int(model.geom_type[g])
             size = model.geom_size[g]
             pos = model.geom_pos[g]
             rot = np.zeros(9)

@@ -140,3 +140,27 @@ def t1_actuators() -> ActuatorRecipe:
             r"Waist": waist,
         }
     )
+
+
+def h1_actuators() -> ActuatorRecipe:
+    """Unitree H1 (19 DoF).
+
+    The model's own numbers (Menagerie ``unitree_h1``): every joint's armature is its default
+    0.1 kg m^2, the effort limits are its motors' ``ctrlrange`` (hips and torso 200, knees 300,
+    ankles, shoulder pitch and roll 40, shoulder yaw and elbows 18 N m). The model gives no
+    joint speeds: 20 rad/s is a stated default (the G1's slowest motor's), not a measured
+    figure.
+    """
+    speed = 20.0
+
+    def motor(effort: float) -> MotorSpec:
+        return MotorSpec(armature=0.1, effort_limit=effort, velocity_limit=speed)
+
+    return ActuatorRecipe(
+        motors={
+            r".*_hip_(yaw|roll|pitch)|torso": motor(200.0),
+            r".*_knee": motor(300.0),
+            r".*_ankle|.*_shoulder_(pitch|roll)": motor(40.0),
+            r".*_shoulder_yaw|.*_elbow": motor(18.0),
+        }
+    )

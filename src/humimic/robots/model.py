@@ -103,7 +103,37 @@ def _nominal_spec(
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.forcerange = np.array([-a.effort_limit, a.effort_limit])
+    _fromto_as_written(spec)
     return spec, acts, path
+
+
+def _sig6(x: float) -> float:
+    return float(f"{x:.6g}")
+
+
+def _fromto_as_written(spec: mujoco.MjSpec) -> None:
+    """Capsules and cylinders given by ``fromto`` (the H1's legs and feet) as the position,
+    orientation and half-length MuJoCo's XML writer prints for them, six significant digits:
+    so that the model simulated and the one ``robots export`` writes are the same numbers (the
+    writer turned a half-length of 0.2109502 into 0.21095). A change below 1e-6 m."""
+    kinds = (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER)
+    for g in spec.geoms:
+        ft = np.asarray(g.fromto, dtype=float)
+        if int(g.type) not in [int(k) for k in kinds] or not np.all(np.isfinite(ft)):
+            continue
+        a, b = ft[:3], ft[3:]
+        axis = b - a
+        length = float(np.linalg.norm(axis))
+        if length < 1e-12:
+            continue
+        quat = np.zeros(4)
+        mujoco.mju_quatZ2Vec(quat, axis / length)
+        g.pos = np.array([_sig6(v) for v in (a + b) / 2])
+        g.quat = np.array([_sig6(v) for v in quat])
+        size = np.array(g.size, dtype=float)
+        size[1] = _sig6(length / 2)
+        g.size = size
+        g.fromto = np.full(6, np.nan)
 
 
 def _one_line(e: BaseException) -> str:

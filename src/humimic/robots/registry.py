@@ -6,7 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from humimic.errors import UnknownNameError
-from humimic.robots.actuators import ActuatorRecipe, g1_actuators, t1_actuators
+from humimic.robots.actuators import ActuatorRecipe, g1_actuators, h1_actuators, t1_actuators
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,7 +91,31 @@ def t1() -> RobotConfig:
     )
 
 
-ROBOTS: dict[str, Callable[[], RobotConfig]] = {"g1": g1, "t1": t1}
+def h1() -> RobotConfig:
+    """Unitree H1, 19 DoF (MuJoCo Menagerie ``unitree_h1``, BSD-3-Clause). No wrists: the
+    hand is the end of the elbow link."""
+    return RobotConfig(
+        name="h1",
+        description="Unitree H1 humanoid, 19 DoF",
+        menagerie_dir="unitree_h1",
+        robot_descriptions_module="h1_mj_description",
+        license="BSD-3-Clause (Unitree Robotics), via MuJoCo Menagerie",
+        root_body="pelvis",
+        feet={"left": "left_ankle_link", "right": "right_ankle_link"},
+        actuators=h1_actuators(),
+        key_bodies=(
+            "pelvis",
+            *(f"left_{b}_link" for b in ("hip_roll", "knee", "ankle")),
+            *(f"right_{b}_link" for b in ("hip_roll", "knee", "ankle")),
+            "torso_link",
+            *(f"left_{b}_link" for b in ("shoulder_roll", "elbow")),
+            *(f"right_{b}_link" for b in ("shoulder_roll", "elbow")),
+        ),
+        torso_body="torso_link",
+    )
+
+
+ROBOTS: dict[str, Callable[[], RobotConfig]] = {"g1": g1, "h1": h1, "t1": t1}
 """Registry: name -> factory."""
 
 

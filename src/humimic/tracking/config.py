@@ -377,7 +377,27 @@ def t1_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
     return _task("t1", T1_EE_BODIES, undesired, dr)
 
 
-TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {"g1": g1_tracking, "t1": t1_tracking}
+H1_EE_BODIES = ("left_ankle_link", "right_ankle_link", "left_elbow_link", "right_elbow_link")
+"""The H1's feet and hands (no wrists: a hand is the end of its elbow link)."""
+
+
+def h1_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """Unitree H1 whole-body tracking, with the G1 task's terms and weights (not tuned for the
+    H1). The torso is the anchor; every body but the feet is an undesired floor contact."""
+    feet = ("left_ankle_link", "right_ankle_link")
+    undesired = (
+        *(b for b in get_robot("h1").key_bodies if b not in feet),
+        *(f"{s}_{b}_link" for s in ("left", "right")
+          for b in ("hip_yaw", "hip_pitch", "shoulder_pitch", "shoulder_yaw")),
+    )  # fmt: skip
+    return _task("h1", H1_EE_BODIES, undesired, dr)
+
+
+TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {
+    "g1": g1_tracking,
+    "h1": h1_tracking,
+    "t1": t1_tracking,
+}
 """Registered tracking tasks: robot name -> task factory taking a DR profile."""
 
 
