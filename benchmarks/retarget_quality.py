@@ -70,7 +70,7 @@ def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1"])
+    parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid"])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     args = parser.parse_args()
     paths = clips(args.data)

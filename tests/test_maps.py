@@ -281,5 +281,8 @@ def test_get_map_unknown_pair_lists_shipped_maps() -> None:
         get_map("cmu", "atlas")
     msg = str(info.value)
     assert "'atlas'" in msg
-    assert "skeleton maps: cmu, holosoma, lafan1, mixamo, xsens; robot maps: g1, h1, t1" in msg
+    assert (
+        "skeleton maps: cmu, holosoma, lafan1, mixamo, xsens; robot maps: berkeley_humanoid, g1, h1, t1"
+        in msg
+    )
     assert isinstance(info.value, HumimicError)

@@ -164,3 +164,23 @@ def h1_actuators() -> ActuatorRecipe:
             r".*_shoulder_yaw|.*_elbow": motor(18.0),
         }
     )
+
+
+def berkeley_humanoid_actuators() -> ActuatorRecipe:
+    """Berkeley Humanoid (12 DoF, legs only; Menagerie ``berkeley_humanoid``).
+
+    The model's own numbers: armatures and effort limits per joint class (hip roll and
+    abduction 0.0056 kg m^2 and 20 N m, hip flexion 0.007614 and 30, knee 0.0056 and 30, ankle
+    flexion 0.0056 and 20, ankle abduction 0.0004941 and 5). The model gives no joint speeds:
+    20 rad/s is a stated default, not a measured figure.
+    """
+    speed = 20.0
+    return ActuatorRecipe(
+        motors={
+            r"L[LR]_H(R|AA)": MotorSpec(armature=0.0056, effort_limit=20.0, velocity_limit=speed),
+            r"L[LR]_HFE": MotorSpec(armature=0.007614, effort_limit=30.0, velocity_limit=speed),
+            r"L[LR]_KFE": MotorSpec(armature=0.0056, effort_limit=30.0, velocity_limit=speed),
+            r"L[LR]_FFE": MotorSpec(armature=0.0056, effort_limit=20.0, velocity_limit=speed),
+            r"L[LR]_FAA": MotorSpec(armature=0.0004941, effort_limit=5.0, velocity_limit=speed),
+        }
+    )

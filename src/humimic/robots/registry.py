@@ -6,7 +6,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from humimic.errors import UnknownNameError
-from humimic.robots.actuators import ActuatorRecipe, g1_actuators, h1_actuators, t1_actuators
+from humimic.robots.actuators import (
+    ActuatorRecipe,
+    berkeley_humanoid_actuators,
+    g1_actuators,
+    h1_actuators,
+    t1_actuators,
+)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -115,7 +121,29 @@ def h1() -> RobotConfig:
     )
 
 
-ROBOTS: dict[str, Callable[[], RobotConfig]] = {"g1": g1, "h1": h1, "t1": t1}
+def berkeley_humanoid() -> RobotConfig:
+    """Berkeley Humanoid, 12 DoF, legs only (MuJoCo Menagerie ``berkeley_humanoid``,
+    BSD-3-Clause). The torso is the base and the anchor."""
+    return RobotConfig(
+        name="berkeley_humanoid",
+        description="Berkeley Humanoid, 12 DoF, legs only",
+        menagerie_dir="berkeley_humanoid",
+        xml="scene.xml",
+        license="BSD-3-Clause (Hybrid Robotics), via MuJoCo Menagerie",
+        root_body="torso",
+        feet={"left": "ll_faa", "right": "lr_faa"},
+        actuators=berkeley_humanoid_actuators(),
+        key_bodies=("torso", "ll_hfe", "ll_kfe", "ll_faa", "lr_hfe", "lr_kfe", "lr_faa"),
+        torso_body="torso",
+    )
+
+
+ROBOTS: dict[str, Callable[[], RobotConfig]] = {
+    "berkeley_humanoid": berkeley_humanoid,
+    "g1": g1,
+    "h1": h1,
+    "t1": t1,
+}
 """Registry: name -> factory."""
 
 

@@ -393,7 +393,20 @@ def h1_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
     return _task("h1", H1_EE_BODIES, undesired, dr)
 
 
+def berkeley_humanoid_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """Berkeley Humanoid (legs only) whole-body tracking, with the G1 task's terms and weights
+    (not tuned for it). The torso is the anchor; the feet are the end effectors; every other
+    body is an undesired floor contact."""
+    feet = ("ll_faa", "lr_faa")
+    undesired = (
+        *(b for b in get_robot("berkeley_humanoid").key_bodies if b not in feet),
+        *(f"{s}_{b}" for s in ("ll", "lr") for b in ("hr", "haa", "ffe")),
+    )
+    return _task("berkeley_humanoid", feet, undesired, dr)
+
+
 TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {
+    "berkeley_humanoid": berkeley_humanoid_tracking,
     "g1": g1_tracking,
     "h1": h1_tracking,
     "t1": t1_tracking,
