@@ -44,9 +44,11 @@ def run_list(cmd: RobotsList) -> None:
     from humimic.robots import get_robot, robot_names
 
     del cmd
-    for name in robot_names():
+    names = robot_names()
+    width = max(map(len, names), default=0)
+    for name in names:
         cfg = get_robot(name)
-        print(f"{name:6s} {cfg.description} [{cfg.license}]")
+        print(f"{name:{width}s} {cfg.description} [{cfg.license}]")
 
 
 def run_export(cmd: RobotsExport) -> None:
