@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -296,3 +298,31 @@ def test_the_h1_retargets_the_walk_on_capsule_feet(shared_data: Path) -> None:
     assert r["planted_foot_skating_mm_per_s"] <= 60.0
     assert r["median_lowest_foot_mm"] <= 15.0
     assert r["keypoint_error_mm_mean"] <= 25.0
+
+
+def test_a_joint_without_a_range_is_free_not_held_at_zero(shared_data: Path) -> None:
+    """A model joint with no range (``jnt_limited`` 0, every joint of Menagerie's OP3) has
+    ``jnt_range`` [0, 0]: taken as bounds it held the joint at 0 in the IK, and the report
+    counted every other angle as a violation. Here the G1's elbows are made unlimited in the
+    model the report measures."""
+    from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX
+    from humimic.retarget.metrics import evaluate
+
+    out = _retarget(shared_data, "cmu/35_01.bvh")
+    rt = _retargeter("g1", "cmu")
+    model = copy.deepcopy(rt.ik.model)
+    elbows = [model.joint(n).id for n in ("left_elbow_joint", "right_elbow_joint")]
+    qpos = out.motion.qpos.copy()
+    adr = model.jnt_qposadr[elbows]
+    qpos[:, adr] = model.jnt_range[elbows, 1] + 0.3  # Beyond the elbows' range.
+    args: dict[str, Any] = dict(
+        keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in rt.map.keypoints],
+        keypoint_targets=out.motion.extras["keypoint_targets"],  # type: ignore[index]
+        foot_bodies=[f.body for f in rt.map.feet.values()],
+        self_collision=np.zeros((0, 2), dtype=int),
+    )
+    limited, _ = evaluate(model, qpos, out.motion.fps, **args)
+    assert limited.joint_limit_violations == 2 * len(qpos)
+    model.jnt_limited[elbows] = 0
+    free, _ = evaluate(model, qpos, out.motion.fps, **args)
+    assert free.joint_limit_violations == 0

@@ -220,8 +220,10 @@ class KinematicRetargeter:
         self.tasks: list[mink.Task] = [self.keypoints, self.orientations, self.posture]
         self._root = list(m.keypoints).index(m.root)
         self._frame_weights = np.array([fr.weight for fr in m.frames.values()])
-        self._range_lo = model.jnt_range[1:, 0].copy()
-        self._range_hi = model.jnt_range[1:, 1].copy()
+        # Joints without a range (jnt_limited 0: the OP3's) are free, not held at [0, 0].
+        limited = model.jnt_limited[1:].astype(bool)
+        self._range_lo = np.where(limited, model.jnt_range[1:, 0], -np.inf)
+        self._range_hi = np.where(limited, model.jnt_range[1:, 1], np.inf)
         joint_names = [model.joint(j).name for j in range(1, model.njnt)]
         self.speed_limits = np.array([speed.get(j, np.inf) for j in joint_names])
         foot_bodies = [f.body for f in m.feet.values()]

@@ -208,7 +208,9 @@ def evaluate(
         planted_skating = float(speed[planted].mean()) if planted.any() else None
 
     joints = qpos[:, 7:]
-    lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
+    limited = model.jnt_limited[1:].astype(bool)  # A joint without a range has no limit.
+    lo = np.where(limited, model.jnt_range[1:, 0], -np.inf)
+    hi = np.where(limited, model.jnt_range[1:, 1], np.inf)
     violations = int(np.sum((joints < lo - 1e-6) | (joints > hi + 1e-6)))
     jerk = np.diff(joints, n=3, axis=0) * fps**3 if T > 3 else np.zeros((1, joints.shape[1]))
 
