@@ -205,8 +205,8 @@ def _climb_contacts(shared_data: Path, lift: float, sink: float) -> tuple[int, d
     m = get_map("holosoma", "g1")
     r = InteractionMeshRetargeter(get_robot("g1"), m, RetargetConfig(fps=30.0),
                                   InteractionConfig())  # fmt: skip
-    placed, floor = r.scene_placement(clip, dc_replace(scene, objects=objects))
     tg = r.kin.targets(clip)
+    placed, floor = r.scene_placement(clip, dc_replace(scene, objects=objects), tg)
     found, _ = human_contacts(placed, tg.scaled, contact_radii(m, r.kin.geometry), 0.02)
     return int((found >= 0).sum()), floor
 

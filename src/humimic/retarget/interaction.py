@@ -33,7 +33,7 @@ from humimic.retarget.kinematic import (
 )
 from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.scene import human_contacts, scene_floor
-from humimic.retarget.targets import RobotGeometry, hold_still_points
+from humimic.retarget.targets import RobotGeometry, Targets, hold_still_points
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
 from humimic.robots.maps import RetargetMap
 from humimic.robots.registry import RobotConfig
@@ -205,13 +205,15 @@ class InteractionMeshRetargeter:
 
     def robot_scene(self, clip: HumanClip, scene: Scene) -> Scene:
         """The scene in the robot's frame at the output frame rate, mapped as ``clip`` is."""
-        return self.scene_placement(clip, scene)[0]
+        return self.scene_placement(clip, scene, self.kin.targets(clip))[0]
 
-    def scene_placement(self, clip: HumanClip, scene: Scene) -> tuple[Scene, dict[str, Any]]:
-        """:meth:`robot_scene`, and where the clip's floor was put (the report's
-        ``scene_floor``: its height in the clip's frame, where that comes from, the human toe
-        joints' resting clearance over the objects, and the height offset used)."""
-        tg = self.kin.targets(clip)
+    def scene_placement(
+        self, clip: HumanClip, scene: Scene, tg: Targets
+    ) -> tuple[Scene, dict[str, Any]]:
+        """:meth:`robot_scene`, given the clip's targets, and where the clip's floor was put
+        (the report's ``scene_floor``: its height in the clip's frame, where that comes from,
+        the human toe joints' resting clearance over the objects, and the height offset
+        used)."""
         T = tg.positions.shape[0]
         start_s = float(clip.meta.get("start_frame", 0)) / clip.fps
         world = scene.resample(tg.fps, T, start_s=start_s)
@@ -232,12 +234,14 @@ class InteractionMeshRetargeter:
         """Retarget ``clip`` in ``scene`` (both in the clip's world frame). ``progress(n)`` is
         called after every frame of each of the two passes (kinematic, then interaction)."""
         icfg = self.icfg
-        scene_r, placement = self.scene_placement(clip, scene)
+        # The targets depend on the robot's geometry alone: the scene-less retargeter's are
+        # the ones the scene's retargeter below would build.
+        tg = self.kin.targets(clip)
+        scene_r, placement = self.scene_placement(clip, scene, tg)
         kin = KinematicRetargeter(self.robot, self.map, self.cfg,
                                   menagerie_root=self.menagerie_root, scene=scene_r)  # fmt: skip
         model, conf = kin.model, kin.configuration
         set_scene_pose(model, conf.data, scene_r, 0)
-        tg = kin.targets(clip)
         names = list(self.map.keypoints)
         foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
         if icfg.still_speed > 0:  # Toe targets still where the human's toes are.

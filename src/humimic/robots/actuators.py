@@ -12,6 +12,12 @@ from dataclasses import dataclass
 from humimic.errors import UnknownNameError
 
 
+def as_written(x: float) -> float:
+    """``x`` to six significant digits, as MuJoCo's XML writer prints it: a number set in a
+    spec this way survives an MJCF round trip (``robots export``) exactly."""
+    return float(f"{x:.6g}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class MotorSpec:
     """One motor (or motor group) as seen from the joint it drives.
@@ -81,11 +87,11 @@ class ActuatorRecipe:
             m = self.motors[hits[0]]
             # Six significant digits: the numbers survive an MJCF round trip exactly, and the
             # gains follow from the armature the simulator actually gets.
-            arm = float(f"{m.armature:.6g}")
+            arm = as_written(m.armature)
             out[joint] = JointActuator(
                 joint=joint,
-                kp=float(f"{arm * wn**2:.6g}"),
-                kd=float(f"{2.0 * self.damping_ratio * arm * wn:.6g}"),
+                kp=as_written(arm * wn**2),
+                kd=as_written(2.0 * self.damping_ratio * arm * wn),
                 effort_limit=m.effort_limit,
                 armature=arm,
                 velocity_limit=m.velocity_limit,

@@ -14,7 +14,7 @@ import numpy as np
 from humimic.errors import InputError, OutputPathError, UnknownNameError
 from humimic.io import atomic_write_text, check_not_input, check_writable
 from humimic.motion import Motion
-from humimic.robots.actuators import JointActuator
+from humimic.robots.actuators import JointActuator, as_written
 from humimic.robots.assets import find_robot_file
 from humimic.robots.registry import RobotConfig
 
@@ -107,10 +107,6 @@ def _nominal_spec(
     return spec, acts, path
 
 
-def _sig6(x: float) -> float:
-    return float(f"{x:.6g}")
-
-
 def _fromto_as_written(spec: mujoco.MjSpec) -> None:
     """Capsules and cylinders given by ``fromto`` (the H1's legs and feet) as the position,
     orientation and half-length MuJoCo's XML writer prints for them, six significant digits:
@@ -128,10 +124,10 @@ def _fromto_as_written(spec: mujoco.MjSpec) -> None:
             continue
         quat = np.zeros(4)
         mujoco.mju_quatZ2Vec(quat, axis / length)
-        g.pos = np.array([_sig6(v) for v in (a + b) / 2])
-        g.quat = np.array([_sig6(v) for v in quat])
+        g.pos = np.array([as_written(v) for v in (a + b) / 2])
+        g.quat = np.array([as_written(v) for v in quat])
         size = np.array(g.size, dtype=float)
-        size[1] = _sig6(length / 2)
+        size[1] = as_written(length / 2)
         g.size = size
         g.fromto = np.full(6, np.nan)
 
