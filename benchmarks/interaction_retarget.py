@@ -100,6 +100,8 @@ def main() -> None:
         total = time.perf_counter() - t
         row = {
             "clip": folder.name,
+            # Where the clip's floor was put: planted toe height = floor_m + toe_clearance_m.
+            "scene_floor": r["scene_floor"],
             "frames": r["frames"],
             "fps": r["fps"],
             "interaction_mesh": {

@@ -8,12 +8,14 @@ robot's geoms on the exported model (`humimic robots export`; parent and child b
 body's own geoms left out) by `mujoco.mj_geomDistance` for self-penetration, and the exported
 model's joint ranges for limit violations.
 
-Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1] [--data PATH]
+Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1 h1 berkeley_humanoid]
+    [--data PATH] [--no-hold-planted-feet]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -72,6 +74,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid"])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument(
+        "--no-hold-planted-feet", action="store_true",
+        help="without the planted-foot limit (--ik.hold-planted-feet false): its cost in "
+        "key-point error is the ratio of the two runs' figures",
+    )  # fmt: skip
     args = parser.parse_args()
     paths = clips(args.data)
     if not paths:
@@ -90,9 +97,10 @@ def main() -> None:
                 if clip.skeleton == "cmu":
                     clip = clip.slice(1)  # Frame 0 is a T-pose added by the BVH converter.
                 if clip.skeleton not in retargeters:
-                    retargeters[clip.skeleton] = Retargeter(
-                        robot, clip.skeleton, retarget_default()
-                    )
+                    cfg = retarget_default()
+                    if args.no_hold_planted_feet:
+                        cfg = dataclasses.replace(cfg, hold_planted_feet=False)
+                    retargeters[clip.skeleton] = Retargeter(robot, clip.skeleton, cfg)
                 result = retargeters[clip.skeleton].run(clip)
                 row = {"clip": p.stem.split("_joint_positions")[0], "robot": robot}
                 row |= {k: result.report.get(k) for k in KEYS}

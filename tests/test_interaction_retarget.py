@@ -215,7 +215,7 @@ def test_the_scene_is_placed_by_where_the_toes_rest_on_it(shared_data: Path) -> 
     """Issue 54: a climbing clip of the same source had 0 human-scene contacts. The scene was
     mapped so that the planted toe *joints* met the robot's toes, but a toe joint rests 3-4 cm
     above the surface under it, so the boxes sank out of the contact detector's reach; and a
-    clip's world floor is no better a reference (its planted toe joints are 1.5-6.1 cm above
+    clip's world floor is no better a reference (its planted toe joints are 1.6-6.5 cm above
     z = 0 on these clips, where they rest 3.4-4.4 cm above the boxes). Now the floor is put
     where the human's toe joints rest as far above it as they rest above the objects: the
     same clip with its joints 4 cm higher, or its boxes 4 cm lower (a capture and a scene

@@ -176,3 +176,23 @@ def test_cmu_names_match_cmu_not_a_map_that_shares_them() -> None:
     found = match_skeleton(names)
     assert found is not None and found.skeleton == "cmu"
     assert match_skeleton(("a", "b")) is None
+
+
+def test_a_motion_that_cannot_be_written_leaves_no_proposed_map(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """The proposed map is written just before its motion; where the motion then cannot be
+    written (here its path became a folder between the check and the write), the map goes
+    too: no half output."""
+    from humimic.errors import HumimicError
+    from humimic.pipeline.batch import plan_retarget
+
+    path = _rig(shared_data, tmp_path, "made_up")
+    out = tmp_path / "out" / "m.npz"
+    out.parent.mkdir()
+    batch = plan_retarget((path,), out, start=1)
+    assert batch.jobs[0].map_path == out.with_suffix(".map.yaml")
+    out.mkdir()  # The motion's path is now taken by a folder.
+    with pytest.raises((HumimicError, OSError)):
+        list(batch.run())
+    assert not out.with_suffix(".map.yaml").exists()

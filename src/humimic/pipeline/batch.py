@@ -182,11 +182,17 @@ class RetargetBatch:
                 {**result.report, **extra, "start_frame": int(clip.meta["start_frame"])}
             )
             if job.map_path is not None:
-                # Written first: a motion is never left without the map that made it.
+                # Written first: a motion is never left without the map that made it, nor
+                # the map without its motion (removed if the motion cannot be written).
                 text = yaml.safe_dump(map_data(retargeter.map), sort_keys=False)
                 atomic_write_text(job.map_path, text)
                 report["map_written"] = str(job.map_path)
-            save_with_report(motion, job.motion_path, report, job.report_path)
+            try:
+                save_with_report(motion, job.motion_path, report, job.report_path)
+            except BaseException:
+                if job.map_path is not None:
+                    job.map_path.unlink(missing_ok=True)
+                raise
             yield ClipResult(source=job.source, motion_path=job.motion_path,
                              report_path=job.report_path, report=report)  # fmt: skip
 

@@ -58,7 +58,7 @@ class Targets:
         z_offset: Height added after scaling: a point of the scene at height ``z`` above the
             human ground maps to ``scale * z + z_offset`` on the robot's side: the clip's
             floor (``floor_height``) onto the robot's floor. (Not the planted toe joints onto
-            the robot's toes: a toe joint rests 1-6 cm above the surface under it, so that
+            the robot's toes: a toe joint rests 3-4 cm above the surface under it, so that
             mapping sank the scene by as much and lost every contact of a climbing clip.)
             [m].
     """
