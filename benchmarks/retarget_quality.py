@@ -5,10 +5,11 @@ For each clip and robot: the report of `humimic retarget` (speed, key-point erro
 skating, ground penetration, feet on the floor, joint-limit violations, self-collision, jerk),
 and the same motion checked by code that shares nothing with the report: every pair of the
 robot's geoms on the exported model (`humimic robots export`; parent and child bodies and one
-body's own geoms left out) by `mujoco.mj_geomDistance` for self-penetration, and the exported
+body's own geoms left out) by `mujoco.mj_geomDistance` for self-penetration (beyond the pair's
+overlap in the model's own rest poses, where its coarse geometry overlaps there), and the exported
 model's joint ranges for limit violations.
 
-Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1 h1 berkeley_humanoid]
+Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1 h1 berkeley_humanoid apollo]
     [--data PATH] [--no-hold-planted-feet]
 """
 
@@ -35,7 +36,8 @@ DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 KEYS = ("frames", "frames_per_second", "keypoint_error_mm_mean", "keypoint_error_mm_p95",
         "foot_skating_mm_per_s", "planted_foot_skating_mm_per_s", "max_ground_penetration_mm", "median_lowest_foot_mm",
         "joint_limit_violations", "self_collision_pairs", "self_collision_frames",
-        "max_self_penetration_mm", "worst_self_collision", "relaxed_qp_iterations",
+        "max_self_penetration_mm", "worst_self_collision", "self_collision_rest_overlaps",
+        "relaxed_qp_iterations",
         "turned_knee_frames")  # fmt: skip
 
 
@@ -55,24 +57,34 @@ def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
              and m.body_parentid[body[b]] != body[a]]  # fmt: skip
     data = mujoco.MjData(m)
     fromto = np.zeros(6)
+    # Each pair's overlap in the model's own poses (qpos0 and its keyframes): a pair the
+    # coarse geometry overlaps at rest counts only as deeper than that.
+    rest = np.zeros(len(pairs))
+    for q in [m.qpos0, *m.key_qpos]:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(m, data)
+        for k, (a, b) in enumerate(pairs):
+            rest[k] = max(rest[k], -mujoco.mj_geomDistance(m, data, a, b, 0.05, fromto))
     depth = np.zeros(len(qpos))
     for t, q in enumerate(qpos):
         data.qpos[:] = q
         mujoco.mj_kinematics(m, data)
-        depth[t] = max(-mujoco.mj_geomDistance(m, data, a, b, 0.05, fromto) for a, b in pairs)
+        depth[t] = max(-mujoco.mj_geomDistance(m, data, a, b, 0.05, fromto) - r
+                       for (a, b), r in zip(pairs, rest, strict=True))  # fmt: skip
     hinge = [j for j in range(m.njnt) if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
     adr = m.jnt_qposadr[hinge]
     lo, hi = m.jnt_range[hinge, 0], m.jnt_range[hinge, 1]
     limited = m.jnt_limited[hinge].astype(bool)
     outside = ((qpos[:, adr] < lo - 1e-6) | (qpos[:, adr] > hi + 1e-6)) & limited
-    return {"pairs": len(pairs), "self_collision_frames": int(np.sum(depth > 1e-3)),
+    return {"pairs": len(pairs), "rest_overlaps": int(np.sum(rest > 0)),
+            "self_collision_frames": int(np.sum(depth > 1e-3)),
             "max_self_penetration_mm": float(1e3 * max(depth.max(), 0.0)),
             "joint_limit_violations": int(outside.sum())}  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid"])
+    parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid", "apollo"])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument(
         "--no-hold-planted-feet", action="store_true",

@@ -304,3 +304,69 @@ def test_user_root_without_file_names_the_folder(tmp_path: Path) -> None:
     assert "scene.xml" in str(info.value)
     with pytest.raises(InputError, match="my_robots"):
         nominal_model(get_robot("g1"), menagerie_root=user)
+
+
+# --- Models whose contacts are explicit pairs (the Apollo) -------------------------------------
+
+
+def _contacts(model: mujoco.MjModel, qpos: np.ndarray) -> list[tuple]:
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    out = []
+    for c in data.contact[: data.ncon]:
+        names = tuple(sorted(model.geom(int(g)).name for g in (c.geom1, c.geom2)))
+        out.append((names, int(c.dim), *np.round(np.r_[c.friction, c.solref, c.solimp,
+                                                       c.pos, c.dist], 9)))  # fmt: skip
+    return sorted(out)
+
+
+def test_apollos_pair_contacts_become_bitmask_contacts_with_the_same_parameters() -> None:
+    """The Apollo's model collides through explicit <pair>s only (every geom, the floor's
+    too, has contype and conaffinity 0). humimic gives its collision geoms (group 3, the
+    pairs' group) conaffinity 1 and moves each sole-floor pair's parameters onto the sole:
+    standing, the contacts are the ones the Menagerie scene makes, number for number; the
+    robot-robot pairs stay the simulated self-contacts; every collision geom now touches the
+    floor (a fall on a knee is felt) and the report's one rule finds them."""
+    cfg = get_robot("apollo")
+    menagerie = mujoco.MjModel.from_xml_path(str(find_robot_file(cfg.menagerie_dir, cfg.xml)))
+    model = nominal_model(cfg)
+    stand = menagerie.key_qpos[0]
+    assert np.array_equal(model.key_qpos[0], stand)
+    theirs, ours = _contacts(menagerie, stand), _contacts(model, stand)
+    assert len(theirs) == 4 and {c[0] for c in theirs} == {
+        ("collision_l_sole", "floor"), ("collision_r_sole", "floor")}  # fmt: skip
+    assert ours == theirs
+    collision = [g for g in range(model.ngeom) if model.geom_group[g] == 3]
+    assert len(collision) == 18
+    assert all((model.geom_contype[g], model.geom_conaffinity[g]) == (0, 1) for g in collision)
+    floor = model.geom(cfg.floor_geom).id
+    assert (model.geom_contype[floor], model.geom_conaffinity[floor]) == (1, 1)
+    pairs = {tuple(sorted(model.geom(int(g)).name for g in p))
+             for p in zip(model.pair_geom1, model.pair_geom2, strict=True)}  # fmt: skip
+    assert len(pairs) == 4 and all("floor" not in p for p in pairs)
+    # A knee on the floor: a contact the Menagerie scene would not make.
+    low = stand.copy()
+    low[2] -= 0.5
+    assert any("floor" in c[0] and "shin" in " ".join(c[0]) for c in _contacts(model, low))
+    assert not any("shin" in " ".join(c[0]) for c in _contacts(menagerie, low))
+
+
+def test_a_model_with_no_collision_geometry_is_refused(tmp_path: Path) -> None:
+    """Every geom with contype and conaffinity 0 and no pair naming one: exit 2 material."""
+    xml = tmp_path / "robot.xml"
+    xml.write_text("""<mujoco><worldbody><geom name="floor" type="plane" size="1 1 .1"/>
+      <body name="pelvis" pos="0 0 1"><freejoint/>
+        <geom type="sphere" size="0.1" contype="0" conaffinity="0"/>
+        <body name="left_ankle_roll_link"><joint axis="0 1 0"/>
+          <geom type="sphere" size="0.05" contype="0" conaffinity="0"/></body>
+        <body name="right_ankle_roll_link"><joint name="j2" axis="0 1 0"/>
+          <geom type="sphere" size="0.05" contype="0" conaffinity="0"/></body>
+      </body></worldbody>
+      <actuator><position joint="j2"/></actuator></mujoco>""")
+    cfg = get_robot("g1")
+    from dataclasses import replace
+
+    cfg = replace(cfg, menagerie_dir="x", xml="robot.xml")
+    with pytest.raises(InputError, match=r"robot.xml: no geom of robot g1 collides"):
+        nominal_spec(cfg, menagerie_root=tmp_path)

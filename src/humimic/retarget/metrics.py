@@ -9,6 +9,7 @@ import numpy as np
 
 from humimic.datasets.scene import Scene
 from humimic.retarget.limits import CONTACT_HEIGHT, contact_point_heights, foot_contact_points
+from humimic.robots.collision import rest_distances
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -32,8 +33,13 @@ class QualityReport:
         self_collision_pairs: Geom pairs checked for self-collision: every pair of the
             robot's collision geoms that MuJoCo could collide and that do not touch in the
             default pose (:func:`~humimic.robots.collision.self_collision_pairs`).
-        self_collision_frames: Frames in which a self-collision pair penetrates deeper than 1 mm.
-        max_self_penetration_mm: Deepest penetration among the self-collision pairs.
+        self_collision_frames: Frames in which a self-collision pair penetrates deeper than 1 mm
+            beyond its overlap at rest (0 for a pair apart at rest).
+        max_self_penetration_mm: Deepest penetration among the self-collision pairs, beyond
+            each pair's overlap at rest.
+        self_collision_rest_overlaps: Pairs whose geoms overlap in the model's own rest poses
+            (``qpos0`` and keyframes; the Apollo's arm and wrist capsules): the coarse
+            geometry's, not the motion's, so they count only where the motion puts them deeper.
         worst_self_collision: The bodies of the deepest penetrating pair, ``"a | b"`` (empty
             when no pair penetrates).
         mean_joint_jerk: Mean absolute third derivative of the joint angles [rad/s^3].
@@ -58,6 +64,7 @@ class QualityReport:
     max_self_penetration_mm: float
     worst_self_collision: str
     mean_joint_jerk: float
+    self_collision_rest_overlaps: int = 0
     turned_knee_frames: int | None = None
     worst_knee_turn_deg: float | None = None
 
@@ -149,6 +156,8 @@ def evaluate(
     robot_geoms = robot_collision_geoms(model)  # Not the floor's, not a scene's.
     pairs = np.asarray(self_collision, dtype=int).reshape(-1, 2)
     pair_a, pair_b = pairs[:, 0], pairs[:, 1]
+    # Each pair's overlap in the rest poses [m], >= 0: depth is measured beyond it.
+    at_rest = -rest_distances(model, pairs, 0.0) if len(pairs) else np.zeros(0)
     worst_pair, worst_depth = "", 0.0
     fromto = np.zeros(6)
 
@@ -188,11 +197,11 @@ def evaluate(
                 <= (model.geom_rbound[pair_a] + model.geom_rbound[pair_b]) ** 2
             )
             worst = 0.0
-            for a, b in zip(pair_a[near], pair_b[near], strict=True):
+            for a, b, rest in zip(pair_a[near], pair_b[near], at_rest[near], strict=True):
                 d = mujoco.mj_geomDistance(model, data, int(a), int(b), 0.01, fromto)
-                worst = max(worst, -d)
-                if -d > worst_depth:
-                    worst_depth = -d
+                worst = max(worst, -d - rest)
+                if -d - rest > worst_depth:
+                    worst_depth = -d - rest
                     worst_pair = " | ".join(model.body(model.geom_bodyid[g]).name for g in (a, b))
             self_pen[t] = worst
 
@@ -233,6 +242,7 @@ def evaluate(
         max_self_penetration_mm=float(self_pen.max() * 1e3),
         worst_self_collision=worst_pair,
         mean_joint_jerk=float(np.abs(jerk).mean()),
+        self_collision_rest_overlaps=int(np.sum(at_rest > 0.0)),
         turned_knee_frames=(
             int(np.sum((knee_cos < np.cos(np.radians(KNEE_TURN_DEG))).any(axis=1)))
             if knees

@@ -190,3 +190,44 @@ def berkeley_humanoid_actuators() -> ActuatorRecipe:
             r"L[LR]_FAA": MotorSpec(armature=0.0004941, effort_limit=5.0, velocity_limit=speed),
         }
     )
+
+
+def apollo_actuators() -> ActuatorRecipe:
+    """Apptronik Apollo (32 DoF; Menagerie ``apptronik_apollo``).
+
+    The model's own numbers: each joint's armature and its ``actuatorfrcrange`` as the effort
+    limit (where the left and right joints' armatures differ in the fifth digit, each keeps
+    its own). The model gives no joint speeds: 20 rad/s is a stated default, not a measured
+    figure.
+    """
+    speed = 20.0
+    table = {
+        r"torso_yaw|[lr]_hip_ie": (0.231424, 120.0),
+        r"torso_roll": (1.56493, 414.0),
+        r"torso_pitch": (0.970692, 315.0),
+        r"neck_yaw|[lr]_wrist_roll": (0.0368, 10.6),
+        r"neck_roll": (0.00305531, 34.2),
+        r"neck_pitch": (0.00256298, 34.2),
+        r"l_shoulder_aa": (0.0982771, 78.0),
+        r"r_shoulder_aa": (0.098338, 78.0),
+        r"l_shoulder_ie": (0.0823104, 67.0),
+        r"r_shoulder_ie": (0.0823191, 67.0),
+        r"[lr]_shoulder_fe": (0.112768, 114.0),
+        r"[lr]_elbow_fe": (0.102645, 114.0),
+        r"l_wrist_yaw": (0.00329371, 34.2),
+        r"r_wrist_yaw": (0.0032937, 34.2),
+        r"l_wrist_pitch": (0.00288074, 34.2),
+        r"r_wrist_pitch": (0.00288075, 34.2),
+        r"l_hip_aa": (0.399395, 494.0),
+        r"r_hip_aa": (0.399396, 494.0),
+        r"[lr]_hip_fe": (0.187096, 342.0),
+        r"[lr]_knee_fe": (0.292264, 336.0),
+        r"[lr]_ankle_ie": (0.121874, 120.0),
+        r"[lr]_ankle_pd": (0.205456, 150.0),
+    }
+    return ActuatorRecipe(
+        motors={
+            p: MotorSpec(armature=arm, effort_limit=eff, velocity_limit=speed)
+            for p, (arm, eff) in table.items()
+        }
+    )

@@ -72,6 +72,7 @@ def _nominal_spec(
     except ValueError as e:
         raise InputError(f"{path}: MuJoCo cannot load this model: {_one_line(e)}") from None
     _check_structure(cfg, spec, path)
+    _contacts_by_bitmask(cfg, spec, path)
     spec.meshdir = str(Path(path).parent / (spec.meshdir or ""))
     # No compile-time magic left in the defaults either (dampratio, inheritrange).
     for default in [spec.default, *(a.classname for a in spec.actuators)]:
@@ -111,7 +112,8 @@ def _fromto_as_written(spec: mujoco.MjSpec) -> None:
     """Capsules and cylinders given by ``fromto`` (the H1's legs and feet) as the position,
     orientation and half-length MuJoCo's XML writer prints for them, six significant digits:
     so that the model simulated and the one ``robots export`` writes are the same numbers (the
-    writer turned a half-length of 0.2109502 into 0.21095). A change below 1e-6 m."""
+    writer turned a half-length of 0.2109502 into 0.21095). A change below 1e-6 m. Explicit
+    body inertias likewise."""
     kinds = (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER)
     for g in spec.geoms:
         ft = np.asarray(g.fromto, dtype=float)
@@ -130,6 +132,67 @@ def _fromto_as_written(spec: mujoco.MjSpec) -> None:
         size[1] = as_written(length / 2)
         g.size = size
         g.fromto = np.full(6, np.nan)
+    # Explicit inertias given to more digits (the Apollo's camera links: 0.00014442322916...).
+    for b in spec.bodies:
+        inertia = np.asarray(b.inertia, dtype=float)
+        if np.all(np.isfinite(inertia)):
+            b.inertia = np.array([as_written(v) for v in inertia])
+
+
+def _in_tree(body: mujoco.MjsBody, root: str) -> bool:
+    while body is not None and body.name != "world":
+        if body.name == root:
+            return True
+        body = body.parent
+    return False
+
+
+def _contacts_by_bitmask(cfg: RobotConfig, spec: mujoco.MjSpec, path: Path) -> None:
+    """A model whose contacts are all explicit ``<pair>``s (Menagerie's Apollo: every geom
+    has ``contype`` and ``conaffinity`` 0, the floor's too) made to collide as the other
+    robots do, so that one rule finds the robot's collision geometry everywhere (the IK's
+    self-collision, the reports, the floor and scene contacts, friction randomization).
+
+    The robot's collision geoms are the geoms in the groups its pairs' geoms use (group 3 on
+    the Apollo). They get ``contype`` 0 and ``conaffinity`` 1: they touch the floor and scene
+    objects but not each other, so the model's own robot-robot pairs stay the simulated
+    self-contacts (no duplicate contacts). A pair between a robot geom and the floor is
+    removed and its condim, friction and solver parameters move onto the robot geom, where
+    MuJoCo's mixing (maximum condim and friction, solver parameters averaged) gives the same
+    contact against a floor with the defaults of the pair (the floor gets ``contype`` and
+    ``conaffinity`` 1 and condim 3, as the other robots' floors have).
+
+    Raises:
+        InputError: The robot has no geom that collides and no pair that names one.
+    """
+    robot = [g for g in spec.geoms if _in_tree(g.parent, cfg.root_body)]
+    if any(g.contype or g.conaffinity for g in robot):
+        return
+    names = {g.name: g for g in robot if g.name}
+    pairs = list(spec.pairs)
+    groups = {int(names[n].group) for p in pairs for n in (p.geomname1, p.geomname2) if n in names}
+    if not groups:
+        raise InputError(
+            f"{path}: no geom of robot {cfg.name} collides (contype and conaffinity are 0 and "
+            "no <pair> names one): the robot has no collision geometry"
+        )
+    for g in robot:
+        if int(g.group) in groups:
+            g.contype, g.conaffinity = 0, 1
+    floor = spec.geom(cfg.floor_geom)
+    if floor is not None:
+        floor.contype, floor.conaffinity, floor.condim = 1, 1, 3
+    for p in pairs:
+        ends = {p.geomname1, p.geomname2}
+        if cfg.floor_geom not in ends:
+            continue
+        other = names.get(next(iter(ends - {cfg.floor_geom}), ""))
+        if other is None:
+            continue
+        other.condim = p.condim
+        other.friction = np.asarray(p.friction, dtype=float)[[0, 2, 3]]
+        other.solref, other.solimp = p.solref, p.solimp
+        spec.delete(p)
 
 
 def _one_line(e: BaseException) -> str:

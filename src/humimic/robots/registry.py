@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from humimic.errors import UnknownNameError
 from humimic.robots.actuators import (
     ActuatorRecipe,
+    apollo_actuators,
     berkeley_humanoid_actuators,
     g1_actuators,
     h1_actuators,
@@ -138,7 +139,32 @@ def berkeley_humanoid() -> RobotConfig:
     )
 
 
+def apollo() -> RobotConfig:
+    """Apptronik Apollo, 32 DoF (MuJoCo Menagerie ``apptronik_apollo``, Apache-2.0). Its
+    contacts are explicit pairs in the model file; :func:`humimic.robots.nominal_spec` makes
+    its collision geoms collide as the other robots' do."""
+    return RobotConfig(
+        name="apollo",
+        description="Apptronik Apollo humanoid, 32 DoF",
+        menagerie_dir="apptronik_apollo",
+        license="Apache-2.0 (Apptronik), via MuJoCo Menagerie",
+        root_body="base_link",
+        feet={"left": "l_foot_link", "right": "r_foot_link"},
+        actuators=apollo_actuators(),
+        key_bodies=(
+            "base_link",
+            *(f"l_{b}_link" for b in ("hip_aa", "knee_fe", "foot")),
+            *(f"r_{b}_link" for b in ("hip_aa", "knee_fe", "foot")),
+            "torso_link",
+            *(f"l_{b}_link" for b in ("shoulder_ie", "elbow_fe", "wrist_pitch")),
+            *(f"r_{b}_link" for b in ("shoulder_ie", "elbow_fe", "wrist_pitch")),
+        ),
+        torso_body="torso_link",
+    )
+
+
 ROBOTS: dict[str, Callable[[], RobotConfig]] = {
+    "apollo": apollo,
     "berkeley_humanoid": berkeley_humanoid,
     "g1": g1,
     "h1": h1,

@@ -405,7 +405,23 @@ def berkeley_humanoid_tracking(dr: str | DomainRandomization = "default") -> Tra
     return _task("berkeley_humanoid", feet, undesired, dr)
 
 
+APOLLO_EE_BODIES = ("l_foot_link", "r_foot_link", "l_wrist_pitch_link", "r_wrist_pitch_link")
+
+
+def apollo_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """Apptronik Apollo whole-body tracking, with the G1 task's terms and weights (not tuned
+    for it). The torso is the anchor; every body with collision geometry but the feet is an
+    undesired floor contact."""
+    feet = ("l_foot_link", "r_foot_link")
+    undesired = (
+        *(b for b in get_robot("apollo").key_bodies if b not in feet),
+        *(f"{s}_{b}_link" for s in "lr" for b in ("hip_fe", "shoulder_fe", "wrist_roll")),
+    )
+    return _task("apollo", APOLLO_EE_BODIES, undesired, dr)
+
+
 TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {
+    "apollo": apollo_tracking,
     "berkeley_humanoid": berkeley_humanoid_tracking,
     "g1": g1_tracking,
     "h1": h1_tracking,
