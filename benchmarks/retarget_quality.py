@@ -84,7 +84,9 @@ def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid", "apollo"])
+    parser.add_argument(
+        "--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid", "apollo"]
+    )
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument(
         "--no-hold-planted-feet", action="store_true",
