@@ -85,8 +85,11 @@ class RetargetConfig:
             solution: keeps redundant chains from flipping between frames.
         max_step: Largest joint change per QP iteration [rad] (a trust region, so that the
             linearized collision limits are not tunnelled through).
-        repair_iters: Extra iterations when a self-collision pair ends a frame closer than
-            half the margin.
+        repair_iters: Most extra iterations when a self-collision pair ends a frame inside its
+            repair line (half the margin under its floor, or 0.5 mm deeper than it overlaps at
+            rest), or a held foot point beyond its radius; each is line-searched (halved
+            while it would leave a pair deeper). 10: the shared climbing clip 2 on the Apollo
+            left forearms up to 5.6 mm into the thighs after 4.
         scale: Human-to-robot scale of positions (root path, ground, scene); ``None``: the
             robot's leg length over the human's, measured on the clip.
         floor_height: Height of the floor in the clip's (and its scene's) world frame [m]:
@@ -122,7 +125,7 @@ class RetargetConfig:
     collision_gain: float = 0.85
     smooth_weight: float = 0.5
     max_step: float = 0.3
-    repair_iters: int = 4
+    repair_iters: int = 10
     scale: float | None = None
     floor_height: float | None = None
 

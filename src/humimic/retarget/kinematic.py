@@ -169,6 +169,10 @@ class KinematicResult:
     relaxed_iterations: int
 
 
+REPAIR_HALVINGS = 4
+"""Halvings of a repair step that would leave a self-collision pair deeper than before."""
+
+
 @dataclass(kw_only=True)
 class _Frame:
     """Per-frame solver state (kept out of the retargeter, which is reused across clips)."""
@@ -363,28 +367,41 @@ class KinematicRetargeter:
         )
 
     def _repair(self, frame: _Frame) -> int:
-        """Extra QPs while a self-collision pair is closer than half the margin, or a held
+        """Extra QPs while a self-collision pair is inside its repair line
+        (:meth:`SelfCollisionLimit.repair_slack`), or a held
         foot point has travelled more than 2 % beyond its radius (the limits are linearized:
-        a large last step can overshoot them).
-
-        Checks the pairs found near at the last evaluation (a cheap heuristic: the metrics
-        check every pair in every frame, and report what this misses).
+        a large last step can overshoot them). The metrics check every pair in every
+        frame, and report what this leaves.
         """
         limit, planted = self.self_collision, self.planted
         if limit is None and planted is None:
             return 0
+        conf, margin = self.configuration, self.cfg.collision_margin
+
+        def slack() -> float:
+            return np.inf if limit is None else limit.repair_slack(conf, margin)
+
         n = 0
+        now = slack()
         for _ in range(self.cfg.repair_iters):
-            near = (
-                limit is not None
-                and limit.active_min_slack(self.configuration) < -0.5 * self.cfg.collision_margin
-            )
-            if not near and (
-                planted is None or planted.max_excess(self.configuration.data) <= 0.02
-            ):
+            if now >= 0.0 and (planted is None or planted.max_excess(conf.data) <= 0.02):
                 break
-            self.configuration.integrate_inplace(self._solve(frame, self.limits), 1.0)
+            # A step that leaves some pair deeper inside its repair line than before is
+            # halved (the limits are linearized: a full step can tunnel a hand into a thigh
+            # that was apart when the rows were made); none found, the frame stays as it is.
+            q0, dq = conf.q.copy(), self._solve(frame, self.limits)
             n += 1
+            for _ in range(REPAIR_HALVINGS + 1):
+                conf.update(q0)
+                conf.integrate_inplace(dq, 1.0)
+                after = slack()
+                if after >= min(now, 0.0):
+                    now = after
+                    break
+                dq = 0.5 * dq
+            else:
+                conf.update(q0)
+                break
         return n
 
     def _solve(

@@ -182,6 +182,11 @@ class PointTravelLimit(mink.Limit):
         return Constraint(G=G, h=h.ravel())
 
 
+REPAIR_DEPTH = 5e-4
+"""A self-collision pair this much deeper than its overlap at rest [m] is repaired after a
+frame's last step: half the 1 mm the report counts."""
+
+
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     """mink's collision avoidance on an exact list of geom pairs, each with its own floor,
     changed to also push penetrating pairs apart.
@@ -279,23 +284,37 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         self._active = active
         return Constraint(G=G, h=h)
 
-    def active_min_slack(self, configuration: mink.Configuration) -> float:
-        """Smallest ``distance - floor`` now among the pairs that were near at the last
-        evaluation.
+    def repair_slack(self, configuration: mink.Configuration, margin: float) -> float:
+        """How far the worst pair is now inside its repair line [m] (negative: repair it;
+        ``inf`` when no pair is near it). A pair needs repair when it is more than half the
+        margin below its floor, or more than :data:`REPAIR_DEPTH` deeper than it overlaps at
+        rest (under the 1 mm the report counts: a pair overlapping at rest, or one
+        mechanism's, has its floor there).
 
-        A cheap final check after the last QP step: pairs farther than the detection distance
-        before a (trust-region bounded) step cannot have met.
+        The final check after a frame's last QP step. Every pair, not only those near at the
+        last evaluation: a pair farther than the detection distance there can still meet in
+        one step of the trust region (0.3 rad of a hip moves a forearm 10 cm past a thigh).
+        Pairs whose bounding spheres are farther apart than their line are skipped.
         """
+        floors = self.floors
+        lines = np.maximum(floors - 0.5 * margin, np.minimum(floors, 0.0) - REPAIR_DEPTH)
+        if not hasattr(self, "_pair_arrays"):
+            g = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
+            self._pair_arrays = (g[:, 0], g[:, 1], self.model.geom_rbound[g].sum(axis=1))
+        g1, g2, rsum = self._pair_arrays
+        data = configuration.data
+        diff = data.geom_xpos[g1] - data.geom_xpos[g2]
+        reach = np.maximum(rsum + lines, 0.0)
+        near = np.flatnonzero(np.einsum("ij,ij->i", diff, diff) <= reach * reach)
         out = np.inf
-        for idx in getattr(self, "_active", []):
-            g1, g2 = self.geom_id_pairs[idx]
+        for idx in near:
             d = mujoco.mj_geomDistance(
                 self.model,
-                configuration.data,
-                g1,
-                g2,
-                self.collision_detection_distance,
+                data,
+                int(g1[idx]),
+                int(g2[idx]),
+                max(float(lines[idx]), 0.0) + 1e-3,
                 self._fromto,
             )
-            out = min(out, float(d - self.floors[idx]))
+            out = min(out, float(d - lines[idx]))
         return out
