@@ -4,12 +4,12 @@ for, with independent checks of the output. Prints one JSON object.
 For each clip and robot: the report of `humimic retarget` (speed, key-point error, foot
 skating, ground penetration, feet on the floor, joint-limit violations, self-collision, jerk),
 and the same motion checked by code that shares nothing with the report: every pair of the
-robot's geoms on the exported model (`humimic robots export`; parent and child bodies and one
-body's own geoms left out) by `mujoco.mj_geomDistance` for self-penetration (beyond the pair's
+robot's geoms on the exported model (`humimic robots export`; parent and child bodies, one
+body's own geoms and the model's `<exclude>` body pairs left out) by `mujoco.mj_geomDistance` for self-penetration (beyond the pair's
 overlap in the model's own rest poses, where its coarse geometry overlaps there), and the exported
 model's joint ranges for limit violations.
 
-Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1 h1 berkeley_humanoid apollo]
+Usage: .venv/bin/python benchmarks/retarget_quality.py [--robots g1 t1 h1 berkeley_humanoid apollo op3]
     [--data PATH] [--no-hold-planted-feet]
 """
 
@@ -52,9 +52,12 @@ def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
     geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0
              and (m.geom_contype[g] or m.geom_conaffinity[g])]  # fmt: skip
     body = m.geom_bodyid
+    # The model's own <exclude> pairs (the OP3's hip-yaw and hip-pitch links), by body id.
+    excluded = {frozenset((int(s) >> 16, int(s) & 0xFFFF)) for s in m.exclude_signature}
     pairs = [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1 :]
              if body[a] != body[b] and m.body_parentid[body[a]] != body[b]
-             and m.body_parentid[body[b]] != body[a]]  # fmt: skip
+             and m.body_parentid[body[b]] != body[a]
+             and frozenset((int(body[a]), int(body[b]))) not in excluded]  # fmt: skip
     data = mujoco.MjData(m)
     fromto = np.zeros(6)
     # Each pair's overlap in the model's own poses (qpos0 and its keyframes): a pair the
@@ -85,7 +88,7 @@ def independent_checks(xml: Path, qpos: np.ndarray) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument(
-        "--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid", "apollo"]
+        "--robots", nargs="+", default=["g1", "t1", "h1", "berkeley_humanoid", "apollo", "op3"]
     )
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument(

@@ -232,10 +232,10 @@ def test_export_nominal_is_self_contained_and_exact(
     assert "dampratio" not in xml
     assets = out.parent / "robot_assets"
     assert assets.is_dir()
-    files = {p.name for p in assets.iterdir()}
+    files = {p.relative_to(assets).as_posix() for p in assets.rglob("*") if p.is_file()}
     assert "LICENSE" in files
     spec, _ = nominal_spec(cfg)
-    meshes = {Path(m.file).name for m in spec.meshes}
+    meshes = {Path(m.file).as_posix() for m in spec.meshes}  # Subfolders kept (the OP3's).
     assert meshes and meshes <= files
     # Only the file and its asset folder: no temporary leftovers.
     assert sorted(p.name for p in out.parent.iterdir()) == ["robot.xml", "robot_assets"]
@@ -370,3 +370,39 @@ def test_a_model_with_no_collision_geometry_is_refused(tmp_path: Path) -> None:
     cfg = replace(cfg, menagerie_dir="x", xml="robot.xml")
     with pytest.raises(InputError, match=r"robot.xml: no geom of robot g1 collides"):
         nominal_spec(cfg, menagerie_root=tmp_path)
+
+
+# --- Stated joint ranges (the OP3's model gives none) ------------------------------------------
+
+
+def test_op3_gets_its_stated_ranges_and_they_bend_the_human_way() -> None:
+    """Every OP3 joint is limited to the range the registry states, and the ranges' signs
+    are right, checked on the model: a knee inside its range bends back (the ankle goes
+    behind the knee), a hip inside its flexion side swings the foot forward, a hip roll's
+    larger side moves the foot away from the body (abduction)."""
+    cfg = get_robot("op3")
+    model = nominal_model(cfg)
+    assert len(cfg.joint_ranges) == model.njnt - 1 == 20
+    for name, (lo, hi) in cfg.joint_ranges.items():
+        j = model.joint(name).id
+        assert model.jnt_limited[j] and lo < hi
+        np.testing.assert_array_equal(model.jnt_range[j], [lo, hi])
+
+    def foot(moves: dict[str, float], side: str) -> np.ndarray:
+        data = mujoco.MjData(model)
+        for joint, q in moves.items():
+            data.qpos[model.jnt_qposadr[model.joint(joint).id]] = q
+        mujoco.mj_kinematics(model, data)
+        return data.xpos[model.body(f"{side}_ank_roll_link").id].copy()
+
+    for side, out in (("l", 1.0), ("r", -1.0)):
+        rest = foot({}, side)
+        lo, hi = cfg.joint_ranges[f"{side}_knee"]
+        bend = hi if hi > 0 else lo  # The side away from 0.
+        assert foot({f"{side}_knee": 0.8 * bend}, side)[0] < rest[0] - 0.05
+        lo, hi = cfg.joint_ranges[f"{side}_hip_pitch"]
+        flexion = lo if abs(lo) > abs(hi) else hi  # Flexion is the larger side.
+        assert foot({f"{side}_hip_pitch": 0.5 * flexion}, side)[0] > rest[0] + 0.05
+        lo, hi = cfg.joint_ranges[f"{side}_hip_roll"]
+        abduction = lo if abs(lo) > abs(hi) else hi
+        assert out * (foot({f"{side}_hip_roll": 0.5 * abduction}, side)[1] - rest[1]) > 0.03

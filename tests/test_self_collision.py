@@ -155,9 +155,12 @@ def _independent_self_penetration(xml: Path, qpos: np.ndarray) -> tuple[int, flo
     geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] != 0
              and (m.geom_contype[g] or m.geom_conaffinity[g])]  # fmt: skip
     body = m.geom_bodyid
+    # The model's own <exclude> pairs (the OP3's hip-yaw and hip-pitch links), by body id.
+    excluded = {frozenset((int(s) >> 16, int(s) & 0xFFFF)) for s in m.exclude_signature}
     pairs = [(a, b) for i, a in enumerate(geoms) for b in geoms[i + 1 :]
              if body[a] != body[b] and m.body_parentid[body[a]] != body[b]
-             and m.body_parentid[body[b]] != body[a]]  # fmt: skip
+             and m.body_parentid[body[b]] != body[a]
+             and frozenset((int(body[a]), int(body[b]))) not in excluded]  # fmt: skip
     data = mujoco.MjData(m)
     fromto = np.zeros(6)
     rest = {}  # The overlap of each pair in the model's own poses (qpos0, keyframes).

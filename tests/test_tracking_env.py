@@ -68,7 +68,8 @@ def test_every_registered_task_steps_without_nan(robot: str) -> None:
     cfg = replace(tracking_task(robot, "default"), action_base="default")
     task_model = tracking_model(cfg)
     T = 50
-    q = np.tile(task_model.key_qpos[0], (T, 1))
+    home = task_model.key_qpos[0] if task_model.nkey else task_model.qpos0  # OP3: no keys.
+    q = np.tile(home, (T, 1))
     q[:, 7:] += 0.2 * np.sin(2 * np.pi * np.arange(T)[:, None] / T)
     env = TrackingEnv(cfg, motion_from_qpos(task_model, q, 50.0, robot), 4, model=task_model)
     try:

@@ -231,3 +231,16 @@ def apollo_actuators() -> ActuatorRecipe:
             for p, (arm, eff) in table.items()
         }
     )
+
+
+def op3_actuators() -> ActuatorRecipe:
+    """Robotis OP3 (20 DoF; Menagerie ``robotis_op3``): one Dynamixel XM430-W350 per joint.
+
+    The model's own numbers: armature 0.045 kg m^2 and effort limit 5 N m on every joint, and
+    the natural frequency (3.45 Hz) at which the recipe gives the model's own kp of 21.1 N m/rad
+    (the 10 Hz of the larger robots would ask kp 178 of a 5 N m servo). Speed: the XM430-W350's
+    no-load 46 rev/min at 12 V (4.8 rad/s), the motor's datasheet figure, not the model's.
+    """
+    motor = MotorSpec(armature=0.045, effort_limit=5.0, velocity_limit=4.8)
+    wn = math.sqrt(21.1 / 0.045)
+    return ActuatorRecipe(motors={r".*": motor}, natural_frequency_hz=wn / (2.0 * math.pi))

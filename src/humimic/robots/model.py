@@ -73,6 +73,12 @@ def _nominal_spec(
         raise InputError(f"{path}: MuJoCo cannot load this model: {_one_line(e)}") from None
     _check_structure(cfg, spec, path)
     _contacts_by_bitmask(cfg, spec, path)
+    for name, (lo, hi) in cfg.joint_ranges.items():
+        joint = spec.joint(name)
+        if joint is None:
+            raise InputError(f"{path}: no joint {name!r} (robot {cfg.name}'s stated joint ranges)")
+        joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+        joint.range = np.array([lo, hi], dtype=float)
     spec.meshdir = str(Path(path).parent / (spec.meshdir or ""))
     # No compile-time magic left in the defaults either (dampratio, inheritrange).
     for default in [spec.default, *(a.classname for a in spec.actuators)]:
@@ -102,6 +108,7 @@ def _nominal_spec(
         act.biasprm = bias
         act.inheritrange = 0.0
         act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+        act.ctrlrange = np.array([as_written(v) for v in act.ctrlrange])  # Unused; exported.
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         act.forcerange = np.array([-a.effort_limit, a.effort_limit])
     _fromto_as_written(spec)
@@ -318,9 +325,15 @@ def export_nominal(
         shutil.rmtree(tmp_assets)
     try:
         tmp_assets.mkdir()
-        for mesh in spec.meshes:
-            shutil.copy2(src_meshdir / mesh.file, tmp_assets / Path(mesh.file).name)
-            mesh.file = Path(mesh.file).name
+        for i, mesh in enumerate(spec.meshes):
+            # Keep the path under the mesh folder: the OP3 has body.stl and
+            # simplified_convex/body.stl, which one flat folder would merge.
+            rel = Path(mesh.file)
+            if rel.is_absolute() or ".." in rel.parts:
+                rel = Path(f"{i}_{rel.name}")
+            (tmp_assets / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src_meshdir / mesh.file, tmp_assets / rel)
+            mesh.file = rel.as_posix()
         abs_dir = str(tmp_assets.resolve())
         spec.meshdir = abs_dir
         _compile(spec, path)  # Validate before anything is written in place.

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 from humimic.errors import UnknownNameError
 from humimic.robots.actuators import (
@@ -12,6 +12,7 @@ from humimic.robots.actuators import (
     berkeley_humanoid_actuators,
     g1_actuators,
     h1_actuators,
+    op3_actuators,
     t1_actuators,
 )
 
@@ -37,6 +38,9 @@ class RobotConfig:
         torso_body: The upper-body link that anchors a tracked reference (BeyondMimic's anchor)
             and whose CoM domain randomization moves.
         floor_geom: Name of the floor geom in the scene.
+        joint_ranges: Joint name -> (lower, upper) [rad] for a model that gives its joints no
+            range (Menagerie's OP3): stated ranges, applied when the model is built. Empty: the
+            model's own.
     """
 
     name: str
@@ -51,6 +55,7 @@ class RobotConfig:
     key_bodies: tuple[str, ...]
     torso_body: str
     floor_geom: str = "floor"
+    joint_ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def g1() -> RobotConfig:
@@ -163,11 +168,64 @@ def apollo() -> RobotConfig:
     )
 
 
+def _op3_ranges() -> dict[str, tuple[float, float]]:
+    """Stated joint ranges for the OP3, whose model gives none: a human's range of motion
+    (after the ranges the G1 and H1 give their joints), in the signs of the OP3's joint axes
+    (worked out from the model: which way each joint moves the foot or the hand), not
+    ROBOTIS's figures. Knees bend one way only; the elbows both (the three-joint arm reaches
+    one elbow pose with its shoulder pitch turned either way, so neither sign is the "wrong"
+    bend); the shoulder roll is 0 with the arms out sideways, as the model's zero pose has."""
+    r = {
+        "head_pan": (-1.4, 1.4),
+        "head_tilt": (-0.7, 0.7),
+        "l_sho_pitch": (-2.8, 2.8),
+        "l_sho_roll": (-1.4, 1.75),  # + lowers the left arm from the sideways zero pose.
+        "l_el": (-2.4, 2.4),
+        "l_hip_yaw": (-0.8, 0.8),
+        "l_hip_roll": (-0.8, 0.45),  # + brings the left foot in (adduction).
+        "l_hip_pitch": (-2.0, 0.5),  # + swings the left leg back (extension).
+        "l_knee": (0.0, 2.4),  # + bends the left knee.
+        "l_ank_pitch": (-0.9, 0.6),  # + lifts the left toes (dorsiflexion).
+        "l_ank_roll": (-0.5, 0.5),
+    }
+    mirrored = {"l_sho_pitch", "l_el", "l_hip_yaw", "l_ank_roll", "head_pan", "head_tilt"}
+    out = dict(r)
+    for name, (lo, hi) in r.items():
+        if name.startswith("l_"):
+            out["r_" + name[2:]] = (lo, hi) if name in mirrored else (-hi, -lo)
+    return out
+
+
+def op3() -> RobotConfig:
+    """Robotis OP3, 20 DoF, 0.5 m (MuJoCo Menagerie ``robotis_op3``, Apache-2.0). Its model
+    gives no joint ranges: :func:`_op3_ranges` states them."""
+    return RobotConfig(
+        name="op3",
+        description="Robotis OP3 humanoid, 20 DoF, 0.5 m",
+        menagerie_dir="robotis_op3",
+        license="Apache-2.0 (ROBOTIS), via MuJoCo Menagerie",
+        root_body="body_link",
+        feet={"left": "l_ank_roll_link", "right": "r_ank_roll_link"},
+        actuators=op3_actuators(),
+        key_bodies=(
+            "body_link",
+            *(f"l_{b}_link" for b in ("hip_pitch", "knee", "ank_roll")),
+            *(f"r_{b}_link" for b in ("hip_pitch", "knee", "ank_roll")),
+            "head_tilt_link",
+            *(f"l_{b}_link" for b in ("sho_roll", "el")),
+            *(f"r_{b}_link" for b in ("sho_roll", "el")),
+        ),
+        torso_body="body_link",
+        joint_ranges=_op3_ranges(),
+    )
+
+
 ROBOTS: dict[str, Callable[[], RobotConfig]] = {
     "apollo": apollo,
     "berkeley_humanoid": berkeley_humanoid,
     "g1": g1,
     "h1": h1,
+    "op3": op3,
     "t1": t1,
 }
 """Registry: name -> factory."""

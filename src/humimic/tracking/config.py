@@ -420,11 +420,30 @@ def apollo_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig
     return _task("apollo", APOLLO_EE_BODIES, undesired, dr)
 
 
+OP3_EE_BODIES = ("l_ank_roll_link", "r_ank_roll_link", "l_el_link", "r_el_link")
+"""The OP3's feet and hands (no wrists: a hand is the end of its forearm link)."""
+
+
+def op3_tracking(dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """Robotis OP3 whole-body tracking, with the G1 task's terms and weights (not tuned for
+    a 0.5 m robot). The torso is the anchor; every body with collision geometry but the feet
+    is an undesired floor contact."""
+    feet = ("l_ank_roll_link", "r_ank_roll_link")
+    undesired = (
+        *(b for b in get_robot("op3").key_bodies if b not in feet),
+        "head_pan_link",
+        *(f"{s}_{b}_link" for s in "lr"
+          for b in ("hip_yaw", "hip_roll", "ank_pitch", "sho_pitch")),
+    )  # fmt: skip
+    return _task("op3", OP3_EE_BODIES, undesired, dr)
+
+
 TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {
     "apollo": apollo_tracking,
     "berkeley_humanoid": berkeley_humanoid_tracking,
     "g1": g1_tracking,
     "h1": h1_tracking,
+    "op3": op3_tracking,
     "t1": t1_tracking,
 }
 """Registered tracking tasks: robot name -> task factory taking a DR profile."""
