@@ -182,7 +182,7 @@ class PointTravelLimit(mink.Limit):
         return Constraint(G=G, h=h.ravel())
 
 
-REPAIR_DEPTH = 5e-4
+SELF_REPAIR_DEPTH = 5e-4
 """A self-collision pair this much deeper than its overlap at rest [m] is repaired after a
 frame's last step: half the 1 mm the report counts."""
 
@@ -287,7 +287,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     def repair_slack(self, configuration: mink.Configuration, margin: float) -> float:
         """How far the worst pair is now inside its repair line [m] (negative: repair it;
         ``inf`` when no pair is near it). A pair needs repair when it is more than half the
-        margin below its floor, or more than :data:`REPAIR_DEPTH` deeper than it overlaps at
+        margin below its floor, or more than :data:`SELF_REPAIR_DEPTH` deeper than it overlaps at
         rest (under the 1 mm the report counts: a pair overlapping at rest, or one
         mechanism's, has its floor there).
 
@@ -297,7 +297,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         Pairs whose bounding spheres are farther apart than their line are skipped.
         """
         floors = self.floors
-        lines = np.maximum(floors - 0.5 * margin, np.minimum(floors, 0.0) - REPAIR_DEPTH)
+        lines = np.maximum(floors - 0.5 * margin, np.minimum(floors, 0.0) - SELF_REPAIR_DEPTH)
         if not hasattr(self, "_pair_arrays"):
             g = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
             self._pair_arrays = (g[:, 0], g[:, 1], self.model.geom_rbound[g].sum(axis=1))
