@@ -31,6 +31,7 @@ RUNNERS: dict[type, Callable[[Any], int | None]] = {
     view.ViewCommand: view.run_view,
     robots.RobotsList: robots.run_list,
     robots.RobotsExport: robots.run_export,
+    robots.RobotsAdd: robots.run_add,
     sysid.SysidSimulate: sysid.run_simulate,
     sysid.SysidResidual: sysid.run_residual,
     sysid.SysidDiagnose: sysid.run_diagnose,

@@ -1,4 +1,4 @@
-"""``humimic robots list|export``: the robot registry."""
+"""``humimic robots list|export|add``: the robot registry, and robots a user adds."""
 
 from __future__ import annotations
 
@@ -29,14 +29,35 @@ class RobotsExport:
 
 
 @dataclass(frozen=True, kw_only=True)
+class RobotsAdd:
+    """Add any humanoid from its MJCF or URDF: every command then takes it as --robot NAME.
+
+    The model is read by MuJoCo's compiler; a URDF gets a floating base, meshes MuJoCo cannot
+    read are converted or replaced (said in the output), a floor and position actuators are
+    added where missing, and a robot map is generated from the tree and geometry (feet, knees,
+    hips, hands, elbows, shoulders, torso, head), with a check list of what was not found."""
+
+    model: Annotated[Path, tyro.conf.Positional]
+    """The robot's MJCF (.xml) or URDF (.urdf)."""
+    name: str
+    """Its name in humimic (lower case letters, digits and _)."""
+    robots_dir: Path | None = None
+    """Where added robots live (default: $HUMIMIC_ROBOTS_DIR, else
+    ~/.local/share/humimic/robots). Other commands read $HUMIMIC_ROBOTS_DIR."""
+    force: bool = False
+    """Replace an added robot of the same name."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class RobotsCommand:
-    """Robot registry: list robots, export the nominal model."""
+    """Robot registry: list robots, export the nominal model, add a robot."""
 
     command: tyro.conf.OmitSubcommandPrefixes[
         Annotated[RobotsList, tyro.conf.subcommand("list")]
         | Annotated[RobotsExport, tyro.conf.subcommand("export")]
+        | Annotated[RobotsAdd, tyro.conf.subcommand("add")]
     ]
-    """list or export."""
+    """list, export or add."""
 
 
 def run_list(cmd: RobotsList) -> None:
@@ -59,3 +80,25 @@ def run_export(cmd: RobotsExport) -> None:
         get_robot(cmd.name, "robots export"), cmd.out, menagerie_root=cmd.menagerie_root
     )
     print(f"wrote {path} (meshes in {path.parent / (path.stem + '_assets')})")
+
+
+def run_add(cmd: RobotsAdd) -> None:
+    """Run ``humimic robots add``."""
+    from humimic.robots.add import add_robot
+
+    r = add_robot(cmd.model, cmd.name, root=cmd.robots_dir, force=cmd.force)
+    s = r.structure
+    print(f"added robot {r.name}: {r.joints} joints, {r.mass:.1f} kg, {s.height:.2f} m tall -> "
+          f"{r.folder}")  # fmt: skip
+    print(f"  root {s.root}, torso {s.torso}, head {s.head or '-'}")
+    for side in ("left", "right"):
+        print(f"  {side}: hip {s.hips[side]}, knee {s.knees[side] or '-'}, foot {s.feet[side]}, "
+              f"shoulder {s.shoulders.get(side) or '-'}, elbow {s.elbows.get(side) or '-'}, "
+              f"hand {s.hands.get(side) or '-'}")  # fmt: skip
+    missing = s.missing()
+    print(f"  not found: {', '.join(missing)}" if missing else "  everything found")
+    for note in r.notes:
+        print(f"  note: {note}")
+    env = "" if cmd.robots_dir is None else f"HUMIMIC_ROBOTS_DIR={cmd.robots_dir} "
+    print(f"  use it: {env}humimic retarget CLIP --robot {r.name} --out OUT.npz; edit its map: "
+          f"{r.folder / 'map.yaml'}")  # fmt: skip

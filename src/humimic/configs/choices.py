@@ -7,7 +7,7 @@ from importlib import resources
 from typing import TYPE_CHECKING, Literal
 
 from humimic.configs.retarget import RETARGET_CONFIGS
-from humimic.robots.registry import ROBOTS
+from humimic.robots.registry import robot_names
 from humimic.sim.randomization import DR_PROFILES
 
 
@@ -28,8 +28,9 @@ if TYPE_CHECKING:
     PhysicsChoice = str
     DrChoice = str
 else:
-    RobotName = Literal[tuple(ROBOTS)]
-    """A registered robot (:data:`humimic.robots.registry.ROBOTS`)."""
+    RobotName = Literal[tuple(robot_names())]
+    """A registered robot (:data:`humimic.robots.registry.ROBOTS`) or one the user added
+    (``humimic robots add``, in ``$HUMIMIC_ROBOTS_DIR``)."""
     RetargetPreset = Literal[tuple(RETARGET_CONFIGS)]
     """A named retargeting configuration (:data:`humimic.configs.RETARGET_CONFIGS`)."""
     PhysicsChoice = Literal[shipped_physics()] | str

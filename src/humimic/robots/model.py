@@ -23,6 +23,10 @@ def robot_xml_path(
     cfg: RobotConfig, *, menagerie_root: str | os.PathLike[str] | None = None
 ) -> Path:
     """Path of the robot's scene MJCF."""
+    if cfg.model_file is not None:
+        if not cfg.model_file.is_file():
+            raise InputError(f"{cfg.model_file}: robot {cfg.name}'s model file is missing")
+        return cfg.model_file
     return find_robot_file(
         cfg.menagerie_dir,
         cfg.xml,

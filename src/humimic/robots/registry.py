@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from humimic.errors import UnknownNameError
 from humimic.robots.actuators import (
@@ -41,6 +42,8 @@ class RobotConfig:
         joint_ranges: Joint name -> (lower, upper) [rad] for a model that gives its joints no
             range (Menagerie's OP3): stated ranges, applied when the model is built. Empty: the
             model's own.
+        model_file: The scene MJCF of a robot a user added (``humimic robots add``); None for
+            the registered robots, found by ``menagerie_dir`` and ``xml``.
     """
 
     name: str
@@ -56,6 +59,7 @@ class RobotConfig:
     torso_body: str
     floor_geom: str = "floor"
     joint_ranges: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    model_file: Path | None = None
 
 
 def g1() -> RobotConfig:
@@ -232,20 +236,25 @@ ROBOTS: dict[str, Callable[[], RobotConfig]] = {
 
 
 def get_robot(name: str, source: str | None = None) -> RobotConfig:
-    """Look a robot up by name; :class:`UnknownNameError` lists the registered ones.
+    """Look a robot up by name: a registered one, else one the user added (``humimic robots
+    add``, :mod:`humimic.robots.user`); :class:`UnknownNameError` lists them all.
 
     Args:
         name: Registry name.
         source: Where the name came from, for the message: a flag (``"--robot"``) or a file.
     """
-    try:
+    from humimic.robots.user import load_user_robot, user_robot_folder
+
+    if name in ROBOTS:
         return ROBOTS[name]()
-    except KeyError:
-        where = f"{source}: " if source else ""
-        raise UnknownNameError(
-            f"{where}unknown robot {name!r}; registered robots: {', '.join(sorted(ROBOTS))}"
-        ) from None
+    if user_robot_folder(name) is not None:
+        return RobotConfig(**load_user_robot(name))
+    where = f"{source}: " if source else ""
+    raise UnknownNameError(f"{where}unknown robot {name!r}; robots: {', '.join(robot_names())}")
 
 
 def robot_names() -> list[str]:
-    return sorted(ROBOTS)
+    """The registered robots and the ones the user added, sorted."""
+    from humimic.robots.user import user_robot_names
+
+    return sorted({*ROBOTS, *user_robot_names()})

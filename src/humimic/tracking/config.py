@@ -449,14 +449,33 @@ TRACKING_TASKS: dict[str, Callable[..., TrackingConfig]] = {
 """Registered tracking tasks: robot name -> task factory taking a DR profile."""
 
 
+def added_robot_tracking(robot: str, dr: str | DomainRandomization = "default") -> TrackingConfig:
+    """The tracking task of a robot the user added (``humimic robots add``): the G1 task's
+    terms and weights, its key bodies tracked, its torso the anchor, its feet and hands (the
+    last key body of each arm, where found) the end effectors, every other key body an
+    undesired floor contact."""
+    from humimic.robots.user import user_robot_hands
+
+    r = get_robot(robot)
+    feet = tuple(r.feet[s] for s in ("left", "right"))
+    hands = user_robot_hands(robot)
+    undesired = tuple(b for b in r.key_bodies if b not in feet)
+    return _task(robot, (*feet, *hands), undesired, dr)
+
+
 def tracking_task(robot: str, dr: str | DomainRandomization = "default") -> TrackingConfig:
-    """The registered tracking task of a robot.
+    """The tracking task of a robot: its registered one, or :func:`added_robot_tracking` for
+    a robot the user added.
 
     Raises:
-        UnknownNameError: If no task is registered for ``robot``.
+        UnknownNameError: If ``robot`` is neither registered nor added.
     """
-    if robot not in TRACKING_TASKS:
-        raise UnknownNameError(
-            f"no tracking task for robot {robot!r}; registered: {', '.join(sorted(TRACKING_TASKS))}"
-        )
-    return TRACKING_TASKS[robot](dr)
+    if robot in TRACKING_TASKS:
+        return TRACKING_TASKS[robot](dr)
+    from humimic.robots.user import user_robot_folder
+
+    if user_robot_folder(robot) is not None:
+        return added_robot_tracking(robot, dr)
+    raise UnknownNameError(
+        f"no tracking task for robot {robot!r}; registered: {', '.join(sorted(TRACKING_TASKS))}"
+    )

@@ -389,15 +389,25 @@ def skeleton_maps() -> dict[str, SkeletonMap]:
     return {name: load_skeleton_map(p) for name, p in _shipped("skeletons").items()}
 
 
+def _robot_maps() -> dict[str, Path]:
+    """Robot maps by robot: the shipped ones and the added robots' (``map.yaml`` in each
+    added robot's folder, :mod:`humimic.robots.user`)."""
+    from humimic.robots.user import MAP_FILE, robots_dir, user_robot_names
+
+    root = robots_dir()
+    added = {n: root / n / MAP_FILE for n in user_robot_names(root)}
+    return {**{n: p for n, p in added.items() if p.is_file()}, **_shipped("robots")}
+
+
 def robot_map_file(robot: str) -> Path | None:
-    """The shipped robot map of ``robot``, or None."""
-    return _shipped("robots").get(robot)
+    """The robot map of ``robot`` (shipped, or an added robot's), or None."""
+    return _robot_maps().get(robot)
 
 
 def builtin_maps() -> dict[tuple[str, str], tuple[Path, Path]]:
     """Shipped maps: (skeleton, robot) -> (skeleton map file, robot map file), every pair of
-    a shipped skeleton map and a shipped robot map."""
-    skeletons, robots = _shipped("skeletons"), _shipped("robots")
+    a shipped skeleton map and a robot map (shipped, or an added robot's)."""
+    skeletons, robots = _shipped("skeletons"), _robot_maps()
     return {(s, r): (sp, rp) for s, sp in skeletons.items() for r, rp in robots.items()}
 
 
