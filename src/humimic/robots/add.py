@@ -35,6 +35,13 @@ MESH_FORMATS = (".stl", ".obj", ".msh")
 DEFAULT_ARMATURE_SWING = 0.5
 """Where a model gives no rotor inertia, the armature is chosen so that the gain recipe's kp
 is the joint's effort limit over this many radians (a servo saturating at half a radian)."""
+BOUND_MASS = 1e-3
+"""Smallest link mass [kg] in an added URDF (massless links between joints get it)."""
+BOUND_INERTIA = 1e-6
+"""Smallest link principal inertia [kg m^2] in an added URDF."""
+MIN_INERTIA = 1e-10
+"""A link inertia's smallest principal moment below this [kg m^2] is broken (iCub's ankles
+give 1e-20: MuJoCo refuses them)."""
 DEFAULT_SPEED = 20.0
 """Joint speed limit [rad/s] where the model gives none: a stated default, as for the
 registered robots without one."""
@@ -54,6 +61,8 @@ class Structure:
     hands: dict[str, str | None] = field(default_factory=dict)
     head: str | None = None
     height: float = 0.0
+    forward: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    """The robot's forward direction at ``qpos0``, in the world (where its toes point)."""
     notes: list[str] = field(default_factory=list)
 
     def missing(self) -> list[str]:
@@ -160,6 +169,8 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
         robot.remove(links[root])
         notes.append(f"link {root!r} (the world, fixed to {child!r}) dropped: {child!r} floats")
         root = child
+    for link in links.values():
+        _repair_inertia(link, notes)
     visual = 0
     for link in links.values():
         for v in link.findall("visual"):
@@ -186,7 +197,7 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
             while name in used:
                 name, k = f"{stem}_{k}", k + 1
             used.add(name)
-            if src.suffix.lower() in MESH_FORMATS:
+            if src.suffix.lower() in MESH_FORMATS and not _ascii_stl(src):
                 dest = assets / f"{name}{src.suffix.lower()}"
                 shutil.copy2(src, dest)
             else:
@@ -211,7 +222,7 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
             mesh.set("filename", dest.name)
     ext = ET.SubElement(robot, "mujoco")
     ET.SubElement(ext, "compiler", strippath="false", discardvisual="true", fusestatic="true",
-                  meshdir=str(assets))  # fmt: skip
+                  balanceinertia="true", meshdir=str(assets))  # fmt: skip
     world = ET.SubElement(robot, "link", name="humimic_world")
     del world
     base = ET.SubElement(robot, "joint", name="floating_base", type="floating")
@@ -219,9 +230,50 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
     ET.SubElement(base, "child", link=str(root))
     text = ET.tostring(robot, encoding="unicode")
     try:
-        return mujoco.MjSpec.from_string(text)
+        spec = mujoco.MjSpec.from_string(text)
     except ValueError as e:
         raise InputError(f"{path}: MuJoCo cannot read this URDF: {_one_line(e)}") from None
+    # Links without mass between joints (a 3-DoF hip as three links, the "human" URDF's
+    # virtual links) get MuJoCo's smallest allowed mass and inertia; meshes count as shells
+    # for their (unused: URDF links give their inertia) volume, which flat meshes lack.
+    spec.compiler.boundmass, spec.compiler.boundinertia = BOUND_MASS, BOUND_INERTIA
+    for mesh in spec.meshes:
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+    return spec
+
+
+def _ascii_stl(path: Path) -> bool:
+    """An ASCII STL (MuJoCo reads binary STL only): it starts with ``solid`` and its first
+    kilobyte is text with a ``facet``."""
+    if path.suffix.lower() != ".stl":
+        return False
+    with path.open("rb") as f:
+        head = f.read(1024)
+    return head.lstrip().startswith(b"solid") and b"facet" in head
+
+
+def _repair_inertia(link: ET.Element, notes: list[str]) -> None:
+    """A link inertia that is not positive definite (iCub's ankles) replaced by its diagonal
+    made positive; said in the notes. (The triangle inequality MuJoCo's compiler balances.)"""
+    i = link.find("inertial/inertia")
+    if i is None:
+        return
+    keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    try:
+        xx, xy, xz, yy, yz, zz = (float(i.get(k, "0")) for k in keys)
+    except ValueError:
+        return
+    m = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    if np.all(np.isfinite(m)) and np.linalg.eigvalsh(m).min() > MIN_INERTIA:
+        return
+    mass_el = link.find("inertial/mass")
+    mass = float(mass_el.get("value", "0")) if mass_el is not None else 0.0
+    floor = max(0.4 * mass * 0.03**2, MIN_INERTIA)  # A 3 cm ball of the link's mass.
+    diag = np.maximum(np.abs(np.diag(m)), floor)
+    for k, v in zip(keys, (diag[0], 0.0, 0.0, diag[1], 0.0, diag[2]), strict=True):
+        i.set(k, f"{v:.9g}")
+    notes.append(f"link {link.get('name')!r}: its inertia is not positive definite: its "
+                 "diagonal used, at least that of a 3 cm ball of its mass")  # fmt: skip
 
 
 def _convert_mesh(src: Path, dest: Path) -> bool:
@@ -232,6 +284,10 @@ def _convert_mesh(src: Path, dest: Path) -> bool:
         mesh = trimesh.load(str(src), force="mesh")
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             return False
+        if src.suffix.lower() == ".dae" and b"<up_axis>Y_UP</up_axis>" in src.read_bytes():
+            # COLLADA's up axis, which trimesh leaves to the caller (as ROS's loaders do
+            # not): y up in the file is z up here, a quarter turn about x.
+            mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [1, 0, 0]))
         mesh.export(str(dest))
         return True
     except Exception:
@@ -355,8 +411,6 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
     ground = min(low.values())
     top = max(corners[g][:, 2].max() for g in geoms)
     height = float(top - ground)
-    rot = data.xmat[root].reshape(3, 3)
-    local = {b: rot.T @ (data.xpos[b] - data.xpos[root]) for b in bodies}
 
     def chain(b: int) -> list[int]:
         out = [b]
@@ -376,22 +430,36 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
         return min(low[x] for x in subtree(b))
 
     leaves = [b for b in bodies if not kids[b] and b != root]
-    # Feet: per side, the leaf whose subtree's geometry is lowest, within 5 % of the height
-    # of the ground.
+    # Feet: the two leaves whose subtrees' geometry is lowest (within 5 % of the height of
+    # the ground), apart sideways; each foot body the body on its chain with the lowest
+    # geometry.
+    cands = sorted((b for b in leaves if lowest_in(b) < ground + 0.05 * height), key=lowest_in)
+    pair: list[int] = []
+    for b in cands:
+        if not pair or np.linalg.norm((data.xpos[b] - data.xpos[pair[0]])[:2]) > 0.03 * height:
+            pair.append(b)
+        if len(pair) == 2:
+            break
+    ends = [min(chain(b), key=lambda x: (low[x], -len(chain(x)))) for b in pair]
+    # Forward: perpendicular to the line between the feet, the way the toes point: where a
+    # knee bent into its range moves the foot away from (knees bend backward); where no
+    # joint of the leg is a one-sided knee about the sideways axis, where the feet's geometry
+    # reaches beyond the ankles (toes are longer than heels); else the root frame's x.
+    fwd = _forward(model, data, root, ends, [chain(b) for b in ends], corners, geoms, height)
+    left_axis = np.cross([0.0, 0.0, 1.0], fwd)
+    axes = np.stack([fwd, left_axis, [0.0, 0.0, 1.0]])
+    local = {b: axes @ (data.xpos[b] - data.xpos[root]) for b in bodies}
     feet: dict[str, int] = {}
-    for side, sign in (("left", 1.0), ("right", -1.0)):
-        cands = [
-            b for b in leaves if sign * local[b][1] > 0 and lowest_in(b) < ground + 0.05 * height
-        ]
-        if cands:
-            leaf = min(cands, key=lowest_in)
-            # The foot body: the body on the leaf's chain with the lowest geometry.
-            feet[side] = min(chain(leaf), key=lambda x: (low[x], -len(chain(x))))
+    if len(ends) == 2:
+        a, b = sorted(ends, key=lambda x: -local[x][1])
+        feet = {"left": a, "right": b}
     if len(feet) < 2:
-        found = ", ".join(f"{s}: {model.body(b).name}" for s, b in feet.items()) or "none"
+        found = ", ".join(model.body(b).name for b in ends) or "none"
+        bare = sum(1 for b in bodies if b != root and low[b] == np.inf)
         raise InputError(
-            f"no legs found: no chain ends near the ground on each side of the root "
-            f"(found {found}; humimic assumes x forward, y left, z up at qpos0)"
+            f"no legs found: no two chains end near the ground apart from each other (found "
+            f"{found}; {bare} of {len(bodies) - 1} bodies have no collision geometry; humimic "
+            "needs z up at qpos0 and collision geometry on the feet)"
         )
     lc, rc = chain(feet["left"]), chain(feet["right"])
     common = [b for b in lc if b in rc]
@@ -428,7 +496,8 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
                           hips={s: model.body(b).name for s, b in hips.items()},
                           knees={s: (model.body(b).name if b is not None else None)
                                  for s, b in knees.items()},
-                          height=height)  # fmt: skip
+                          height=height,
+                          forward=(float(fwd[0]), float(fwd[1]), float(fwd[2])))  # fmt: skip
     del branch
     ends: dict[str, int] = {}
     for side, sign in (("left", 1.0), ("right", -1.0)):
@@ -458,15 +527,127 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
     return structure
 
 
-def _toe_offset(model: mujoco.MjModel, data: mujoco.MjData, foot: int) -> list[float]:
+def _forward(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    root: int,
+    feet: list[int],
+    chains: list[list[int]],
+    corners: dict[int, np.ndarray],
+    geoms: list[int],
+    height: float,
+) -> np.ndarray:
+    """The robot's forward direction at ``qpos0`` (a horizontal unit vector): see
+    :func:`find_structure`."""
+    up = np.array([0.0, 0.0, 1.0])
+    if len(feet) == 2:
+        side = data.xpos[feet[0]] - data.xpos[feet[1]]
+        side[2] = 0.0
+        side /= max(float(np.linalg.norm(side)), 1e-9)
+        ahead = np.cross(side, up)  # Forward up to its sign.
+        back = np.zeros(3)
+        probe = mujoco.MjData(model)
+        for foot, ch in zip(feet, chains, strict=True):
+            # The knee: the hinge about the sideways axis nearest the leg's mid-height.
+            mid = 0.5 * (data.xpos[ch[1], 2] + data.xpos[foot, 2]) if len(ch) > 1 else 0.0
+            best, best_dz = -1, np.inf
+            for b in ch[1:-1]:
+                for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
+                    if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE or not model.jnt_limited[j]:
+                        continue
+                    axis = data.xmat[b].reshape(3, 3) @ model.jnt_axis[j]
+                    dz = abs(float(data.xpos[b, 2]) - mid)
+                    if abs(float(axis @ side)) > 0.7 and dz < best_dz:
+                        best, best_dz = j, dz
+            if best < 0:
+                continue
+            lo, hi = (float(v) for v in model.jnt_range[best])
+            if max(abs(lo), abs(hi)) < 1.0 or max(abs(lo), abs(hi)) < 3.0 * min(abs(lo), abs(hi)):
+                continue  # Not one-sided: says nothing about which way it bends.
+            probe.qpos[:] = model.qpos0
+            probe.qpos[model.jnt_qposadr[best]] = 0.5 if hi > -lo else -0.5
+            mujoco.mj_kinematics(model, probe)
+            back += probe.xpos[foot] - data.xpos[foot]
+        if abs(float(back @ ahead)) > 0.02 * height:
+            return -ahead * np.sign(float(back @ ahead))
+        reach = np.zeros(3)
+        for f in feet:
+            pts = np.vstack([corners[g] for g in geoms if model.geom_bodyid[g] == f])
+            reach += pts.mean(axis=0) - data.xpos[f]
+        if abs(float(reach @ ahead)) > 0.01 * height:
+            return ahead * np.sign(float(reach @ ahead))
+    x = data.xmat[root].reshape(3, 3)[:, 0].copy()
+    x[2] = 0.0
+    return x / max(float(np.linalg.norm(x)), 1e-9)
+
+
+SOLE_SLAB = 0.02
+"""A mesh foot stands on the box of its mesh's vertices within this height [m] of its lowest
+point (the sole), not on the box of the whole mesh, which reaches up into the shin."""
+
+
+def _box_feet(spec: mujoco.MjSpec, model: mujoco.MjModel, s: Structure, notes: list[str]) -> bool:
+    """Feet whose collision geometry is meshes stand on boxes: the footprint of each foot
+    mesh's lowest :data:`SOLE_SLAB` at ``qpos0`` (aligned with the robot's forward direction,
+    1 cm thick) becomes the foot's collision geom, the mesh is kept for the look only (the
+    feet's contact points come from boxes, spheres and capsules). Returns whether any foot
+    changed."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    fwd = np.asarray(s.forward, dtype=float)
+    axes = np.stack([fwd, np.cross([0.0, 0.0, 1.0], fwd), [0.0, 0.0, 1.0]])  # Rows: x y z.
+    changed = False
+    for side, name in s.feet.items():
+        body = model.body(name).id
+        meshes = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body
+                  and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
+                  and (model.geom_contype[g] or model.geom_conaffinity[g])]  # fmt: skip
+        if not meshes:
+            continue
+        verts = []
+        for g in meshes:
+            mid = int(model.geom_dataid[g])
+            v = model.mesh_vert[
+                model.mesh_vertadr[mid] : model.mesh_vertadr[mid] + model.mesh_vertnum[mid]
+            ]
+            verts.append(data.geom_xpos[g] + v @ data.geom_xmat[g].reshape(3, 3).T)
+        world = np.vstack(verts)
+        low = world[world[:, 2] < world[:, 2].min() + SOLE_SLAB] @ axes.T  # In (fwd, left, up).
+        lo, hi = low.min(axis=0), low.max(axis=0)
+        lo[2], hi[2] = world[:, 2].min(), world[:, 2].min() + 0.01
+        centre_w = axes.T @ (0.5 * (lo + hi))
+        rot_b = data.xmat[body].reshape(3, 3)
+        pos = rot_b.T @ (centre_w - data.xpos[body])
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, (rot_b.T @ axes.T).ravel())
+        spec.body(name).add_geom(name=f"{name}_sole", type=mujoco.mjtGeom.mjGEOM_BOX,
+                                 size=(0.5 * (hi - lo)).tolist(), pos=pos.tolist(),
+                                 quat=quat.tolist(), contype=1, conaffinity=1,
+                                 group=3)  # fmt: skip
+        for g in meshes:
+            mesh_geom = next((sg for sg in spec.geoms if sg.id == g), None)
+            if mesh_geom is not None:
+                mesh_geom.contype, mesh_geom.conaffinity, mesh_geom.group = 0, 0, 2
+        changed = True
+        size = 100 * (hi - lo)
+        notes.append(f"{side} foot {name!r}: stands on a {size[0]:.0f} x {size[1]:.0f} cm box, "
+                     "the footprint of its collision mesh's lowest 2 cm")  # fmt: skip
+    return changed
+
+
+def _toe_offset(
+    model: mujoco.MjModel, data: mujoco.MjData, foot: int, forward: np.ndarray
+) -> list[float]:
     """The toe key point in the foot body's frame: on the bottom of the foot's collision
-    geometry, three quarters of the way from the ankle to its front, under the ankle's line."""
+    geometry, three quarters of the way from the ankle to its front (along ``forward``),
+    under the ankle's line."""
     pts = np.vstack([_geom_bounds(model, data, g) for g in range(model.ngeom)
                      if model.geom_bodyid[g] == foot
                      and (model.geom_contype[g] or model.geom_conaffinity[g])])  # fmt: skip
     ankle = data.xpos[foot]
-    front = float(pts[:, 0].max())
-    toe = np.array([ankle[0] + 0.75 * (front - ankle[0]), ankle[1], float(pts[:, 2].min())])
+    front = float(((pts - ankle) @ forward).max())
+    toe = ankle + 0.75 * front * forward
+    toe[2] = float(pts[:, 2].min())
     rot = data.xmat[foot].reshape(3, 3)
     return [round(float(v), 4) for v in rot.T @ (toe - ankle)]
 
@@ -492,7 +673,8 @@ def robot_map(model: mujoco.MjModel, s: Structure, name: str) -> dict[str, Any]:
             last = f"{side}_knee"
         kp[f"{side}_ankle"] = {"body": s.feet[side], "parent": last, "weight": 10.0}
         foot = model.body(s.feet[side]).id
-        kp[f"{side}_toe"] = {"body": s.feet[side], "offset": _toe_offset(model, data, foot),
+        toe = _toe_offset(model, data, foot, np.asarray(s.forward))
+        kp[f"{side}_toe"] = {"body": s.feet[side], "offset": toe,
                              "parent": f"{side}_ankle", "weight": 5.0}  # fmt: skip
     arms = all(s.shoulders.get(x) and s.hands.get(x) for x in ("left", "right"))
     if arms:
@@ -617,6 +799,12 @@ def add_robot(
             structure = find_structure(model, root_body)
         except InputError as e:
             raise InputError(f"{path}: {e}") from None
+        if _box_feet(spec, model, structure, notes):
+            try:
+                model = spec.compile()
+            except ValueError as e:
+                raise InputError(f"{path}: MuJoCo cannot compile the model with box feet: "
+                                 f"{_one_line(e)}") from None  # fmt: skip
         mass = float(model.body_subtreemass[root_body])
         motors, motor_notes = _motors(model, mass, structure.height)
         notes += motor_notes
@@ -629,6 +817,18 @@ def add_robot(
                      and (model.geom_contype[g] or model.geom_conaffinity[g]))  # fmt: skip
         rb = spec.body(model.body(root_body).name)
         rb.pos = np.asarray(rb.pos, dtype=float) - np.array([0.0, 0.0, lowest])
+        # Facing +x at qpos0, as every registered robot does (iCub's base faces -x).
+        yaw = math.atan2(structure.forward[1], structure.forward[0])
+        if abs(yaw) > 1e-6:
+            turn = np.array([math.cos(-yaw / 2), 0.0, 0.0, math.sin(-yaw / 2)])
+            quat = np.zeros(4)
+            mujoco.mju_mulQuat(quat, turn, np.asarray(rb.quat, dtype=float))
+            rb.quat = quat
+            c, s_ = math.cos(-yaw), math.sin(-yaw)
+            x, y, z = (float(v) for v in rb.pos)
+            rb.pos = np.array([c * x - s_ * y, s_ * x + c * y, z])
+            notes.append(f"turned {math.degrees(yaw):+.0f} deg about z to face +x at qpos0 "
+                         "(its knees bend and its toes point that way)")  # fmt: skip
         spec.compile()
         xml = spec.to_xml().replace(f'meshdir="{assets}', 'meshdir="assets')
         model_file = f"{name}.xml"
