@@ -440,21 +440,21 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
             pair.append(b)
         if len(pair) == 2:
             break
-    ends = [min(chain(b), key=lambda x: (low[x], -len(chain(x)))) for b in pair]
+    foot_ends = [min(chain(b), key=lambda x: (low[x], -len(chain(x)))) for b in pair]
     # Forward: perpendicular to the line between the feet, the way the toes point: where a
     # knee bent into its range moves the foot away from (knees bend backward); where no
     # joint of the leg is a one-sided knee about the sideways axis, where the feet's geometry
     # reaches beyond the ankles (toes are longer than heels); else the root frame's x.
-    fwd = _forward(model, data, root, ends, [chain(b) for b in ends], corners, geoms, height)
+    fwd = _forward(model, data, root, foot_ends, [chain(b) for b in foot_ends], corners, geoms, height)
     left_axis = np.cross([0.0, 0.0, 1.0], fwd)
     axes = np.stack([fwd, left_axis, [0.0, 0.0, 1.0]])
     local = {b: axes @ (data.xpos[b] - data.xpos[root]) for b in bodies}
     feet: dict[str, int] = {}
-    if len(ends) == 2:
-        a, b = sorted(ends, key=lambda x: -local[x][1])
+    if len(foot_ends) == 2:
+        a, b = sorted(foot_ends, key=lambda x: -local[x][1])
         feet = {"left": a, "right": b}
     if len(feet) < 2:
-        found = ", ".join(model.body(b).name for b in ends) or "none"
+        found = ", ".join(model.body(b).name for b in foot_ends) or "none"
         bare = sum(1 for b in bodies if b != root and low[b] == np.inf)
         raise InputError(
             f"no legs found: no two chains end near the ground apart from each other (found "
