@@ -445,7 +445,9 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
     # knee bent into its range moves the foot away from (knees bend backward); where no
     # joint of the leg is a one-sided knee about the sideways axis, where the feet's geometry
     # reaches beyond the ankles (toes are longer than heels); else the root frame's x.
-    fwd = _forward(model, data, root, foot_ends, [chain(b) for b in foot_ends], corners, geoms, height)
+    fwd = _forward(
+        model, data, root, foot_ends, [chain(b) for b in foot_ends], corners, geoms, height
+    )
     left_axis = np.cross([0.0, 0.0, 1.0], fwd)
     axes = np.stack([fwd, left_axis, [0.0, 0.0, 1.0]])
     local = {b: axes @ (data.xpos[b] - data.xpos[root]) for b in bodies}
