@@ -34,6 +34,7 @@ BASE: dict[str, list[str]] = {
     "ViewCommand": ["view", "m.npz"],
     "RobotsList": ["robots", "list"],
     "RobotsExport": ["robots", "export", "g1", "--out", "g1.xml"],
+    "RobotsAdd": ["robots", "add", "bot.urdf", "--name", "bot"],
     "SysidSimulate": ["sysid", "simulate", "--out", "l.mcap"],
     "SysidResidual": ["sysid", "residual", "l.mcap"],
     "SysidDiagnose": ["sysid", "diagnose", "l.mcap", "--out-dir", "d"],

@@ -424,7 +424,15 @@ def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
             if data.get(key) is not None and data[key] not in names:
                 data[key] = str(_absolute(data[key], start))
         return config, _settings_from(data)
-    except (yaml.YAMLError, KeyError, TypeError, ValueError, OSError, UnicodeDecodeError) as e:
+    except (
+        yaml.YAMLError,
+        KeyError,
+        TypeError,
+        ValueError,
+        OSError,
+        UnicodeDecodeError,
+        AttributeError,
+    ) as e:  # AttributeError: a mapping cut to a string (fuzz seed 36).
         raise InputError(f"{path}: not a humimic run configuration ({first_line(e)})") from None
 
 
