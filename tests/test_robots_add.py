@@ -16,16 +16,7 @@ from humimic.cli.main import main
 from humimic.robots import get_robot, nominal_model
 from humimic.robots.add import add_robot
 from humimic.robots.user import ROBOTS_DIR_ENV
-
-
-def _refused(argv: list[str], capsys: pytest.CaptureFixture[str], *expect: str) -> str:
-    code = main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    assert err.startswith("humimic: error: ") and err.count("\n") == 1, err
-    for part in expect:
-        assert part in err, f"{part!r} not in {err!r}"
-    return err
+from test_hostile_cli import _refused
 
 
 @pytest.fixture
