@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+# The robots a user added on this machine (humimic robots add) stay out of the tests: every
+# test process reads an empty robots folder of its own unless a test sets another.
+os.environ["HUMIMIC_ROBOTS_DIR"] = tempfile.mkdtemp(prefix="humimic-test-robots-")
 
 
 @pytest.fixture(scope="session")

@@ -3,7 +3,8 @@ rig no map knows gets a map proposed from its joint names and tree, or is refuse
 key points it could not place.
 
 The rigs are written by these tests: the CMU walk of ../shared/data with its joints renamed
-as LAFAN1, Xsens MVN, Mixamo (under another namespace) and a made-up ``L_Hip`` rig name
+as LAFAN1, Xsens MVN, Mixamo (under another namespace), SMPL (the smplx package's names and
+PHC's) and a made-up ``L_Thigh`` rig name
 them (published joint lists, no third-party file). Only names change, so every rig must
 retarget to exactly the motion of the CMU file.
 """
@@ -32,6 +33,24 @@ CMU_TO = {
         "Hips": "Pelvis", "LeftUpLeg": "LeftUpperLeg", "RightUpLeg": "RightUpperLeg",
         "LeftLeg": "LeftLowerLeg", "RightLeg": "RightLowerLeg", "LeftToeBase": "LeftToe",
         "RightToeBase": "RightToe", "LeftArm": "LeftUpperArm", "RightArm": "RightUpperArm",
+    },
+    "smpl": {
+        "Hips": "pelvis", "LeftUpLeg": "left_hip", "RightUpLeg": "right_hip",
+        "LeftLeg": "left_knee", "RightLeg": "right_knee", "LeftFoot": "left_ankle",
+        "RightFoot": "right_ankle", "LeftToeBase": "left_foot", "RightToeBase": "right_foot",
+        "Spine": "spine1", "Spine1": "spine3", "Neck": "neck", "Head": "head",
+        "LeftShoulder": "left_collar", "RightShoulder": "right_collar",
+        "LeftArm": "left_shoulder", "RightArm": "right_shoulder", "LeftForeArm": "left_elbow",
+        "RightForeArm": "right_elbow", "LeftHand": "left_wrist", "RightHand": "right_wrist",
+    },
+    "smpl_phc": {
+        "Hips": "Pelvis", "LeftUpLeg": "L_Hip", "RightUpLeg": "R_Hip", "LeftLeg": "L_Knee",
+        "RightLeg": "R_Knee", "LeftFoot": "L_Ankle", "RightFoot": "R_Ankle",
+        "LeftToeBase": "L_Toe", "RightToeBase": "R_Toe", "Spine": "Spine1", "Spine1": "Spine3",
+        "Neck": "Neck", "Head": "Head", "LeftShoulder": "L_Collar",
+        "RightShoulder": "R_Collar", "LeftArm": "L_Shoulder", "RightArm": "R_Shoulder",
+        "LeftForeArm": "L_Elbow", "RightForeArm": "R_Elbow", "LeftHand": "L_Wrist",
+        "RightHand": "R_Wrist",
     },
     "made_up": {
         "Hips": "pelvis", "LeftUpLeg": "L_Thigh", "RightUpLeg": "R_Thigh",
@@ -88,7 +107,8 @@ def _cmu_qpos(shared_data: Path, tmp: Path) -> np.ndarray:
 
 
 @pytest.mark.parametrize(("rig", "skeleton"), [("lafan1", "lafan1"), ("xsens", "xsens"),
-                                               ("mixamo", "mixamo")])  # fmt: skip
+                                               ("mixamo", "mixamo"), ("smpl", "smpl"),
+                                               ("smpl_phc", "smpl_phc")])  # fmt: skip
 def test_a_known_rig_is_matched_by_its_joint_names(
     shared_data: Path, tmp_path_factory: pytest.TempPathFactory, rig: str, skeleton: str
 ) -> None:
