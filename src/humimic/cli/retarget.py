@@ -168,12 +168,23 @@ class DemoCommand:
 
 @dataclass(frozen=True, kw_only=True)
 class ConvertCommand:
-    """Convert a motion between .npz and .mcap (lossless both ways)."""
+    """Convert a motion between .npz, .mcap (lossless both ways) and .csv (the layout
+    BeyondMimic's and GMR's trackers read: per row base x y z, base quaternion qx qy qz qw,
+    the joint positions in the robot's order; the robot, frame rate and joint order in a
+    <file>.csv.yaml beside it)."""
 
     src: Annotated[Path, tyro.conf.Positional]
-    """The motion to read (.npz or .mcap)."""
+    """The motion to read (.npz, .mcap or .csv)."""
     dst: Annotated[Path, tyro.conf.Positional]
-    """The file to write (.npz or .mcap); it must not be the source."""
+    """The file to write (.npz, .mcap or .csv); it must not be the source."""
+    robot: str | None = None
+    """A .csv source's robot (default: its .csv.yaml's)."""
+    fps: float | None = None
+    """A .csv source's frame rate (default: its .csv.yaml's)."""
+
+    def validate(self) -> None:
+        if self.fps is not None and self.fps <= 0:
+            raise InputError(f"--fps {self.fps}: must be positive")
 
 
 def _units(units: str) -> str | float:
@@ -370,18 +381,23 @@ def run_replay(cmd: ReplayCommand) -> int:
 
 def run_convert(cmd: ConvertCommand) -> None:
     """Run ``humimic convert``."""
+    from humimic.formats.csv_motion import write_motion_csv
     from humimic.formats.mcap import write_motion_mcap
     from humimic.motion import save_motion
     from humimic.pipeline.files import read_any_motion
     from humimic.robots.model import motion_model
 
-    if cmd.dst.suffix not in (".npz", ".mcap"):
-        raise InputError(f"{cmd.dst}: convert to .npz or .mcap")
+    if cmd.dst.suffix not in (".npz", ".mcap", ".csv"):
+        raise InputError(f"{cmd.dst}: convert to .npz, .mcap or .csv")
     check_not_input(cmd.dst, {"the source": cmd.src}, "the destination")
-    motion = read_any_motion(cmd.src)
+    motion = read_any_motion(cmd.src, robot=cmd.robot, fps=cmd.fps)
     motion_model(motion, str(cmd.src))  # A motion of the robot it names, or refused.
     if cmd.dst.suffix == ".mcap":
         write_motion_mcap(motion, cmd.dst)
+    elif cmd.dst.suffix == ".csv":
+        side = write_motion_csv(cmd.dst, motion.qpos, fps=motion.fps, robot=motion.robot,
+                                joint_names=tuple(motion.joint_names))  # fmt: skip
+        print(f"wrote {side} (robot, frame rate, joint order)")
     else:
         save_motion(motion, cmd.dst)
     print(f"wrote {cmd.dst} ({motion.num_frames} frames)")
