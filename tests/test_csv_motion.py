@@ -128,3 +128,20 @@ def test_mutated_csv_files_are_read_or_refused(g1_motion: Path, tmp_path: Path) 
             assert str(bad) in str(e) and "\n" not in str(e), e
         except HumimicError as e:
             pytest.fail(f"case {case}: {type(e).__name__}: {e}")
+
+
+def test_retarget_format_csv_writes_the_motion_beside_its_npz(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "walk.npz"
+    argv = ["retarget", str(shared_data / "cmu" / "35_01.bvh"), "--out", str(out),
+            "--report", str(tmp_path / "walk.json"), "--format", "csv", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    import json
+
+    assert json.loads((tmp_path / "walk.json").read_text())["csv_written"] == str(
+        tmp_path / "walk.csv"
+    )
+    a, b = load_motion(out), read_any_motion(tmp_path / "walk.csv")
+    assert (b.robot, b.fps) == (a.robot, a.fps)
+    np.testing.assert_allclose(b.qpos, a.qpos, atol=1e-8)

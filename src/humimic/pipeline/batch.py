@@ -158,6 +158,8 @@ class RetargetBatch:
     method: Method
     fps: float
     dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
+    csv: bool = False
+    """Also write each motion as CSV beside its ``.npz`` (:mod:`humimic.formats.csv_motion`)."""
 
     def run(self, progress: Progress | None = None) -> Iterator[ClipResult]:
         """Retarget and write the clips one by one, yielding each as it is written.
@@ -187,11 +189,23 @@ class RetargetBatch:
                 text = yaml.safe_dump(map_data(retargeter.map), sort_keys=False)
                 atomic_write_text(job.map_path, text)
                 report["map_written"] = str(job.map_path)
+            csv = job.motion_path.with_suffix(".csv") if self.csv else None
             try:
+                if csv is not None:  # Before the motion: no motion without its CSV.
+                    from humimic.formats.csv_motion import write_motion_csv
+
+                    write_motion_csv(csv, motion.qpos, fps=motion.fps, robot=motion.robot,
+                                     joint_names=tuple(motion.joint_names))  # fmt: skip
+                    report["csv_written"] = str(csv)
                 save_with_report(motion, job.motion_path, report, job.report_path)
             except BaseException:
                 if job.map_path is not None:
                     job.map_path.unlink(missing_ok=True)
+                if csv is not None:
+                    from humimic.formats.csv_motion import meta_path
+
+                    csv.unlink(missing_ok=True)
+                    meta_path(csv).unlink(missing_ok=True)
                 raise
             yield ClipResult(source=job.source, motion_path=job.motion_path,
                              report_path=job.report_path, report=report)  # fmt: skip
@@ -289,6 +303,7 @@ def plan_retarget(
     menagerie_root: Path | None = None,
     start: int | None = None,
     scene: Path | None = None,
+    csv: bool = False,
 ) -> RetargetBatch:
     """Read and check a batch of clips (``humimic retarget``): nothing is written.
 
@@ -373,7 +388,19 @@ def plan_retarget(
             clip_scene = load_scene(f.parent if auto_scene else scene)
         jobs.append(ClipJob(source=f, clip=clip, scene=clip_scene, motion_path=motion_path,
                             report_path=report_path, map_path=map_path))  # fmt: skip
-    return RetargetBatch(jobs=jobs, retargeters=retargeters, method=method, fps=ik.fps, dyn=dyn)
+    if csv:
+        from humimic.formats.csv_motion import meta_path
+
+        read = {f"the input {j.source}": j.source for j in jobs}
+        for j in jobs:
+            for p in (
+                j.motion_path.with_suffix(".csv"),
+                meta_path(j.motion_path.with_suffix(".csv")),
+            ):
+                check_not_input(p, read, "--format csv")
+                check_writable(p)
+    return RetargetBatch(jobs=jobs, retargeters=retargeters, method=method, fps=ik.fps, dyn=dyn,
+                         csv=csv)  # fmt: skip
 
 
 __all__ = [
