@@ -282,7 +282,7 @@ def test_get_map_unknown_pair_lists_shipped_maps() -> None:
     msg = str(info.value)
     assert "'atlas'" in msg
     assert (
-        "skeleton maps: cmu, holosoma, lafan1, mixamo, smpl, smpl_phc, xsens; robot maps: "
+        "skeleton maps: canonical, cmu, holosoma, lafan1, mixamo, smpl, smpl_phc, xsens; robot maps: "
         "apollo, berkeley_humanoid, g1, h1, op3, t1" in msg
     )
     assert isinstance(info.value, HumimicError)

@@ -275,9 +275,12 @@ def _read_clip(
     """A clip from its file, from ``start`` on (default: 1 for CMU files, whose frame 0 is a
     T-pose; else 0)."""
     from humimic.datasets import load_bvh, load_clip
+    from humimic.pipeline.robot_clip import is_motion_file, robot_motion_clip
 
     if path.suffix.lower() == ".bvh":
         clip = load_bvh(path, units=units, up=up, skeleton=skeleton)
+    elif is_motion_file(path):  # A robot's motion: robot-to-robot retargeting.
+        clip = robot_motion_clip(path)
     else:
         clip = load_clip(path, skeleton=skeleton)
     first = start if start is not None else (1 if clip.skeleton == "cmu" else 0)
