@@ -40,6 +40,10 @@ class RetargetCommand:
     """Output .npz for one input; an output folder for several inputs or a folder."""
     report: Path | None = None
     """Quality report (JSON) for one input; with several, one <name>.json per clip in --out."""
+    body_model: Path | None = None
+    """For SMPL / SMPL+H / SMPL-X parameter files (AMASS .npz): the folder of your body model
+    files (smplx/SMPLX_NEUTRAL.npz and the like; licence-gated, never shipped). Default:
+    $HUMIMIC_BODY_MODELS."""
     format: Literal["npz", "csv"] = "npz"
     """csv: also write each motion as <name>.csv (per row: base x y z, quaternion qx qy qz qw,
     joint positions in the robot's order; BeyondMimic's and GMR's layout) with
@@ -315,7 +319,7 @@ def retarget_clips(cmd: RetargetCommand) -> list[dict]:
         cmd.inputs, cmd.out, report=cmd.report, robot=cmd.robot, method=cmd.method, ik=cmd.ik,
         mesh=cmd.mesh, dyn=cmd.dyn, units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton,
         map_file=cmd.map, menagerie_root=cmd.menagerie_root, start=cmd.start, scene=cmd.scene,
-        csv=cmd.format == "csv",
+        csv=cmd.format == "csv", body_model=cmd.body_model,
     )  # fmt: skip
     reports = []
     for r in batch.run(progress=frame_bars(cmd.quiet)):

@@ -49,7 +49,9 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
     """Load a human motion clip, choosing the loader from the file suffix.
 
     Args:
-        path: A ``.bvh`` (:func:`load_bvh`), ``.npy`` or ``.npz`` (:func:`load_positions`) file.
+        path: A ``.bvh`` (:func:`load_bvh`), ``.npy`` or ``.npz`` (:func:`load_positions`) file,
+            or an ``.npz`` of SMPL-family parameters (:func:`humimic.datasets.smpl.load_smpl`,
+            with ``body_model``).
         **kw: Keyword arguments for that loader.
 
     Returns:
@@ -63,6 +65,12 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
     suffix = p.suffix.lower()
     if suffix == ".bvh":
         return load_bvh(p, **kw)
+    if suffix == ".npz":
+        from humimic.datasets.smpl import is_smpl_file, load_smpl
+
+        if is_smpl_file(p):  # SMPL-family parameters (AMASS): joints through the body model.
+            return load_smpl(p, body_model=kw.get("body_model"))
+    kw.pop("body_model", None)
     if suffix in (".npy", ".npz"):
         return load_positions(p, **kw)
     raise InputError(

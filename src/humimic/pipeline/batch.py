@@ -270,7 +270,12 @@ def _output_paths(
 
 
 def _read_clip(
-    path: Path, units: str | float, up: str, skeleton: str | None, start: int | None
+    path: Path,
+    units: str | float,
+    up: str,
+    skeleton: str | None,
+    start: int | None,
+    body_model: Path | None = None,
 ) -> HumanClip:
     """A clip from its file, from ``start`` on (default: 1 for CMU files, whose frame 0 is a
     T-pose; else 0)."""
@@ -282,7 +287,7 @@ def _read_clip(
     elif is_motion_file(path):  # A robot's motion: robot-to-robot retargeting.
         clip = robot_motion_clip(path)
     else:
-        clip = load_clip(path, skeleton=skeleton)
+        clip = load_clip(path, skeleton=skeleton, body_model=body_model)
     first = start if start is not None else (1 if clip.skeleton == "cmu" else 0)
     if not 0 <= first < clip.num_frames:
         raise InputError(f"{path}: --start {first} outside the clip's {clip.num_frames} frames")
@@ -307,6 +312,7 @@ def plan_retarget(
     start: int | None = None,
     scene: Path | None = None,
     csv: bool = False,
+    body_model: Path | None = None,
 ) -> RetargetBatch:
     """Read and check a batch of clips (``humimic retarget``): nothing is written.
 
@@ -353,7 +359,7 @@ def plan_retarget(
     jobs: list[ClipJob] = []
     retargeters: dict[str, Retargeter] = {}
     for (f, _), (motion_path, report_path) in zip(files, outs, strict=True):
-        clip = _read_clip(f, units, up, skeleton, start)
+        clip = _read_clip(f, units, up, skeleton, start, body_model)
         rmap, map_path = None, None
         if map_file is None and skeleton is None and (clip.skeleton, robot) not in builtin_maps():
             # A rig with no shipped map: a shipped skeleton map its joint names match, or a

@@ -1,0 +1,204 @@
+"""SMPL-family parameter files (AMASS ``.npz``: SMPL, SMPL+H, SMPL-X) as clips of body joints.
+
+The body model files are licence-gated: humimic never ships or downloads them. The user's own
+(``SMPLX_NEUTRAL.npz`` and the like, from smpl-x.is.tue.mpg.de, mano.is.tue.mpg.de or
+smpl.is.tue.mpg.de) are read from ``--body-model DIR`` or ``$HUMIMIC_BODY_MODELS``, as the smplx
+package lays them out (``DIR/smplx/SMPLX_NEUTRAL.npz``, or the files in ``DIR`` itself).
+
+Only the joints are needed, so no skinning: the shaped rest joints are the joint regressor
+applied to the shaped template (``J = J_regressor (v_template + shapedirs betas)``, as smplx
+computes them), and the posed joints follow by forward kinematics of the axis-angle rotations
+about them, the root at ``J_0 + trans``. The 22 body joints are kept (the hands' and face's
+are not key points). AMASS is z up, in metres. Arrays are read without pickle.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from humimic.datasets.clip import HumanClip
+from humimic.errors import InputError, MotionDataError
+from humimic.npyio import read_npz_members
+
+BODY_MODELS_ENV = "HUMIMIC_BODY_MODELS"
+"""Environment variable naming the folder of the user's SMPL-family body model files."""
+
+SMPL_BODY_JOINTS = (
+    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
+    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
+    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
+    "left_wrist", "right_wrist",
+)  # fmt: skip
+"""The body joints of every SMPL-family model, in their order (the smplx package's names)."""
+
+FAMILIES = {"smpl": (24, 72), "smplh": (52, 156), "smplx": (55, 165)}
+"""Family -> (joints in its model, width of an AMASS ``poses`` row)."""
+MAX_BYTES = 2 * 1024**3
+"""Most bytes read from one file (an SMPL-X model is about 100 MB, an AMASS clip a few MB)."""
+
+
+def is_smpl_file(path: Path) -> bool:
+    """Whether an ``.npz`` holds SMPL-family parameters (``poses`` or ``pose_body``), not joint
+    positions (whose reader would name the wrong missing key)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            keys = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
+    except (OSError, zipfile.BadZipFile):
+        return False
+    return "poses" in keys or "pose_body" in keys
+
+
+def _rotations(aa: np.ndarray) -> np.ndarray:
+    """Rotation matrices of axis-angle vectors (Rodrigues). Shape: (..., 3) -> (..., 3, 3)."""
+    theta = np.linalg.norm(aa, axis=-1, keepdims=True)
+    k = aa / np.maximum(theta, 1e-12)
+    kx, ky, kz = k[..., 0], k[..., 1], k[..., 2]
+    z = np.zeros_like(kx)
+    K = np.stack([z, -kz, ky, kz, z, -kx, -ky, kx, z], axis=-1).reshape(*aa.shape[:-1], 3, 3)
+    s, c = np.sin(theta)[..., None], np.cos(theta)[..., None]
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + s * K + (1 - c) * (K @ K)
+
+
+def body_model_file(family: str, gender: str, folder: Path | None, source: Path) -> Path:
+    """The body model file of a family and gender, from ``folder`` or ``$HUMIMIC_BODY_MODELS``.
+
+    Raises:
+        InputError: No folder given, or no such file in it, naming the motion file and its
+            gender (the message says where users get the files and what to pass).
+    """
+    where = folder if folder is not None else os.environ.get(BODY_MODELS_ENV)
+    name = f"{family.upper()}_{gender.upper()}.npz"
+    get = ("the body model files are licence-gated and not shipped: register and download "
+           f"them ({family.upper()}: smpl-x.is.tue.mpg.de for SMPL-X, mano.is.tue.mpg.de for "
+           "SMPL+H, smpl.is.tue.mpg.de for SMPL), then pass --body-model DIR (the folder "
+           f"holding {family}/{name}) or set {BODY_MODELS_ENV}")  # fmt: skip
+    if not where:
+        raise InputError(f"{source}: no body model folder for {name}: {get}")
+    base = Path(where)
+    for cand in (base / family / name, base / name):
+        if cand.is_file():
+            return cand
+    raise InputError(f"{source}: gender {gender!r}: {base} has no {family}/{name} or {name}: "
+                     f"{get}")  # fmt: skip
+
+
+def rest_joints(model: Path, family: str, betas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The shaped rest positions of the body joints and their parents.
+
+    Returns:
+        (22, 3) joint positions, (22,) parent indices (-1 for the root).
+
+    Raises:
+        InputError: A model file of another family, or with bad arrays (names file and key).
+    """
+    a = read_npz_members(model, ("v_template", "shapedirs", "J_regressor", "kintree_table"),
+                         max_bytes=MAX_BYTES, kinds="iuf", error=InputError,
+                         required=("v_template", "shapedirs", "J_regressor",
+                                   "kintree_table"))  # fmt: skip
+    v, dirs, reg, tree = a["v_template"], a["shapedirs"], a["J_regressor"], a["kintree_table"]
+    n_joints = FAMILIES[family][0]
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InputError(f"{model}: v_template: expected (V, 3), got {v.shape}")
+    V = v.shape[0]
+    if dirs.ndim != 3 or dirs.shape[:2] != (V, 3):
+        raise InputError(f"{model}: shapedirs: expected ({V}, 3, B), got {dirs.shape}")
+    if reg.shape != (n_joints, V):
+        raise InputError(f"{model}: J_regressor: expected ({n_joints}, {V}) for "
+                         f"{family.upper()}, got {reg.shape}: a model of another family?")  # fmt: skip
+    if tree.ndim != 2 or tree.shape[0] != 2 or tree.shape[1] != n_joints:
+        raise InputError(f"{model}: kintree_table: expected (2, {n_joints}), got {tree.shape}")
+    for key, arr in (("v_template", v), ("shapedirs", dirs), ("J_regressor", reg)):
+        if not np.all(np.isfinite(arr)):
+            raise InputError(f"{model}: {key}: NaN or infinite values")
+    nb = min(betas.shape[0], dirs.shape[2])
+    shaped = v + dirs[:, :, :nb] @ betas[:nb]
+    joints = reg[:22] @ shaped
+    parents = tree[0, :22].astype(np.int64)
+    parents[0] = -1
+    if np.any(parents[1:] < 0) or np.any(parents[1:] >= np.arange(1, 22)):
+        raise InputError(
+            f"{model}: kintree_table: the body joints' parents are not a tree in order"
+        )
+    return joints, parents
+
+
+def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -> HumanClip:
+    """An AMASS-style ``.npz`` of SMPL-family parameters as a clip of its 22 body joints.
+
+    Keys: ``poses`` (T, 72 | 156 | 165) or ``root_orient`` (T, 3) with ``pose_body`` (T, 63);
+    ``trans`` (T, 3); ``betas``; ``gender``; ``mocap_framerate`` or ``mocap_frame_rate``;
+    ``surface_model_type`` where the file says its family (else the ``poses`` width does; a
+    file with ``pose_body`` and no family is SMPL-X).
+
+    Raises:
+        InputError: Naming the file and the key: a missing key, wrong shapes, NaN, a frame rate
+            that is not positive, a gender with no model file, a model of another family.
+    """
+    p = Path(path)
+    a = read_npz_members(p, ("poses", "root_orient", "pose_body", "trans", "betas", "gender",
+                             "mocap_framerate", "mocap_frame_rate", "surface_model_type"),
+                         max_bytes=MAX_BYTES, kinds="iufUS", error=MotionDataError,
+                         required=("trans",))  # fmt: skip
+    trans = a["trans"].astype(float)
+    if trans.ndim != 2 or trans.shape[1] != 3 or trans.shape[0] < 1:
+        raise MotionDataError(f"{p}: trans: expected (T, 3), got {trans.shape}")
+    T = trans.shape[0]
+    family = str(a["surface_model_type"]).lower() if "surface_model_type" in a else None
+    if "poses" in a:
+        poses = a["poses"].astype(float)
+        widths = {w: f for f, (_, w) in FAMILIES.items()}
+        if poses.ndim != 2 or poses.shape[0] != T or poses.shape[1] not in widths:
+            raise MotionDataError(f"{p}: poses: expected (T={T}, 72 | 156 | 165), got "
+                                  f"{poses.shape}")  # fmt: skip
+        family = family or widths[poses.shape[1]]
+        body = poses[:, : 22 * 3]
+    elif "root_orient" in a:
+        ro, pb = a["root_orient"].astype(float), a["pose_body"].astype(float)
+        if ro.shape != (T, 3) or pb.shape != (T, 63):
+            raise MotionDataError(f"{p}: root_orient {ro.shape} and pose_body {pb.shape}: "
+                                  f"expected ({T}, 3) and ({T}, 63)")  # fmt: skip
+        body = np.concatenate([ro, pb], axis=1)
+        family = family or "smplx"
+    else:
+        raise MotionDataError(f"{p}: no poses, and pose_body without root_orient")
+    if family not in FAMILIES:
+        raise MotionDataError(f"{p}: surface_model_type {family!r}: expected smpl, smplh or smplx")
+    for key, arr in (("poses", body), ("trans", trans)):
+        if not np.all(np.isfinite(arr)):
+            bad = int(np.argwhere(~np.isfinite(arr))[0][0])
+            raise MotionDataError(f"{p}: {key}: NaN or infinite at frame {bad}")
+    rate = next((a[k] for k in ("mocap_framerate", "mocap_frame_rate") if k in a), None)
+    if rate is None:
+        raise MotionDataError(f"{p}: no mocap_framerate or mocap_frame_rate: the frame rate")
+    fps = float(np.asarray(rate).reshape(-1)[0])
+    if not math.isfinite(fps) or fps <= 0:
+        raise MotionDataError(f"{p}: the frame rate {fps} is not positive")
+    betas = a["betas"].astype(float).reshape(-1) if "betas" in a else np.zeros(0)
+    if not np.all(np.isfinite(betas)):
+        raise MotionDataError(f"{p}: betas: NaN or infinite values")
+    gender = str(np.asarray(a["gender"]).reshape(-1)[0]) if "gender" in a else "neutral"
+    if isinstance(gender, bytes):
+        gender = gender.decode()
+    gender = gender.strip().lower() or "neutral"
+    model = body_model_file(family, gender, body_model, p)
+    rest, parents = rest_joints(model, family, betas)
+    rot = _rotations(body.reshape(T, 22, 3))  # Local rotations (T, 22, 3, 3).
+    glob = np.zeros_like(rot)
+    pos = np.zeros((T, 22, 3))
+    glob[:, 0] = rot[:, 0]
+    pos[:, 0] = rest[0] + trans
+    for j in range(1, 22):
+        q = int(parents[j])
+        glob[:, j] = glob[:, q] @ rot[:, j]
+        pos[:, j] = pos[:, q] + glob[:, q] @ (rest[j] - rest[q])
+    return HumanClip(names=SMPL_BODY_JOINTS, parents=tuple(int(x) for x in parents),
+                     positions_w=pos, fps=fps, source=str(p), skeleton="smpl",
+                     meta={"start_frame": "0", "body_model": str(model), "family": family,
+                           "gender": gender})  # fmt: skip
