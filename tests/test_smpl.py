@@ -192,3 +192,38 @@ def test_error_types_are_humimic_errors(models: Path, tmp_path: Path) -> None:
     np.savez(path, poses=np.zeros((2, 165)), trans=np.zeros((2, 3)))
     with pytest.raises(HumimicError, match="mocap_framerate"):
         load_clip(path)
+
+
+def test_mutated_smpl_files_are_read_or_refused(models: Path, tmp_path: Path) -> None:
+    """Keys dropped, arrays reshaped, cut, made text or non-finite: a clip, or a humimic error
+    naming the file; never another exception."""
+    rng = np.random.default_rng(3)
+    base = {"poses": 0.1 * rng.standard_normal((5, 165)), "trans": rng.standard_normal((5, 3)),
+            "betas": rng.standard_normal(10), "gender": np.array("neutral"),
+            "mocap_frame_rate": np.array(120.0), "surface_model_type": np.array("smplx")}  # fmt: skip
+    for case in range(60):
+        fields = dict(base)
+        key = str(rng.choice(list(fields)))
+        kind = case % 6
+        if kind == 0:
+            del fields[key]
+        elif kind == 1:
+            fields[key] = np.asarray(fields[key]).reshape(-1)[: max(1, int(rng.integers(8)))]
+        elif kind == 2:
+            fields[key] = np.array("x")
+        elif kind == 3 and np.asarray(fields[key]).dtype.kind == "f":
+            a = np.array(fields[key], dtype=float)
+            a.reshape(-1)[int(rng.integers(a.size))] = rng.choice([np.nan, np.inf, 1e308])
+            fields[key] = a
+        elif kind == 4:
+            fields[key] = np.zeros((0, 3))
+        else:
+            fields[key] = np.asarray(fields[key]).astype(np.int64) if np.asarray(
+                fields[key]).dtype.kind == "f" else fields[key]  # fmt: skip
+        path = tmp_path / f"m{case}.npz"
+        np.savez(path, **fields)
+        try:
+            clip = load_clip(path)
+            assert np.all(np.isfinite(clip.positions_w)), (case, key)
+        except HumimicError as e:
+            assert str(path) in str(e) or "body model" in str(e), (case, key, e)

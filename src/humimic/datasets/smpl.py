@@ -129,6 +129,14 @@ def rest_joints(model: Path, family: str, betas: np.ndarray) -> tuple[np.ndarray
     return joints, parents
 
 
+def _floats(a: dict[str, np.ndarray], key: str, p: Path) -> np.ndarray:
+    """``a[key]`` as floats, or refused naming the file and key (text where numbers belong)."""
+    arr = np.asarray(a[key])
+    if arr.dtype.kind not in "iuf":
+        raise MotionDataError(f"{p}: {key}: expected numbers, got {arr.dtype} values")
+    return arr.astype(float)
+
+
 def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -> HumanClip:
     """An AMASS-style ``.npz`` of SMPL-family parameters as a clip of its 22 body joints.
 
@@ -146,13 +154,13 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
                              "mocap_framerate", "mocap_frame_rate", "surface_model_type"),
                          max_bytes=MAX_BYTES, kinds="iufUS", error=MotionDataError,
                          required=("trans",))  # fmt: skip
-    trans = a["trans"].astype(float)
+    trans = _floats(a, "trans", p)
     if trans.ndim != 2 or trans.shape[1] != 3 or trans.shape[0] < 1:
         raise MotionDataError(f"{p}: trans: expected (T, 3), got {trans.shape}")
     T = trans.shape[0]
     family = str(a["surface_model_type"]).lower() if "surface_model_type" in a else None
     if "poses" in a:
-        poses = a["poses"].astype(float)
+        poses = _floats(a, "poses", p)
         widths = {w: f for f, (_, w) in FAMILIES.items()}
         if poses.ndim != 2 or poses.shape[0] != T or poses.shape[1] not in widths:
             raise MotionDataError(f"{p}: poses: expected (T={T}, 72 | 156 | 165), got "
@@ -160,7 +168,9 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
         family = family or widths[poses.shape[1]]
         body = poses[:, : 22 * 3]
     elif "root_orient" in a:
-        ro, pb = a["root_orient"].astype(float), a["pose_body"].astype(float)
+        if "pose_body" not in a:
+            raise MotionDataError(f"{p}: root_orient without pose_body")
+        ro, pb = _floats(a, "root_orient", p), _floats(a, "pose_body", p)
         if ro.shape != (T, 3) or pb.shape != (T, 63):
             raise MotionDataError(f"{p}: root_orient {ro.shape} and pose_body {pb.shape}: "
                                   f"expected ({T}, 3) and ({T}, 63)")  # fmt: skip
@@ -174,19 +184,25 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
         if not np.all(np.isfinite(arr)):
             bad = int(np.argwhere(~np.isfinite(arr))[0][0])
             raise MotionDataError(f"{p}: {key}: NaN or infinite at frame {bad}")
-    rate = next((a[k] for k in ("mocap_framerate", "mocap_frame_rate") if k in a), None)
+    rate = next((k for k in ("mocap_framerate", "mocap_frame_rate") if k in a), None)
     if rate is None:
         raise MotionDataError(f"{p}: no mocap_framerate or mocap_frame_rate: the frame rate")
-    fps = float(np.asarray(rate).reshape(-1)[0])
+    rates = _floats(a, rate, p).reshape(-1)
+    if rates.size != 1:
+        raise MotionDataError(f"{p}: {rate}: expected one number, got {rates.size}")
+    fps = float(rates[0])
     if not math.isfinite(fps) or fps <= 0:
         raise MotionDataError(f"{p}: the frame rate {fps} is not positive")
-    betas = a["betas"].astype(float).reshape(-1) if "betas" in a else np.zeros(0)
+    betas = _floats(a, "betas", p).reshape(-1) if "betas" in a else np.zeros(0)
     if not np.all(np.isfinite(betas)):
         raise MotionDataError(f"{p}: betas: NaN or infinite values")
-    gender = str(np.asarray(a["gender"]).reshape(-1)[0]) if "gender" in a else "neutral"
+    genders = np.asarray(a["gender"]).reshape(-1) if "gender" in a else np.array(["neutral"])
+    gender = str(genders[0]) if genders.size else "neutral"
     if isinstance(gender, bytes):
         gender = gender.decode()
     gender = gender.strip().lower() or "neutral"
+    if not gender.isalpha() or not gender.isascii():
+        raise MotionDataError(f"{p}: gender {gender!r}: expected a word (neutral, female, male)")
     model = body_model_file(family, gender, body_model, p)
     rest, parents = rest_joints(model, family, betas)
     rot = _rotations(body.reshape(T, 22, 3))  # Local rotations (T, 22, 3, 3).
