@@ -46,10 +46,12 @@ def is_smpl_file(path: Path) -> bool:
     positions (whose reader would name the wrong missing key)."""
     import zipfile
 
+    from humimic.npyio import READ_ERRORS
+
     try:
         with zipfile.ZipFile(path) as z:
             keys = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
-    except (OSError, zipfile.BadZipFile):
+    except READ_ERRORS:  # Any archive a reader cannot open is not one of these.
         return False
     return "poses" in keys or "pose_body" in keys
 

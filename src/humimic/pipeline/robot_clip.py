@@ -25,10 +25,12 @@ def is_motion_file(path: Path) -> bool:
         return False
     import zipfile
 
+    from humimic.npyio import READ_ERRORS
+
     try:
         with zipfile.ZipFile(path) as z:
             keys = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
-    except (OSError, zipfile.BadZipFile):
+    except READ_ERRORS:  # Any archive a reader cannot open is not one of these.
         return False
     return {"qpos", "robot"} <= keys
 
