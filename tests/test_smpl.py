@@ -138,7 +138,8 @@ def test_bad_files_exit_2_naming_file_and_key(
               "gender": "neutral", "mocap_frame_rate": 120.0,
               "surface_model_type": "smplx"} | change  # fmt: skip
     path = tmp_path / "bad.npz"
-    np.savez(path, **{k: np.asarray(v) for k, v in fields.items() if v is not None})
+    arrays = {k: np.asarray(v) for k, v in fields.items() if v is not None}
+    np.savez(path, **arrays)  # pyright: ignore[reportArgumentType]
     _refused(["retarget", str(path), "--out", str(tmp_path / "o.npz")], capsys, "bad.npz"
              if "SMPLX_FEMALE" not in expect else "gender 'female'", expect)  # fmt: skip
     assert not (tmp_path / "o.npz").exists()
@@ -221,7 +222,7 @@ def test_mutated_smpl_files_are_read_or_refused(models: Path, tmp_path: Path) ->
             fields[key] = np.asarray(fields[key]).astype(np.int64) if np.asarray(
                 fields[key]).dtype.kind == "f" else fields[key]  # fmt: skip
         path = tmp_path / f"m{case}.npz"
-        np.savez(path, **fields)
+        np.savez(path, **fields)  # pyright: ignore[reportArgumentType]
         try:
             clip = load_clip(path)
             assert np.all(np.isfinite(clip.positions_w)), (case, key)
