@@ -252,6 +252,17 @@ def read_npz_members(
     return out
 
 
+def npz_keys(path: str | os.PathLike[str]) -> set[str]:
+    """The array keys of an ``.npz`` archive (its ``.npy`` members, less the suffix), read from
+    its zip directory only; empty for a file no reader here could open. For telling the
+    kinds of ``.npz`` apart before reading one."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return {n[: -len(".npy")] for n in zf.namelist() if n.endswith(".npy")}
+    except READ_ERRORS:
+        return set()
+
+
 def _read_header(f: IO[bytes], where: str, kinds: str, error: type[InputError]) -> _Header:
     """The magic, version, length and dict of a ``.npy`` header, every field checked."""
     magic = f.read(8)

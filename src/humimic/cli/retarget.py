@@ -400,7 +400,8 @@ def run_convert(cmd: ConvertCommand) -> None:
         raise InputError(f"{cmd.dst}: convert to .npz, .mcap or .csv")
     check_not_input(cmd.dst, {"the source": cmd.src}, "the destination")
     motion = read_any_motion(cmd.src, robot=cmd.robot, fps=cmd.fps)
-    motion_model(motion, str(cmd.src))  # A motion of the robot it names, or refused.
+    if cmd.src.suffix != ".csv":  # A CSV was read on its robot's model, its joints checked.
+        motion_model(motion, str(cmd.src))  # A motion of the robot it names, or refused.
     if cmd.dst.suffix == ".mcap":
         write_motion_mcap(motion, cmd.dst)
     elif cmd.dst.suffix == ".csv":

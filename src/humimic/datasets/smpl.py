@@ -22,7 +22,7 @@ import numpy as np
 
 from humimic.datasets.clip import HumanClip
 from humimic.errors import InputError, MotionDataError
-from humimic.npyio import read_npz_members
+from humimic.npyio import npz_keys, read_npz_members
 
 BODY_MODELS_ENV = "HUMIMIC_BODY_MODELS"
 """Environment variable naming the folder of the user's SMPL-family body model files."""
@@ -44,15 +44,7 @@ MAX_BYTES = 2 * 1024**3
 def is_smpl_file(path: Path) -> bool:
     """Whether an ``.npz`` holds SMPL-family parameters (``poses`` or ``pose_body``), not joint
     positions (whose reader would name the wrong missing key)."""
-    import zipfile
-
-    from humimic.npyio import READ_ERRORS
-
-    try:
-        with zipfile.ZipFile(path) as z:
-            keys = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
-    except READ_ERRORS:  # Any archive a reader cannot open is not one of these.
-        return False
+    keys = npz_keys(path)
     return "poses" in keys or "pose_body" in keys
 
 

@@ -13,6 +13,7 @@ import numpy as np
 from humimic.datasets.clip import HumanClip
 from humimic.errors import InputError
 from humimic.motion import load_motion
+from humimic.npyio import npz_keys
 
 CANONICAL = "canonical"
 """The skeleton of a robot motion's key points (``robots/maps/skeletons/canonical.yaml``)."""
@@ -23,15 +24,7 @@ def is_motion_file(path: Path) -> bool:
     array of human joint positions."""
     if path.suffix.lower() != ".npz":
         return False
-    import zipfile
-
-    from humimic.npyio import READ_ERRORS
-
-    try:
-        with zipfile.ZipFile(path) as z:
-            keys = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
-    except READ_ERRORS:  # Any archive a reader cannot open is not one of these.
-        return False
+    keys = npz_keys(path)
     return {"qpos", "robot"} <= keys
 
 

@@ -27,6 +27,8 @@ import numpy as np
 
 from humimic.errors import InputError, OutputPathError
 from humimic.io import atomic_write_text
+from humimic.robots.actuators import ActuatorRecipe
+from humimic.robots.collision import robot_geoms
 from humimic.robots.registry import ROBOTS
 from humimic.robots.user import MAP_FILE, NAME_PATTERN, ROBOT_FILE, SCHEMA_VERSION, robots_dir
 
@@ -42,6 +44,8 @@ BOUND_INERTIA = 1e-6
 MIN_INERTIA = 1e-10
 """A link inertia's smallest principal moment below this [kg m^2] is broken (iCub's ankles
 give 1e-20: MuJoCo refuses them)."""
+RECIPE_HZ = ActuatorRecipe.natural_frequency_hz
+"""The gain recipe's natural frequency an added robot gets (the registered robots' default)."""
 DEFAULT_SPEED = 20.0
 """Joint speed limit [rad/s] where the model gives none: a stated default, as for the
 registered robots without one."""
@@ -63,7 +67,6 @@ class Structure:
     height: float = 0.0
     forward: tuple[float, float, float] = (1.0, 0.0, 0.0)
     """The robot's forward direction at ``qpos0``, in the world (where its toes point)."""
-    notes: list[str] = field(default_factory=list)
 
     def missing(self) -> list[str]:
         """What was not found, as the check list says it."""
@@ -179,6 +182,8 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
     if visual:
         notes.append(f"{visual} visual elements dropped (the viewer draws collision geometry)")
     used: set[str] = set()
+    # (source mesh, scale) -> its file in assets: links that share a mesh share one copy.
+    done: dict[tuple[Path, str | None], str] = {}
     for link in robot.findall("link"):
         for col in link.findall("collision"):
             geom = col.find("geometry")
@@ -191,6 +196,10 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
                     f"{path}: link {link.get('name')!r}: collision mesh {mesh.get('filename')!r}"
                     f" not found (looked for {src})"
                 )
+            key = (src, mesh.get("scale"))
+            if key in done:
+                mesh.set("filename", done[key])
+                continue
             stem = src.stem
             name = stem
             k = 1
@@ -220,11 +229,11 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
                     continue
                 notes.append(f"{src.name}: converted to STL (trimesh)")
             mesh.set("filename", dest.name)
+            done[key] = dest.name
     ext = ET.SubElement(robot, "mujoco")
     ET.SubElement(ext, "compiler", strippath="false", discardvisual="true", fusestatic="true",
                   balanceinertia="true", meshdir=str(assets))  # fmt: skip
-    world = ET.SubElement(robot, "link", name="humimic_world")
-    del world
+    ET.SubElement(robot, "link", name="humimic_world")
     base = ET.SubElement(robot, "joint", name="floating_base", type="floating")
     ET.SubElement(base, "parent", link="humimic_world")
     ET.SubElement(base, "child", link=str(root))
@@ -401,8 +410,7 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
     for b in bodies:
         if b != root:
             kids[int(parent[b])].append(b)
-    geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in kids
-             and (model.geom_contype[g] or model.geom_conaffinity[g])]  # fmt: skip
+    geoms = robot_geoms(model, model.body(root).name)
     if not geoms:
         raise InputError("the model has no collision geometry on its bodies")
     corners = {g: _geom_bounds(model, data, g) for g in geoms}
@@ -465,7 +473,6 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
         )
     lc, rc = chain(feet["left"]), chain(feet["right"])
     common = [b for b in lc if b in rc]
-    branch = common[-1]
     hips = {"left": lc[len(common)], "right": rc[len(common)]}
     # Legs hang from the root's height or below, and are long: a model without legs has its
     # hands lowest, on arms that leave the torso above the root.
@@ -500,7 +507,6 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
                                  for s, b in knees.items()},
                           height=height,
                           forward=(float(fwd[0]), float(fwd[1]), float(fwd[2])))  # fmt: skip
-    del branch
     ends: dict[str, int] = {}
     for side, sign in (("left", 1.0), ("right", -1.0)):
         mine = [b for b in upper if sign * local[b][1] > 0.25 * width]
@@ -522,7 +528,7 @@ def find_structure(model: mujoco.MjModel, root: int) -> Structure:
             structure.hands[side] = model.body(ends[side]).name
             elbow = middle(c, shoulder, ends[side])
             structure.elbows[side] = model.body(elbow).name if elbow is not None else None
-        centre = [b for b in upper if abs(local[b][1]) <= 0.25 * width and b not in legs]
+        centre = [b for b in upper if abs(local[b][1]) <= 0.25 * width]
         centre = [b for b in centre if torso in chain(b) and b != torso]
         if centre:
             structure.head = model.body(max(centre, key=lambda b: data.xpos[b, 2])).name
@@ -601,9 +607,8 @@ def _box_feet(spec: mujoco.MjSpec, model: mujoco.MjModel, s: Structure, notes: l
     changed = False
     for side, name in s.feet.items():
         body = model.body(name).id
-        meshes = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body
-                  and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
-                  and (model.geom_contype[g] or model.geom_conaffinity[g])]  # fmt: skip
+        meshes = [g for g in robot_geoms(model, s.root) if model.geom_bodyid[g] == body
+                  and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]  # fmt: skip
         if not meshes:
             continue
         verts = []
@@ -638,14 +643,13 @@ def _box_feet(spec: mujoco.MjSpec, model: mujoco.MjModel, s: Structure, notes: l
 
 
 def _toe_offset(
-    model: mujoco.MjModel, data: mujoco.MjData, foot: int, forward: np.ndarray
+    model: mujoco.MjModel, data: mujoco.MjData, root: str, foot: int, forward: np.ndarray
 ) -> list[float]:
     """The toe key point in the foot body's frame: on the bottom of the foot's collision
     geometry, three quarters of the way from the ankle to its front (along ``forward``),
     under the ankle's line."""
-    pts = np.vstack([_geom_bounds(model, data, g) for g in range(model.ngeom)
-                     if model.geom_bodyid[g] == foot
-                     and (model.geom_contype[g] or model.geom_conaffinity[g])])  # fmt: skip
+    pts = np.vstack([_geom_bounds(model, data, g) for g in robot_geoms(model, root)
+                     if model.geom_bodyid[g] == foot])  # fmt: skip
     ankle = data.xpos[foot]
     front = float(((pts - ankle) @ forward).max())
     toe = ankle + 0.75 * front * forward
@@ -675,7 +679,7 @@ def robot_map(model: mujoco.MjModel, s: Structure, name: str) -> dict[str, Any]:
             last = f"{side}_knee"
         kp[f"{side}_ankle"] = {"body": s.feet[side], "parent": last, "weight": 10.0}
         foot = model.body(s.feet[side]).id
-        toe = _toe_offset(model, data, foot, np.asarray(s.forward))
+        toe = _toe_offset(model, data, s.root, foot, np.asarray(s.forward))
         kp[f"{side}_toe"] = {"body": s.feet[side], "offset": toe,
                              "parent": f"{side}_ankle", "weight": 5.0}  # fmt: skip
     arms = all(s.shoulders.get(x) and s.hands.get(x) for x in ("left", "right"))
@@ -723,7 +727,7 @@ def _motors(model: mujoco.MjModel, mass: float, height: float) -> tuple[dict[str
     stated defaults where not (said in the notes)."""
     notes: list[str] = []
     default_effort = round(mass * 9.81 * height / 4.0, 1)
-    wn = 2.0 * math.pi * 10.0
+    wn = 2.0 * math.pi * RECIPE_HZ
     motors: dict[str, Any] = {}
     no_effort, no_armature = [], []
     for a in range(model.nu):
@@ -814,9 +818,8 @@ def add_robot(
         # collision point on z = 0.
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)
-        lowest = min(float(_geom_bounds(model, data, g)[:, 2].min()) for g in range(model.ngeom)
-                     if model.geom_bodyid[g] != 0
-                     and (model.geom_contype[g] or model.geom_conaffinity[g]))  # fmt: skip
+        lowest = min(float(_geom_bounds(model, data, g)[:, 2].min())
+                     for g in robot_geoms(model, structure.root))  # fmt: skip
         rb = spec.body(model.body(root_body).name)
         rb.pos = np.asarray(rb.pos, dtype=float) - np.array([0.0, 0.0, lowest])
         # Facing +x at qpos0, as every registered robot does (iCub's base faces -x).
@@ -826,9 +829,9 @@ def add_robot(
             quat = np.zeros(4)
             mujoco.mju_mulQuat(quat, turn, np.asarray(rb.quat, dtype=float))
             rb.quat = quat
-            c, s_ = math.cos(-yaw), math.sin(-yaw)
-            x, y, z = (float(v) for v in rb.pos)
-            rb.pos = np.array([c * x - s_ * y, s_ * x + c * y, z])
+            pos = np.zeros(3)
+            mujoco.mju_rotVecQuat(pos, np.asarray(rb.pos, dtype=float), turn)
+            rb.pos = pos
             notes.append(f"turned {math.degrees(yaw):+.0f} deg about z to face +x at qpos0 "
                          "(its knees bend and its toes point that way)")  # fmt: skip
         spec.compile()
@@ -856,8 +859,8 @@ def add_robot(
             "feet": dict(structure.feet),
             "hands": {k: v for k, v in structure.hands.items() if v},
             "key_bodies": list(dict.fromkeys(key_bodies)),
-            "natural_frequency_hz": 10.0,
-            "damping_ratio": 2.0,
+            "natural_frequency_hz": RECIPE_HZ,
+            "damping_ratio": ActuatorRecipe.damping_ratio,
             "motors": motors,
         }
         header = f"# Robot {name}, added by `humimic robots add` from {path.resolve()}.\n"
