@@ -164,6 +164,8 @@ def test_an_added_mjcf_keeps_its_actuators_and_meshes(tmp_path: Path, robots: Pa
         ("not_urdf", "not a URDF"),
         ("two_roots", "no floating root found"),
         ("suffix", "expected an MJCF .xml or a .urdf"),
+        ("bad_mass", "link 'pelvis': <mass value='heavy'>: not numbers"),
+        ("nan_inertia", "link 'pelvis': <inertia ixx='nan'>: not numbers"),
     ],
 )
 def test_bad_models_exit_2_naming_what_is_wrong_and_leave_nothing(
@@ -177,6 +179,12 @@ def test_bad_models_exit_2_naming_what_is_wrong_and_leave_nothing(
         text = text[: len(text) // 2]
     elif what == "not_urdf":
         text = "<mujoco><worldbody/></mujoco>"
+    elif what == "bad_mass":  # A broken inertia to repair, whose mass is no number.
+        text = text.replace('<mass value="8.0"/>', '<mass value="heavy"/>', 1).replace(
+            'ixx="0.01" iyy="0.01" izz="0.01"', 'ixx="0" iyy="0" izz="0"', 1
+        )
+    elif what == "nan_inertia":
+        text = text.replace('ixx="0.01"', 'ixx="nan"', 1)
     elif what == "two_roots":
         text = text.replace("</robot>", '<link name="stray"/></robot>')
     path.write_text(text)

@@ -113,15 +113,27 @@ def _resolve_mesh(filename: str, model: Path) -> Path:
     return p if p.is_absolute() else model.parent / p
 
 
+def _numbers(el: ET.Element, key: str, link: ET.Element) -> list[float]:
+    """The numbers of an attribute (``0`` where absent), or refused naming the link."""
+    text = el.get(key, "0")
+    try:
+        values = [float(v) for v in text.split()]
+    except ValueError:
+        values = []
+    if not values or not all(math.isfinite(v) for v in values):
+        raise InputError(f"link {link.get('name')!r}: <{el.tag} {key}={text!r}>: not numbers")
+    return values
+
+
 def _inertia_box(link: ET.Element) -> tuple[list[float], list[float]] | None:
     """The box (size, centre) with the link's mass and principal inertia, or None."""
     inertial = link.find("inertial")
-    if inertial is None or inertial.find("mass") is None or inertial.find("inertia") is None:
+    mass_el = inertial.find("mass") if inertial is not None else None
+    i = inertial.find("inertia") if inertial is not None else None
+    if inertial is None or mass_el is None or i is None:
         return None
-    mass = float(inertial.find("mass").get("value", "0"))  # type: ignore[union-attr]
-    i = inertial.find("inertia")
-    assert i is not None
-    ixx, iyy, izz = (float(i.get(k, "0")) for k in ("ixx", "iyy", "izz"))
+    mass = _numbers(mass_el, "value", link)[0]
+    ixx, iyy, izz = (_numbers(i, k, link)[0] for k in ("ixx", "iyy", "izz"))
     if mass <= 0:
         return None
     sq = [
@@ -131,9 +143,9 @@ def _inertia_box(link: ET.Element) -> tuple[list[float], list[float]] | None:
     ]
     size = [math.sqrt(max(v, 1e-6)) for v in sq]
     origin = inertial.find("origin")
-    centre = [
-        float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()
-    ]
+    centre = _numbers(origin, "xyz", link) if origin is not None else [0.0, 0.0, 0.0]
+    if len(centre) != 3:
+        raise InputError(f"link {link.get('name')!r}: <origin xyz=...>: expected 3 numbers")
     return size, centre
 
 
@@ -172,8 +184,11 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
         robot.remove(links[root])
         notes.append(f"link {root!r} (the world, fixed to {child!r}) dropped: {child!r} floats")
         root = child
-    for link in links.values():
-        _repair_inertia(link, notes)
+    try:
+        for link in links.values():
+            _repair_inertia(link, notes)
+    except InputError as e:
+        raise InputError(f"{path}: {e}") from None
     visual = 0
     for link in links.values():
         for v in link.findall("visual"):
@@ -212,7 +227,10 @@ def _read_urdf(path: Path, assets: Path, notes: list[str]) -> mujoco.MjSpec:
             else:
                 dest = assets / f"{name}.stl"
                 if not _convert_mesh(src, dest):
-                    box = _inertia_box(link)
+                    try:
+                        box = _inertia_box(link)
+                    except InputError as e:
+                        raise InputError(f"{path}: {e}") from None
                     geom.remove(mesh)
                     if box is None:
                         link.remove(col)
@@ -268,15 +286,12 @@ def _repair_inertia(link: ET.Element, notes: list[str]) -> None:
     if i is None:
         return
     keys = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
-    try:
-        xx, xy, xz, yy, yz, zz = (float(i.get(k, "0")) for k in keys)
-    except ValueError:
-        return
+    xx, xy, xz, yy, yz, zz = (_numbers(i, k, link)[0] for k in keys)
     m = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
     if np.all(np.isfinite(m)) and np.linalg.eigvalsh(m).min() > MIN_INERTIA:
         return
     mass_el = link.find("inertial/mass")
-    mass = float(mass_el.get("value", "0")) if mass_el is not None else 0.0
+    mass = _numbers(mass_el, "value", link)[0] if mass_el is not None else 0.0
     floor = max(0.4 * mass * 0.03**2, MIN_INERTIA)  # A 3 cm ball of the link's mass.
     diag = np.maximum(np.abs(np.diag(m)), floor)
     for k, v in zip(keys, (diag[0], 0.0, 0.0, diag[1], 0.0, diag[2]), strict=True):
