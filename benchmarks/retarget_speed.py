@@ -5,6 +5,9 @@ Baseline in the same run: the same targets solved the textbook mink way (one
 configuration and collision limits), with the same number of QP iterations per frame as
 humimic used. The ratio isolates the cost of one IK iteration.
 
+Where the time goes, in the same run: the IK's frames/s (best of ``--repeats``) at 50 fps output
+with each limit switched off in turn (``ablation``), as ratios to the default.
+
 Usage: .venv/bin/python benchmarks/retarget_speed.py [--clip PATH] [--repeats N]
 """
 
@@ -131,7 +134,28 @@ def main() -> None:
             "baseline_mink_frame_tasks_ik_frames_per_second": base_fps,
             "ik_speedup_vs_baseline": ik_fps / base_fps,
         }
+    result["ablation"] = ablation(clip, args.repeats)
     print(json.dumps(result, indent=2))
+
+
+def ablation(clip, repeats: int) -> dict:
+    """IK frames/s with each limit off in turn (not a recommended setting: a cost split)."""
+    variants = {
+        "default": {},
+        "no_self_collision": {"self_collision": False},
+        "no_planted_feet": {"hold_planted_feet": False},
+        "no_floor": {"floor_limit": False},
+    }
+    out: dict = {}
+    for name, change in variants.items():
+        rt = Retargeter("g1", clip.skeleton, replace(retarget_default(), **change))
+        best = min(rt.run(clip).report["ik_seconds"] for _ in range(repeats))
+        frames = rt.run(clip).report["frames"]
+        out[name] = {"ik_frames_per_second": frames / best}
+    base = out["default"]["ik_frames_per_second"]
+    for row in out.values():
+        row["ratio_to_default"] = row["ik_frames_per_second"] / base
+    return out
 
 
 if __name__ == "__main__":

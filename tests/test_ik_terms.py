@@ -19,6 +19,7 @@ from humimic.retarget.tasks import (
     InteractionMeshTask,
     KeypointsTask,
     OrientationsTask,
+    PostureTask,
     SceneContactTask,
     rotation_log,
     so3_right_jacobian_inverse,
@@ -320,3 +321,24 @@ def test_scene_contact_task_error_gap_and_jacobian(arm: mink.Configuration) -> N
     jac = task.compute_jacobian(arm)
     assert np.abs(jac).max() > 0.5  # The base's height moves both distances one to one.
     np.testing.assert_allclose(jac, fd_jacobian(arm, task.compute_error), atol=1e-6)
+
+
+def test_posture_objective_equals_minks_dense_one(arm: mink.Configuration) -> None:
+    """The diagonal posture objective is mink's own (its dense J'WJ, J'We path), floating
+    base excluded, at a turned base and bent joints, for a scalar and a per-dof cost."""
+    model = arm.model
+    q = model.qpos0.copy()
+    q[3:7] = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_quat(scalar_first=True)
+    q[7:] = np.linspace(-1.1, 0.4, model.nq - 7)
+    arm.update(q)
+    target = model.qpos0.copy()
+    target[:3] = [0.2, -0.1, 0.9]
+    for cost in (0.3, np.linspace(0.1, 0.9, model.nv)):
+        ours, theirs = PostureTask(model, cost=1.0), mink.PostureTask(model, cost=1.0)
+        for task in (ours, theirs):
+            task.set_cost(cost)
+            task.set_target(target)
+        a, b = ours.compute_qp_objective(arm), theirs.compute_qp_objective(arm)
+        np.testing.assert_array_equal(a.H, b.H)
+        np.testing.assert_allclose(a.c, b.c, rtol=0, atol=1e-15)
+        assert np.all(a.H[:6] == 0) and np.any(a.c[6:] != 0)

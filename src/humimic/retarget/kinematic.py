@@ -32,7 +32,7 @@ from humimic.retarget.limits import (
     foot_contact_points,
 )
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
-from humimic.retarget.tasks import KeypointsTask, OrientationsTask
+from humimic.retarget.tasks import KeypointsTask, OrientationsTask, PostureTask
 from humimic.robots.collision import self_collision_floors, self_collision_pairs
 from humimic.robots.maps import RetargetMap
 from humimic.robots.model import nominal_spec
@@ -218,9 +218,9 @@ class KinematicRetargeter:
         self.orientations = OrientationsTask(
             model, [fr.body for fr in m.frames.values()] + [f.body for f in m.feet.values()]
         )
-        self.posture = mink.PostureTask(model, cost=m.posture_weight)
+        self.posture = PostureTask(model, cost=m.posture_weight)
         self.posture.set_target(model.qpos0)
-        self.smooth = mink.PostureTask(model, cost=cfg.smooth_weight)
+        self.smooth = PostureTask(model, cost=cfg.smooth_weight)
         self.tasks: list[mink.Task] = [self.keypoints, self.orientations, self.posture]
         self._root = list(m.keypoints).index(m.root)
         self._frame_weights = np.array([fr.weight for fr in m.frames.values()])
@@ -342,9 +342,13 @@ class KinematicRetargeter:
                 self._set_stage_costs(targets, t, stage)
                 limits = self._stage1_limits if stage == 1 and t > 0 else self.limits
                 prev = np.inf
-                for _ in range(max_iters * budget):
+                iters_left = max_iters * budget
+                for _ in range(iters_left):
                     conf.integrate_inplace(self._solve(frame, limits), 1.0)
                     n += 1
+                    iters_left -= 1
+                    if not iters_left:
+                        break  # No next iteration for the error to decide on.
                     err = self._task_error()
                     if prev - err < cfg.tol * prev:
                         break
