@@ -30,10 +30,11 @@ MAX_ROBUSTNESS = 1000
 
 @dataclass(frozen=True, kw_only=True)
 class RetargetCommand:
-    """Retarget human motion clips (BVH, joint-position arrays) to a robot."""
+    """Retarget human motion clips (BVH, FBX, SMPL-family parameters, joint-position arrays,
+    a robot's motion) to a robot."""
 
     inputs: Annotated[tuple[Path, ...], tyro.conf.Positional]
-    """Clip files (.bvh, .npy, .npz) or folders of them."""
+    """Clip files (.bvh, .fbx, .npy, .npz) or folders of them."""
     robot: RobotName = "g1"
     """Robot name from the registry (`humimic robots list`)."""
     out: Path
@@ -49,9 +50,11 @@ class RetargetCommand:
     joint positions in the robot's order; BeyondMimic's and GMR's layout) with
     <name>.csv.yaml (robot, frame rate, joint order) beside the .npz."""
     units: str = "auto"
-    """BVH units: auto, m, cm, mm, inch, or metres per file unit."""
-    up: Literal["y", "z"] = "y"
-    """Up axis of BVH files (arrays of positions are z up)."""
+    """BVH and FBX units: auto (from the skeleton's height), m, cm, mm, inch, or metres per
+    file unit."""
+    up: Literal["auto", "y", "z"] = "auto"
+    """Up axis of BVH and FBX files. auto: y for BVH (its convention), found from the skeleton
+    for FBX (the spine above the legs). Arrays of positions are z up."""
     skeleton: str | None = None
     """Skeleton name for the map (default: detected from the joint names)."""
     map: Path | None = None

@@ -1,4 +1,4 @@
-"""Human motion in: BVH files, arrays of joint positions, run-time fetched public clips, and
+"""Human motion in: BVH and FBX files, arrays of joint positions, run-time fetched public clips, and
 the scenes they happen in.
 
 Every clip loader returns a :class:`HumanClip` (z up, metres, quaternions wxyz);
@@ -41,7 +41,7 @@ __all__ = [
     "load_scene",
 ]
 
-SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".npy", ".npz")
+SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".fbx", ".npy", ".npz")
 """File suffixes :func:`load_clip` reads."""
 
 
@@ -49,7 +49,8 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
     """Load a human motion clip, choosing the loader from the file suffix.
 
     Args:
-        path: A ``.bvh`` (:func:`load_bvh`), ``.npy`` or ``.npz`` (:func:`load_positions`) file,
+        path: A ``.bvh`` (:func:`load_bvh`), ``.fbx`` (:func:`humimic.datasets.fbx.load_fbx`),
+            ``.npy`` or ``.npz`` (:func:`load_positions`) file,
             or an ``.npz`` of SMPL-family parameters (:func:`humimic.datasets.smpl.load_smpl`,
             with ``body_model``).
         **kw: Keyword arguments for that loader.
@@ -65,6 +66,10 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
     suffix = p.suffix.lower()
     if suffix == ".bvh":
         return load_bvh(p, **kw)
+    if suffix == ".fbx":
+        from humimic.datasets.fbx import load_fbx
+
+        return load_fbx(p, **{k: v for k, v in kw.items() if k != "body_model"})
     if suffix == ".npz":
         from humimic.datasets.smpl import is_smpl_file, load_smpl
 

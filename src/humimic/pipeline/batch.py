@@ -283,7 +283,11 @@ def _read_clip(
     from humimic.pipeline.robot_clip import is_motion_file, robot_motion_clip
 
     if path.suffix.lower() == ".bvh":
-        clip = load_bvh(path, units=units, up=up, skeleton=skeleton)
+        clip = load_bvh(path, units=units, up="y" if up == "auto" else up, skeleton=skeleton)
+    elif path.suffix.lower() == ".fbx":
+        from humimic.datasets.fbx import load_fbx
+
+        clip = load_fbx(path, units=units, up=up, skeleton=skeleton)
     elif is_motion_file(path):  # A robot's motion: robot-to-robot retargeting.
         clip = robot_motion_clip(path)
     else:
@@ -305,7 +309,7 @@ def plan_retarget(
     mesh: InteractionConfig | None = None,
     dyn: DynamicsConfig | None = None,
     units: str | float = "auto",
-    up: str = "y",
+    up: str = "auto",
     skeleton: str | None = None,
     map_file: Path | None = None,
     menagerie_root: Path | None = None,
@@ -317,7 +321,7 @@ def plan_retarget(
     """Read and check a batch of clips (``humimic retarget``): nothing is written.
 
     Args:
-        inputs: Clip files (``.bvh``, ``.npy``, ``.npz``) or folders of them.
+        inputs: Clip files (``.bvh``, ``.fbx``, ``.npy``, ``.npz``) or folders of them.
         out: The output ``.npz`` for one input file; an output folder for several inputs or a
             folder (``<out>/<name relative to its folder>.npz`` and ``.json``).
         report: The JSON report of a single input.
@@ -328,7 +332,7 @@ def plan_retarget(
         mesh: Interaction-mesh settings.
         dyn: Dynamics settings.
         units: BVH units (:func:`humimic.datasets.load_bvh`).
-        up: Up axis of BVH files.
+        up: Up axis of BVH and FBX files (``auto``: y for BVH, found from the skeleton for FBX).
         skeleton: Skeleton name for the map (default: detected).
         map_file: A human-to-robot map file (default: the shipped map).
         menagerie_root: Where to load the robot from.
