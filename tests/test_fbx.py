@@ -100,21 +100,28 @@ def test_several_takes_the_first_by_default_or_by_name(tmp_path: Path, walk: Hum
         load_fbx(path, take="run")
 
 
-def test_the_fbx_walk_retargets_like_the_bvh_walk(tmp_path: Path, walk: HumanClip) -> None:
-    """End to end through the CLI: the FBX's CMU joint names find the CMU map, and the G1
-    motion equals the one from the BVH (same joints to 1e-6 m)."""
-    fbx = write_fbx(tmp_path / "walk.fbx", _skeleton(walk))
-    bvh_clip = walk.slice(1)
+def test_a_mixamo_fbx_retargets_like_the_bvh_walk(tmp_path: Path, walk: HumanClip) -> None:
+    """End to end through the CLI: the walk as a Mixamo export names it (``mixamorig:``
+    prefix; CMU's own three joints renamed so it is not taken for CMU) is matched to the Mixamo
+    skeleton map by its joint names, and the G1 motion equals the BVH walk's."""
+    import json
+
+    sk = _skeleton(walk)
+    cmu_only = {"LHipJoint": "LeftPelvisLink", "RHipJoint": "RightPelvisLink",
+                "LowerBack": "Waist"}  # fmt: skip
+    sk.names = [cmu_only.get(n, n) for n in sk.names]
+    sk.prefix = "mixamorig:"
+    fbx = write_fbx(tmp_path / "walk.fbx", sk)
     from humimic.configs import retarget_default
     from humimic.retarget import Retargeter
 
-    rt = Retargeter("g1", "cmu", retarget_default())
-    ref = rt.run(bvh_clip).motion.qpos
-    out = tmp_path / "g1.npz"
-    cmd = [sys.executable, "-m", "humimic.cli.main", "retarget", str(fbx), "--robot", "g1", "--out",
-           str(out), "--start", "1", "--quiet"]  # fmt: skip
+    ref = Retargeter("g1", "cmu", retarget_default()).run(walk.slice(1)).motion.qpos
+    out, report = tmp_path / "g1.npz", tmp_path / "g1.json"
+    cmd = [sys.executable, "-m", "humimic.cli.main", "retarget", str(fbx), "--robot", "g1",
+           "--out", str(out), "--report", str(report), "--start", "1", "--quiet"]  # fmt: skip
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
+    assert json.loads(report.read_text())["skeleton"] == "mixamo"
     qpos = np.load(out)["qpos"]
     assert qpos.shape == ref.shape
     np.testing.assert_allclose(qpos, ref, atol=1e-4)
