@@ -228,3 +228,109 @@ def test_mutated_smpl_files_are_read_or_refused(models: Path, tmp_path: Path) ->
             assert np.all(np.isfinite(clip.positions_w)), (case, key)
         except HumimicError as e:
             assert str(path) in str(e) or "body model" in str(e), (case, key, e)
+
+
+def _gvhmr(path: Path, body_pose: object, global_orient: object, transl: object,
+           betas: object) -> Path:  # fmt: skip
+    """A file as GVHMR writes its result (``hmr4d_results.pt``): float32 tensors."""
+    import torch
+
+    def t(a: object) -> object:
+        return torch.as_tensor(np.asarray(a), dtype=torch.float32) if a is not None else None
+
+    params = {"body_pose": t(body_pose), "global_orient": t(global_orient), "transl": t(transl),
+              "betas": t(betas)}  # fmt: skip
+    params = {k: v for k, v in params.items() if v is not None}
+    torch.save({"smpl_params_global": params, "smpl_params_incam": dict(params)}, path)
+    return path
+
+
+def test_a_gvhmr_result_is_the_amass_layout_turned_from_y_up(models: Path, tmp_path: Path) -> None:
+    """The same parameters as an AMASS file (z up) and as GVHMR's result (y up, 30 fps, neutral
+    SMPL-X, per-frame betas): the same joints, turned by the y-up-to-z-up rotation."""
+    from humimic.transforms import Y_UP_TO_Z_UP
+
+    rng = np.random.default_rng(4)
+    T = 5
+    body = (0.3 * rng.standard_normal((T, 66))).astype(np.float32).astype(np.float64)
+    trans = rng.standard_normal((T, 3)).astype(np.float32).astype(np.float64)
+    betas = np.linspace(-1, 1, 10).astype(np.float32).astype(np.float64)
+    amass = tmp_path / "a.npz"
+    np.savez(amass, root_orient=body[:, :3], pose_body=body[:, 3:], trans=trans, betas=betas,
+             gender=np.array("neutral"), mocap_framerate=np.array(30.0))  # fmt: skip
+    ref = load_clip(amass)
+    path = _gvhmr(tmp_path / "hmr4d_results.pt", body[:, 3:], body[:, :3], trans,
+                  np.tile(betas, (T, 1)))  # fmt: skip
+    clip = load_clip(path)
+    assert clip.fps == 30.0 and clip.names == SMPL_BODY_JOINTS and clip.skeleton == "smpl"
+    np.testing.assert_allclose(clip.positions_w, ref.positions_w @ Y_UP_TO_Z_UP.T, atol=1e-12)
+    # The rest frame by hand: the regressed joints, y up turned to z up.
+    zero = load_clip(_gvhmr(tmp_path / "z.pt", np.zeros((1, 63)), np.zeros((1, 3)),
+                            np.zeros((1, 3)), np.zeros((1, 10))))  # fmt: skip
+    data = np.load(models / "smplx" / "SMPLX_NEUTRAL.npz")
+    rest = (data["J_regressor"] @ data["v_template"])[:22]
+    np.testing.assert_allclose(zero.positions_w[0], rest @ Y_UP_TO_Z_UP.T, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("make", "expect"),
+    [
+        ("text", "not a readable GVHMR result"),
+        ("no_params", "no smpl_params_global"),
+        ("no_transl", "smpl_params_global.transl: missing"),
+        ("bad_pose", "smpl_params_global.body_pose: expected (3, 63)"),
+        ("nan", "smpl_params_global.global_orient: NaN or infinite"),
+        ("code", "not a readable GVHMR result"),
+    ],
+)
+def test_bad_gvhmr_files_exit_2_naming_file_and_field(
+    make: str, expect: str, models: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import pickle
+
+    import torch
+
+    path = tmp_path / "bad.pt"
+    ok = {"body_pose": np.zeros((3, 63)), "global_orient": np.zeros((3, 3)),
+          "transl": np.zeros((3, 3)), "betas": np.zeros((3, 10))}  # fmt: skip
+    if make == "text":
+        path.write_text("not a torch file\n")
+    elif make == "no_params":
+        torch.save({"smpl_params_incam": {}}, path)
+    elif make == "no_transl":
+        _gvhmr(path, ok["body_pose"], ok["global_orient"], None, ok["betas"])
+    elif make == "bad_pose":
+        _gvhmr(path, np.zeros((3, 60)), ok["global_orient"], ok["transl"], ok["betas"])
+    elif make == "nan":
+        _gvhmr(path, ok["body_pose"], np.full((3, 3), np.nan), ok["transl"], ok["betas"])
+    else:  # A pickle that would run code on loading: weights_only refuses it.
+        path.write_bytes(pickle.dumps({"smpl_params_global": Path("x")}))
+    _refused(["retarget", str(path), "--out", str(tmp_path / "o.npz")], capsys, "bad.pt", expect)
+    assert not (tmp_path / "o.npz").exists()
+
+
+def test_mutated_gvhmr_files_are_read_or_refused(models: Path, tmp_path: Path) -> None:
+    """Bytes of a GVHMR result flipped, cut or put in (a zip of pickled tensors): a clip, or a
+    humimic error; never another exception."""
+    import random
+
+    base = _gvhmr(tmp_path / "base.pt", np.zeros((4, 63)), np.zeros((4, 3)), np.zeros((4, 3)),
+                  np.zeros((4, 10))).read_bytes()  # fmt: skip
+    rng = random.Random(3)
+    path = tmp_path / "m.pt"
+    seen = {"read": 0, "refused": 0}
+    for _ in range(60):
+        b = bytearray(base)
+        for _ in range(rng.randint(1, 4)):
+            k = rng.randrange(len(b))
+            if rng.random() < 0.5:
+                b[k] = rng.randrange(256)
+            else:
+                del b[k : k + rng.randint(1, 200)]
+        path.write_bytes(bytes(b))
+        try:
+            load_clip(path)
+            seen["read"] += 1
+        except HumimicError:
+            seen["refused"] += 1
+    assert seen["refused"] > 0, seen

@@ -34,7 +34,7 @@ class RetargetCommand:
     a robot's motion) to a robot."""
 
     inputs: Annotated[tuple[Path, ...], tyro.conf.Positional]
-    """Clip files (.bvh, .fbx, .npy, .npz) or folders of them."""
+    """Clip files (.bvh, .fbx, .npy, .npz, GVHMR's .pt) or folders of them."""
     robot: RobotName = "g1"
     """Robot name from the registry (`humimic robots list`)."""
     out: Path

@@ -41,7 +41,7 @@ __all__ = [
     "load_scene",
 ]
 
-SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".fbx", ".npy", ".npz")
+SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".fbx", ".npy", ".npz", ".pt")
 """File suffixes :func:`load_clip` reads."""
 
 
@@ -52,7 +52,8 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
         path: A ``.bvh`` (:func:`load_bvh`), ``.fbx`` (:func:`humimic.datasets.fbx.load_fbx`),
             ``.npy`` or ``.npz`` (:func:`load_positions`) file,
             or an ``.npz`` of SMPL-family parameters (:func:`humimic.datasets.smpl.load_smpl`,
-            with ``body_model``).
+            with ``body_model``), or a GVHMR result ``.pt``
+            (:func:`humimic.datasets.smpl.load_gvhmr`, with ``body_model``).
         **kw: Keyword arguments for that loader.
 
     Returns:
@@ -70,6 +71,10 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
         from humimic.datasets.fbx import load_fbx
 
         return load_fbx(p, **{k: v for k, v in kw.items() if k != "body_model"})
+    if suffix == ".pt":  # GVHMR's result (hmr4d_results.pt): SMPL-X parameters.
+        from humimic.datasets.smpl import load_gvhmr
+
+        return load_gvhmr(p, body_model=kw.get("body_model"))
     if suffix == ".npz":
         from humimic.datasets.smpl import is_smpl_file, load_smpl
 

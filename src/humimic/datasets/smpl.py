@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -197,6 +198,25 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
     gender = gender.strip().lower() or "neutral"
     if not gender.isalpha() or not gender.isascii():
         raise MotionDataError(f"{p}: gender {gender!r}: expected a word (neutral, female, male)")
+    return _body_joints(p, body, trans, betas, family, gender, body_model, fps)
+
+
+def _body_joints(
+    p: Path,
+    body: np.ndarray,
+    trans: np.ndarray,
+    betas: np.ndarray,
+    family: str,
+    gender: str,
+    body_model: Path | None,
+    fps: float,
+    turn: np.ndarray | None = None,
+    meta: dict[str, str] | None = None,
+) -> HumanClip:
+    """The 22 body joints of checked parameters: the regressed, shaped rest joints, then forward
+    kinematics of the axis-angle rotations ``body`` (T, 66: root first) about them, the root at
+    ``J_0 + trans``; ``turn`` (3, 3) rotates the result into z up."""
+    T = trans.shape[0]
     model = body_model_file(family, gender, body_model, p)
     rest, parents = rest_joints(model, family, betas)
     rot = _rotations(body.reshape(T, 22, 3))  # Local rotations (T, 22, 3, 3).
@@ -208,7 +228,79 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
         q = int(parents[j])
         glob[:, j] = glob[:, q] @ rot[:, j]
         pos[:, j] = pos[:, q] + glob[:, q] @ (rest[j] - rest[q])
+    if turn is not None:
+        pos = pos @ turn.T
+    info = {"start_frame": "0", "body_model": str(model), "family": family, "gender": gender}
     return HumanClip(names=SMPL_BODY_JOINTS, parents=tuple(int(x) for x in parents),
                      positions_w=pos, fps=fps, source=str(p), skeleton="smpl",
-                     meta={"start_frame": "0", "body_model": str(model), "family": family,
-                           "gender": gender})  # fmt: skip
+                     meta={**info, **(meta or {})})  # fmt: skip
+
+
+GVHMR_FPS = 30.0
+"""GVHMR's output rate: it runs on the video at 30 frames/s (GMR reads its files at 30 too)."""
+
+
+def _tensor_array(value: object, p: Path, key: str) -> np.ndarray:
+    """A float array from a tensor or array of a GVHMR result, or MotionDataError naming it."""
+    try:
+        if hasattr(value, "detach"):
+            value = value.detach().cpu().double().numpy()  # type: ignore[union-attr]
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, RuntimeError):
+        raise MotionDataError(f"{p}: {key}: not an array of numbers") from None
+    if not np.all(np.isfinite(a)):
+        raise MotionDataError(f"{p}: {key}: NaN or infinite values")
+    return a
+
+
+def load_gvhmr(path: str | os.PathLike[str], *, body_model: Path | None = None) -> HumanClip:
+    """A GVHMR result (``hmr4d_results.pt``: ``smpl_params_global`` with ``body_pose`` (T, 63),
+    ``global_orient`` (T, 3), ``transl`` (T, 3), ``betas`` (T, 10)) as a clip of the 22 body
+    joints of the neutral SMPL-X model, at :data:`GVHMR_FPS`, turned from GVHMR's y up to z up.
+
+    The file is read by ``torch.load(..., weights_only=True)``: tensors and containers only,
+    no code (a file that needs more is refused). The shape is frame 0's ``betas``.
+
+    Raises:
+        InputError: Naming the file and the field.
+    """
+    import torch
+
+    from humimic.transforms import Y_UP_TO_Z_UP
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    if p.stat().st_size > MAX_BYTES:
+        raise MotionDataError(f"{p}: larger than {MAX_BYTES} bytes")
+    try:
+        with warnings.catch_warnings():  # torch's notes on the pickle protocol: the error says it
+            warnings.simplefilter("ignore")
+            data = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as e:  # An unpickler's errors are many; all mean the same here.
+        detail = " ".join(str(e).split())[:200] or type(e).__name__
+        raise InputError(
+            f"{p}: not a readable GVHMR result (torch.load with weights_only: {detail})"
+        ) from None
+    params = data.get("smpl_params_global") if isinstance(data, dict) else None
+    if not isinstance(params, dict):
+        raise MotionDataError(f"{p}: no smpl_params_global: not a GVHMR result (hmr4d_results.pt)")
+    arrays = {}
+    for key in ("body_pose", "global_orient", "transl", "betas"):
+        if key not in params:
+            raise MotionDataError(f"{p}: smpl_params_global.{key}: missing")
+        arrays[key] = _tensor_array(params[key], p, f"smpl_params_global.{key}")
+    trans = arrays["transl"]
+    if trans.ndim != 2 or trans.shape[1] != 3 or trans.shape[0] < 1:
+        raise MotionDataError(f"{p}: smpl_params_global.transl: expected (T, 3), got "
+                              f"{trans.shape}")  # fmt: skip
+    T = trans.shape[0]
+    for key, width in (("body_pose", 63), ("global_orient", 3)):
+        if arrays[key].shape != (T, width):
+            raise MotionDataError(f"{p}: smpl_params_global.{key}: expected ({T}, {width}), "
+                                  f"got {arrays[key].shape}")  # fmt: skip
+    betas = arrays["betas"]
+    betas = betas.reshape(-1) if betas.ndim == 1 else betas.reshape(betas.shape[0], -1)[0]
+    body = np.concatenate([arrays["global_orient"], arrays["body_pose"]], axis=1)
+    return _body_joints(p, body, trans, betas, "smplx", "neutral", body_model, GVHMR_FPS,
+                        turn=Y_UP_TO_Z_UP, meta={"layout": "gvhmr", "up": "y (GVHMR)"})  # fmt: skip
