@@ -334,3 +334,69 @@ def test_mutated_gvhmr_files_are_read_or_refused(models: Path, tmp_path: Path) -
         except HumimicError:
             seen["refused"] += 1
     assert seen["refused"] > 0, seen
+
+
+def test_a_pickled_body_model_and_a_pickled_motion_read_as_their_npz(
+    models: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """SMPL's ``.pkl`` model layout (chumpy arrays, a sparse CSC ``J_regressor``; read as data,
+    chumpy absent) gives the joints its ``.npz`` gives; so does a motion pickled as GMR's OMOMO
+    split writes it (``poses`` padded to 165, object keys beside it)."""
+    import pickle
+    import sys
+    import types
+
+    import scipy.sparse as sp
+
+    from test_datapickle import _Ch
+
+    rng = np.random.default_rng(2)
+    poses = np.zeros((3, 165))
+    poses[:, :66] = 0.3 * rng.standard_normal((3, 66))
+    trans, betas = rng.standard_normal((3, 3)), np.linspace(-1, 1, 16)
+    ref = load_clip(_clip(tmp_path / "ref.npz", poses, trans, betas))
+
+    data = dict(np.load(models / "smplx" / "SMPLX_NEUTRAL.npz"))
+    mod = types.ModuleType("chumpy.ch")
+    mod.Ch = _Ch  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "chumpy", types.ModuleType("chumpy"))
+    monkeypatch.setitem(sys.modules, "chumpy.ch", mod)
+    pkl_model = {"v_template": _Ch(data["v_template"]), "shapedirs": _Ch(data["shapedirs"]),
+                 "J_regressor": sp.csc_matrix(data["J_regressor"]),
+                 "kintree_table": data["kintree_table"], "f": data["f"], "bs_style": "lbs"}  # fmt: skip
+    pkl_folder = tmp_path / "pkl_models" / "smplx"
+    pkl_folder.mkdir(parents=True)
+    (pkl_folder / "SMPLX_NEUTRAL.pkl").write_bytes(pickle.dumps(pkl_model, protocol=2))
+    monkeypatch.delitem(sys.modules, "chumpy.ch")
+    monkeypatch.delitem(sys.modules, "chumpy")
+    monkeypatch.setenv(BODY_MODELS_ENV, str(tmp_path / "pkl_models"))
+    a = load_clip(tmp_path / "ref.npz")
+    np.testing.assert_allclose(a.positions_w, ref.positions_w, atol=1e-12)
+    assert a.meta["body_model"].endswith("SMPLX_NEUTRAL.pkl")
+
+    monkeypatch.setenv(BODY_MODELS_ENV, str(models))
+    motion = {"seq_name": "sub3_largebox_003", "poses": poses, "trans": trans, "betas": betas,
+              "gender": "neutral", "mocap_frame_rate": np.array(120), "root_orient": poses[:, :3],
+              "pose_body": poses[:, 3:66], "obj_rot": np.zeros((3, 3, 3))}  # fmt: skip
+    path = tmp_path / "sub3_largebox_003.pkl"
+    path.write_bytes(pickle.dumps(motion))
+    b = load_clip(path)
+    np.testing.assert_allclose(b.positions_w, ref.positions_w, atol=1e-12)
+    assert b.fps == 120.0
+
+
+def test_a_pickle_that_is_not_data_is_refused_by_the_cli(
+    models: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "evil.pkl"
+    marker = tmp_path / "ran"
+    path.write_bytes(f"cos\nsystem\n(S'touch {marker}'\ntR.".encode())
+    _refused(["retarget", str(path), "--out", str(tmp_path / "o.npz")], capsys, "evil.pkl",
+             "refused: it names os.system")  # fmt: skip
+    assert not marker.exists() and not (tmp_path / "o.npz").exists()
+    no_trans = tmp_path / "no_trans.pkl"
+    import pickle
+
+    no_trans.write_bytes(pickle.dumps({"poses": np.zeros((2, 165))}))
+    _refused(["retarget", str(no_trans), "--out", str(tmp_path / "o.npz")], capsys,
+             "no_trans.pkl", "missing key(s) ['trans']")  # fmt: skip

@@ -41,7 +41,7 @@ __all__ = [
     "load_scene",
 ]
 
-SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".fbx", ".npy", ".npz", ".pt")
+SUPPORTED_SUFFIXES: tuple[str, ...] = (".bvh", ".fbx", ".npy", ".npz", ".pkl", ".pt")
 """File suffixes :func:`load_clip` reads."""
 
 
@@ -71,6 +71,10 @@ def load_clip(path: str | os.PathLike[str], **kw: Any) -> HumanClip:
         from humimic.datasets.fbx import load_fbx
 
         return load_fbx(p, **{k: v for k, v in kw.items() if k != "body_model"})
+    if suffix == ".pkl":  # SMPL-family parameters pickled (GMR's, OMOMO's): read as data only.
+        from humimic.datasets.smpl import load_smpl
+
+        return load_smpl(p, body_model=kw.get("body_model"))
     if suffix == ".pt":  # GVHMR's result (hmr4d_results.pt): SMPL-X parameters.
         from humimic.datasets.smpl import load_gvhmr
 

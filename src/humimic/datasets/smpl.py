@@ -3,7 +3,9 @@
 The body model files are licence-gated: humimic never ships or downloads them. The user's own
 (``SMPLX_NEUTRAL.npz`` and the like, from smpl-x.is.tue.mpg.de, mano.is.tue.mpg.de or
 smpl.is.tue.mpg.de) are read from ``--body-model DIR`` or ``$HUMIMIC_BODY_MODELS``, as the smplx
-package lays them out (``DIR/smplx/SMPLX_NEUTRAL.npz``, or the files in ``DIR`` itself).
+package lays them out (``DIR/smplx/SMPLX_NEUTRAL.npz``, or the files in ``DIR`` itself); a
+``.pkl`` model (SMPL's are) is read as data only (:mod:`humimic.datapickle`: chumpy arrays and
+sparse regressors become arrays, nothing in the file is run).
 
 Only the joints are needed, so no skinning: the shaped rest joints are the joint regressor
 applied to the shaped template (``J = J_regressor (v_template + shapedirs betas)``, as smplx
@@ -42,6 +44,39 @@ MAX_BYTES = 2 * 1024**3
 """Most bytes read from one file (an SMPL-X model is about 100 MB, an AMASS clip a few MB)."""
 
 
+SMPL_KEYS = ("poses", "root_orient", "pose_body", "trans", "betas", "gender", "mocap_framerate",
+             "mocap_frame_rate", "surface_model_type")  # fmt: skip
+"""The keys of an SMPL-family motion file this reader uses (others are ignored)."""
+
+
+def _pickle_members(
+    path: Path,
+    keys: tuple[str, ...],
+    kinds: str,
+    error: type[InputError],
+    required: tuple[str, ...],
+) -> dict[str, np.ndarray]:
+    """The arrays ``keys`` of a pickled dict of data (:func:`humimic.datapickle.read_data_pickle`:
+    nothing in it is run), as :func:`humimic.npyio.read_npz_members` gives those of an npz."""
+    from humimic.datapickle import read_data_pickle
+
+    data = read_data_pickle(path)
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a dict of arrays, got a {type(data).__name__}")
+    missing = [k for k in required if k not in data]
+    if missing:
+        raise error(f"{path}: missing key(s) {missing}")
+    out = {}
+    for k in keys:
+        if k not in data:
+            continue
+        arr = np.asarray(data[k])
+        if arr.dtype.kind not in kinds:
+            raise error(f"{path}: {k}: expected numbers, got {arr.dtype} values")
+        out[k] = arr
+    return out
+
+
 def is_smpl_file(path: Path) -> bool:
     """Whether an ``.npz`` holds SMPL-family parameters (``poses`` or ``pose_body``), not joint
     positions (whose reader would name the wrong missing key)."""
@@ -69,19 +104,20 @@ def body_model_file(family: str, gender: str, folder: Path | None, source: Path)
             gender (the message says where users get the files and what to pass).
     """
     where = folder if folder is not None else os.environ.get(BODY_MODELS_ENV)
-    name = f"{family.upper()}_{gender.upper()}.npz"
+    name = f"{family.upper()}_{gender.upper()}.npz"  # or .pkl (read as data only)
     get = ("the body model files are licence-gated and not shipped: register and download "
            f"them ({family.upper()}: smpl-x.is.tue.mpg.de for SMPL-X, mano.is.tue.mpg.de for "
            "SMPL+H, smpl.is.tue.mpg.de for SMPL), then pass --body-model DIR (the folder "
-           f"holding {family}/{name}) or set {BODY_MODELS_ENV}")  # fmt: skip
+           f"holding {family}/{name}, or the .pkl) or set {BODY_MODELS_ENV}")  # fmt: skip
     if not where:
         raise InputError(f"{source}: no body model folder for {name}: {get}")
     base = Path(where)
-    for cand in (base / family / name, base / name):
+    pkl = name[: -len(".npz")] + ".pkl"
+    for cand in (base / family / name, base / name, base / family / pkl, base / pkl):
         if cand.is_file():
             return cand
-    raise InputError(f"{source}: gender {gender!r}: {base} has no {family}/{name} or {name}: "
-                     f"{get}")  # fmt: skip
+    raise InputError(f"{source}: gender {gender!r}: {base} has no {family}/{name} or {name} "
+                     f"(nor .pkl): {get}")  # fmt: skip
 
 
 def rest_joints(model: Path, family: str, betas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -93,10 +129,12 @@ def rest_joints(model: Path, family: str, betas: np.ndarray) -> tuple[np.ndarray
     Raises:
         InputError: A model file of another family, or with bad arrays (names file and key).
     """
-    a = read_npz_members(model, ("v_template", "shapedirs", "J_regressor", "kintree_table"),
-                         max_bytes=MAX_BYTES, kinds="iuf", error=InputError,
-                         required=("v_template", "shapedirs", "J_regressor",
-                                   "kintree_table"))  # fmt: skip
+    keys = ("v_template", "shapedirs", "J_regressor", "kintree_table")
+    if model.suffix.lower() == ".pkl":
+        a = _pickle_members(model, keys, "iuf", InputError, required=keys)
+    else:
+        a = read_npz_members(model, keys, max_bytes=MAX_BYTES, kinds="iuf", error=InputError,
+                             required=keys)  # fmt: skip
     v, dirs, reg, tree = a["v_template"], a["shapedirs"], a["J_regressor"], a["kintree_table"]
     n_joints = FAMILIES[family][0]
     if v.ndim != 2 or v.shape[1] != 3:
@@ -145,10 +183,11 @@ def load_smpl(path: str | os.PathLike[str], *, body_model: Path | None = None) -
             that is not positive, a gender with no model file, a model of another family.
     """
     p = Path(path)
-    a = read_npz_members(p, ("poses", "root_orient", "pose_body", "trans", "betas", "gender",
-                             "mocap_framerate", "mocap_frame_rate", "surface_model_type"),
-                         max_bytes=MAX_BYTES, kinds="iufUS", error=MotionDataError,
-                         required=("trans",))  # fmt: skip
+    if p.suffix.lower() == ".pkl":
+        a = _pickle_members(p, SMPL_KEYS, "iufUS", MotionDataError, required=("trans",))
+    else:
+        a = read_npz_members(p, SMPL_KEYS, max_bytes=MAX_BYTES, kinds="iufUS",
+                             error=MotionDataError, required=("trans",))  # fmt: skip
     trans = _floats(a, "trans", p)
     if trans.ndim != 2 or trans.shape[1] != 3 or trans.shape[0] < 1:
         raise MotionDataError(f"{p}: trans: expected (T, 3), got {trans.shape}")
