@@ -192,23 +192,11 @@ def _case_same_output_name(tmp: Path, data: Path) -> Case:
     )  # fmt: skip
 
 
-def _case_second_clip_bad(tmp: Path, data: Path) -> Case:
-    """Every input is read before any output is written: no partial batch."""
-    (tmp / "in" / "batch").mkdir()
-    _trimmed_bvh(data / "cmu" / "35_01.bvh", tmp / "in" / "batch" / "a_walk.bvh", 20)
-    np.save(tmp / "in" / "batch" / "b_nan.npy", np.full((5, 53, 3), np.nan))
-    return Case(
-        ["retarget", str(tmp / "in" / "batch"), "--out", str(tmp / "out")],
-        ["b_nan.npy", "NaN"],
-    )
-
-
 CASES: dict[str, Callable[[Path, Path], Case]] = {
     "capture_dropout": _case_capture_dropout,
     "corrupt_npz": _case_corrupt_npz,
     "bad_ik_setting": _case_bad_ik_setting,
     "same_output_name": _case_same_output_name,
-    "second_clip_bad": _case_second_clip_bad,
     "unknown_joint_names": _case_unknown_joint_names,
     "truncated_bvh": _case_truncated_bvh,
     "bad_number_bvh": _case_bad_number_bvh,

@@ -79,6 +79,9 @@ class RetargetCommand:
     """Dynamics settings (--method dynamics; see humimic refine)."""
     quiet: bool = False
     """No progress bars; print only the report summary."""
+    workers: int | None = None
+    """With a folder or several clips: clips retargeted at once, each in its own process
+    (default: the cores). Every outcome goes to <out>/manifest.jsonl; a rerun resumes."""
 
     def validate(self) -> None:
         """Check the settings before any clip is read; :class:`InputError` names the flag."""
@@ -318,6 +321,8 @@ def retarget_clips(cmd: RetargetCommand) -> list[dict]:
     """
     from humimic.pipeline.batch import plan_retarget
 
+    if len(cmd.inputs) > 1 or any(p.is_dir() for p in cmd.inputs):
+        return _retarget_dataset(cmd)
     batch = plan_retarget(
         cmd.inputs, cmd.out, report=cmd.report, robot=cmd.robot, method=cmd.method, ik=cmd.ik,
         mesh=cmd.mesh, dyn=cmd.dyn, units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton,
@@ -331,6 +336,35 @@ def retarget_clips(cmd: RetargetCommand) -> list[dict]:
             print_dynamics(r.report["dynamics"], r.motion_path)
         reports.append(r.report)
     return reports
+
+
+def _retarget_dataset(cmd: RetargetCommand) -> list[dict]:
+    """A folder or several clips: every clip on its own in a pool of processes, outcomes in
+    the manifest (:mod:`humimic.pipeline.dataset`); the summary at the end; exit 2 naming the
+    manifest when any clip failed."""
+    from humimic.pipeline.batch import ClipOptions
+    from humimic.pipeline.dataset import run_dataset, summary_lines
+
+    if cmd.report is not None:
+        raise InputError("--report names one file: with several inputs the reports go in --out")
+    if cmd.workers is not None and cmd.workers < 1:
+        raise InputError(f"--workers {cmd.workers}: must be at least 1")
+    opts = ClipOptions(robot=cmd.robot, method=cmd.method, ik=cmd.ik, mesh=cmd.mesh,
+                       units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton,
+                       map_file=cmd.map, menagerie_root=cmd.menagerie_root, start=cmd.start,
+                       scene=cmd.scene, body_model=cmd.body_model)  # fmt: skip
+    summary = run_dataset(cmd.inputs, cmd.out, opts, dyn=cmd.dyn, csv=cmd.format == "csv",
+                          workers=cmd.workers, quiet=cmd.quiet)  # fmt: skip
+    for line in summary_lines(summary):
+        print(line)
+    if summary.failed:
+        first = summary.failed[0]
+        raise InputError(
+            f"{len(summary.failed)} of {len(summary.done) + len(summary.failed)} clips failed "
+            f"(first: {first['input']}: {first.get('error', '?')}); the others are written; "
+            f"see {summary.manifest}"
+        )
+    return [r.get("headline", {}) for r in summary.done]
 
 
 def run_retarget(cmd: RetargetCommand) -> None:

@@ -211,7 +211,7 @@ class RetargetBatch:
                              report_path=job.report_path, report=report)  # fmt: skip
 
 
-def _check_settings(robot: str, method: Method, ik: RetargetConfig, mesh: InteractionConfig,
+def check_settings(robot: str, method: Method, ik: RetargetConfig, mesh: InteractionConfig,
                     dyn: DynamicsConfig, scene: Path | None) -> None:  # fmt: skip
     """The settings, before any input is read; :class:`InputError` names the flag."""
     from humimic.robots import get_robot
@@ -237,7 +237,7 @@ def _check_settings(robot: str, method: Method, ik: RetargetConfig, mesh: Intera
         )
 
 
-def _output_paths(
+def output_paths(
     inputs: tuple[Path, ...],
     files: list[tuple[Path, Path]],
     out: Path,
@@ -298,6 +298,84 @@ def _read_clip(
     return clip.slice(first)
 
 
+@dataclass(frozen=True, kw_only=True)
+class ClipOptions:
+    """What :func:`plan_clip` needs besides the clip's paths (the flags of ``retarget``)."""
+
+    robot: str = "g1"
+    method: Method = "kinematic"
+    ik: RetargetConfig = field(default_factory=RetargetConfig)
+    mesh: InteractionConfig = field(default_factory=InteractionConfig)
+    units: str | float = "auto"
+    up: str = "auto"
+    skeleton: str | None = None
+    map_file: Path | None = None
+    menagerie_root: Path | None = None
+    start: int | None = None
+    scene: Path | None = None
+    body_model: Path | None = None
+
+
+def plan_clip(
+    f: Path,
+    motion_path: Path,
+    report_path: Path | None,
+    opts: ClipOptions,
+    retargeters: dict[str, Retargeter],
+) -> ClipJob:
+    """Read and check one clip: its map (shipped, matched by joint names, or proposed and
+    written beside its motion), its retargeter (made once per skeleton, kept in
+    ``retargeters``), its scene. Nothing is written.
+
+    Raises:
+        InputError: Naming the file or flag.
+    """
+    from humimic.retarget import Retargeter
+
+    robot, scene = opts.robot, opts.scene
+    auto_scene = scene is not None and str(scene) == "auto"
+    clip = _read_clip(f, opts.units, opts.up, opts.skeleton, opts.start, opts.body_model)
+    rmap, map_path = None, None
+    if (
+        opts.map_file is None
+        and opts.skeleton is None
+        and (clip.skeleton, robot) not in builtin_maps()
+    ):
+        # A rig with no shipped map: a shipped skeleton map its joint names match, or a
+        # map proposed from its joint names and tree (written next to the motion).
+        robot_file = robot_map_file(robot)
+        if robot_file is None:
+            raise InputError(f"--robot {robot}: no shipped robot map; give one with --map")
+        sk = match_skeleton(clip.names) or propose_skeleton_map(clip.names, clip.parents, str(f))
+        rmap = compose_map(sk, robot_file)
+        if sk.skeleton == "proposed":
+            map_path = motion_path.with_suffix(".map.yaml")
+            check_not_input(map_path, {f"the input {f}": f}, "the proposed map")
+            check_writable(map_path)
+            clip = replace(clip, skeleton=f"proposed:{f}")
+        else:
+            clip = replace(clip, skeleton=sk.skeleton)
+    if clip.skeleton not in retargeters:
+        retargeters[clip.skeleton] = Retargeter(
+            robot,
+            clip.skeleton,
+            opts.ik,
+            map_file=opts.map_file,
+            menagerie_root=opts.menagerie_root,
+            retarget_map=rmap,
+            method="kinematic" if opts.method == "dynamics" else opts.method,
+            mesh=opts.mesh,
+        )
+    retargeters[clip.skeleton].check(clip)
+    clip_scene = None
+    if scene is not None:
+        from humimic.datasets.scene import load_scene
+
+        clip_scene = load_scene(f.parent if auto_scene else scene)
+    return ClipJob(source=f, clip=clip, scene=clip_scene, motion_path=motion_path,
+                   report_path=report_path, map_path=map_path)  # fmt: skip
+
+
 def plan_retarget(
     inputs: tuple[Path, ...],
     out: Path,
@@ -343,12 +421,10 @@ def plan_retarget(
     Raises:
         InputError: Bad settings or input (names the flag or file), before any output.
     """
-    from humimic.retarget import Retargeter
-
     ik = ik or RetargetConfig()
     mesh = mesh or InteractionConfig()
     dyn = dyn or DynamicsConfig()
-    _check_settings(robot, method, ik, mesh, dyn, scene)
+    check_settings(robot, method, ik, mesh, dyn, scene)
     if not inputs:
         raise InputError("give at least one input clip or folder")
     auto_scene = scene is not None and str(scene) == "auto"
@@ -358,49 +434,15 @@ def plan_retarget(
         others["--map"] = map_file
     if scene is not None and not auto_scene:
         others["--scene"] = scene
-    outs = _output_paths(inputs, files, out, report, others)
+    outs = output_paths(inputs, files, out, report, others)
 
+    opts = ClipOptions(robot=robot, method=method, ik=ik, mesh=mesh, units=units, up=up,
+                       skeleton=skeleton, map_file=map_file, menagerie_root=menagerie_root,
+                       start=start, scene=scene, body_model=body_model)  # fmt: skip
     jobs: list[ClipJob] = []
     retargeters: dict[str, Retargeter] = {}
     for (f, _), (motion_path, report_path) in zip(files, outs, strict=True):
-        clip = _read_clip(f, units, up, skeleton, start, body_model)
-        rmap, map_path = None, None
-        if map_file is None and skeleton is None and (clip.skeleton, robot) not in builtin_maps():
-            # A rig with no shipped map: a shipped skeleton map its joint names match, or a
-            # map proposed from its joint names and tree (written next to the motion).
-            robot_file = robot_map_file(robot)
-            if robot_file is None:
-                raise InputError(f"--robot {robot}: no shipped robot map; give one with --map")
-            sk = match_skeleton(clip.names) or propose_skeleton_map(
-                clip.names, clip.parents, str(f)
-            )
-            rmap = compose_map(sk, robot_file)
-            if sk.skeleton == "proposed":
-                map_path = motion_path.with_suffix(".map.yaml")
-                check_not_input(map_path, {f"the input {f}": f}, "the proposed map")
-                check_writable(map_path)
-                clip = replace(clip, skeleton=f"proposed:{f}")
-            else:
-                clip = replace(clip, skeleton=sk.skeleton)
-        if clip.skeleton not in retargeters:
-            retargeters[clip.skeleton] = Retargeter(
-                robot,
-                clip.skeleton,
-                ik,
-                map_file=map_file,
-                menagerie_root=menagerie_root,
-                retarget_map=rmap,
-                method="kinematic" if method == "dynamics" else method,
-                mesh=mesh,
-            )
-        retargeters[clip.skeleton].check(clip)
-        clip_scene = None
-        if scene is not None:
-            from humimic.datasets.scene import load_scene
-
-            clip_scene = load_scene(f.parent if auto_scene else scene)
-        jobs.append(ClipJob(source=f, clip=clip, scene=clip_scene, motion_path=motion_path,
-                            report_path=report_path, map_path=map_path))  # fmt: skip
+        jobs.append(plan_clip(f, motion_path, report_path, opts, retargeters))
     if csv:
         from humimic.formats.csv_motion import meta_path
 

@@ -1,0 +1,132 @@
+"""Whole datasets (issue 57): a folder retargeted clip by clip into a manifest; a bad clip fails
+alone; a rerun redoes nothing that finished and redoes what changed; kill -9 mid-run and
+resume; one worker and two give the same motions."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from humimic.cli.main import main
+from humimic.motion import load_motion
+from humimic.pipeline.dataset import MANIFEST_NAME
+from test_cli import _trimmed_bvh
+
+
+def _records(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / MANIFEST_NAME).read_text().splitlines()]
+
+
+def _folder(root: Path, shared_data: Path, frames: dict[str, int]) -> Path:
+    root.mkdir(parents=True, exist_ok=True)
+    for name, n in frames.items():
+        _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", root / f"{name}.bvh", n)
+    return root
+
+
+def test_a_bad_clip_fails_alone(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two good clips, a NaN array and a cut BVH: the good ones are written, the bad ones
+    recorded with their reasons, the summary printed, exit 2 naming the manifest."""
+    root = _folder(tmp_path / "in", shared_data, {"a_walk": 20, "d_walk": 25})
+    np.save(root / "b_nan.npy", np.full((5, 53, 3), np.nan))
+    (root / "c_cut.bvh").write_text((root / "a_walk.bvh").read_text()[:400])
+    out = tmp_path / "out"
+    code = main(["retarget", str(root), "--out", str(out), "--workers", "1", "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 2
+    assert "2 of 4 clips failed" in captured.err and MANIFEST_NAME in captured.err
+    assert "2 clips retargeted" in captured.out and "failed: " in captured.out
+    assert "quality over 2 clips" in captured.out
+    recs = {r["key"]: r for r in _records(out)}
+    assert recs.keys() == {"a_walk", "b_nan", "c_cut", "d_walk"}
+    assert recs["a_walk"]["status"] == recs["d_walk"]["status"] == "done"
+    assert recs["b_nan"]["status"] == "failed" and "NaN" in recs["b_nan"]["error"]
+    assert recs["c_cut"]["status"] == "failed" and "c_cut.bvh" in recs["c_cut"]["error"]
+    assert recs["b_nan"]["error_kind"] == "input"
+    for name in ("a_walk", "d_walk"):
+        report = json.loads((out / f"{name}.json").read_text())
+        assert load_motion(out / f"{name}.npz").num_frames == report["frames"]
+        assert recs[name]["headline"]["frames"] == report["frames"]
+    assert not (out / "b_nan.npz").exists() and not (out / "c_cut.npz").exists()
+
+
+def test_a_rerun_redoes_nothing_finished_and_redoes_a_changed_input(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = _folder(tmp_path / "in", shared_data, {"a": 20, "b": 22})
+    np.save(root / "bad.npy", np.full((5, 53, 3), np.nan))
+    out = tmp_path / "out"
+    argv = ["retarget", str(root), "--out", str(out), "--workers", "1", "--quiet"]
+    assert main(argv) == 2
+    first = _records(out)
+    stamps = {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")}
+    # Unchanged: nothing redone, nothing appended (the refused input stays refused).
+    assert main(argv) == 0
+    assert _records(out) == first
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")} == stamps
+    assert "0 clips retargeted, 3 unchanged" in capsys.readouterr().out
+    # One input changed: that one alone is redone.
+    _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", root / "b.bvh", 30)
+    assert main(argv) == 0
+    new = _records(out)[len(first):]
+    assert [r["key"] for r in new] == ["b"] and new[0]["status"] == "done"
+    assert load_motion(out / "b.npz").num_frames > load_motion(out / "a.npz").num_frames
+    assert (out / "a.npz").stat().st_mtime_ns == stamps["a.npz"]
+    # Changed settings redo everything (the bad input is refused again).
+    assert main([*argv, "--ik.smooth-weight", "0.02"]) == 2
+    assert sorted(r["key"] for r in _records(out)[len(first) + 1 :]) == ["a", "b", "bad"]
+
+
+def test_kill_9_mid_run_then_resume(tmp_path: Path, shared_data: Path) -> None:
+    """The run is killed (SIGKILL) after its first clips are recorded: every output present
+    is whole (a motion and its report), and the rerun finishes the rest, redoing none of the
+    clips recorded done."""
+    names = {f"clip{i}": 150 for i in range(8)}
+    root = _folder(tmp_path / "in", shared_data, names)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "humimic.cli.main", "retarget", str(root), "--out", str(out),
+           "--workers", "1", "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    manifest = out / MANIFEST_NAME
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if manifest.is_file() and len(manifest.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {r["key"]: r for r in _records(out)}
+    assert 2 <= len(before) < len(names)
+    for p in out.glob("*.npz"):  # whole, or not there at all
+        assert load_motion(p).num_frames > 0
+    done_before = {k for k, r in before.items() if r["status"] == "done"}
+    assert subprocess.run(cmd, capture_output=True, timeout=600).returncode == 0
+    recs = _records(out)
+    keys = [r["key"] for r in recs]
+    assert set(keys) == set(names)
+    for k in done_before:  # not redone
+        assert keys.count(k) == 1
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_two_workers_write_what_one_writes(tmp_path: Path, shared_data: Path) -> None:
+    root = _folder(tmp_path / "in", shared_data, {"a": 20, "b": 30, "c": 25})
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert main(["retarget", str(root), "--out", str(one), "--workers", "1", "--quiet"]) == 0
+    assert main(["retarget", str(root), "--out", str(two), "--workers", "2", "--quiet"]) == 0
+    for name in ("a", "b", "c"):
+        np.testing.assert_array_equal(load_motion(one / f"{name}.npz").qpos,
+                                      load_motion(two / f"{name}.npz").qpos)  # fmt: skip
+    # Largest first: the pool takes the 30-frame clip before the others.
+    assert len(_records(two)) == 3
