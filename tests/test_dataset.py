@@ -130,3 +130,21 @@ def test_two_workers_write_what_one_writes(tmp_path: Path, shared_data: Path) ->
                                       load_motion(two / f"{name}.npz").qpos)  # fmt: skip
     # Largest first: the pool takes the 30-frame clip before the others.
     assert len(_records(two)) == 3
+
+
+def test_bad_dataset_flags_exit_2_before_anything_is_written(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    root = _folder(tmp_path / "in", shared_data, {"a": 20, "b": 20})
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    for argv, expect in (
+        (["--out", str(afile)], "a file, not a folder"),
+        (["--out", str(tmp_path / "o"), "--workers", "0"], "--workers 0: must be at least 1"),
+        (["--out", str(tmp_path / "o"), "--report", str(tmp_path / "r.json")], "--report"),
+        (["--out", str(root / "inside")], "inside the input folder"),
+    ):
+        assert main(["retarget", str(root), *argv, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("humimic: error: ") and expect in err, err
+    assert not (tmp_path / "o").exists() and not (root / "inside").exists()

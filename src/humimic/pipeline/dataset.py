@@ -119,10 +119,14 @@ class Manifest:
                     self.last[rec["key"]] = rec
 
     def append(self, record: dict[str, Any]) -> None:
-        with open(self.path, "a") as f:
-            f.write(json.dumps(record, allow_nan=False, default=str) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        line = json.dumps(record, allow_nan=False, default=str) + "\n"
+        try:
+            with open(self.path, "a") as f:
+                f.write(line)
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:  # A full disk, a folder taken away.
+            raise InputError(f"{self.path}: cannot record {record['key']} ({e.strerror})") from None
         self.last[record["key"]] = record
 
 
@@ -195,7 +199,14 @@ def plan_dataset(
         others["--scene"] = opts.scene
     outs = output_paths(inputs, files, out, None, others)
     digest = settings_digest(opts, dyn, csv)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: a file, not a folder")
+    if (out / MANIFEST_NAME).exists() and not (out / MANIFEST_NAME).is_file():
+        raise InputError(f"--out {out}: {MANIFEST_NAME} there is not a file")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"--out {out}: cannot create the folder ({e.strerror})") from None
     manifest = Manifest(out / MANIFEST_NAME)
     tasks, skipped = [], []
     for (f, name), (motion_path, report_path) in zip(files, outs, strict=True):
