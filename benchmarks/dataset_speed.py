@@ -5,14 +5,20 @@ The folder: the CMU clips of ../shared/data/cmu and copies of them cut to other 
 quarter, a half, three quarters of their frames), ``--clips`` in all, written to a temporary
 folder. Each configuration retargets the whole folder into its own fresh output folder through
 ``humimic.pipeline.dataset.run_dataset`` (manifest and all), G1, default settings. Wall time
-includes the workers' start-up (spawned processes import humimic and build their models).
+includes the workers' start-up (forked from this process, which has imported the retargeting
+code before any timing; each builds its robot model).
 
-Usage: .venv/bin/python benchmarks/dataset_speed.py [--clips 50] [--workers 2] [--repeats 1]
+With ``--ray``, a third configuration: the same folder as Ray tasks on a local Ray instance of
+``--workers`` CPUs (needs ``pip install ray==2.60.0``); the instance's start is timed apart
+(``ray_init_seconds``), its workers' start-up is in the wall time as the pool's is.
+
+Usage: .venv/bin/python benchmarks/dataset_speed.py [--clips 50] [--workers 2] [--repeats 1] [--ray]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import platform
@@ -20,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import humimic.retarget  # noqa: F401 - imported before any timing: no configuration pays it
 from humimic.pipeline.batch import ClipOptions
 from humimic.pipeline.dataset import run_dataset
 
@@ -55,6 +62,7 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=50)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--ray", action="store_true", help="also on a local Ray instance")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -62,20 +70,36 @@ def main() -> None:
         folder.mkdir()
         made = make_folder(folder, args.clips)
         for rep in range(args.repeats):
-            for workers in (1, args.workers):
-                out = Path(tmp) / f"out_{workers}_{rep}"
+            configs = [("pool", 1), ("pool", args.workers)]
+            if args.ray:
+                configs.append(("ray", args.workers))
+            for engine, workers in configs:
+                out = Path(tmp) / f"out_{engine}_{workers}_{rep}"
+                extra = {}
+                if engine == "ray":
+                    ray = importlib.import_module("ray")  # the ray extra
+
+                    t0 = time.perf_counter()
+                    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+                    extra["ray_init_seconds"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 s = run_dataset((folder,), out, ClipOptions(robot="g1"), workers=workers,
-                                quiet=True)  # fmt: skip
+                                ray="local" if engine == "ray" else None, quiet=True)  # fmt: skip
                 wall = time.perf_counter() - t0
+                if engine == "ray":
+                    ray.shutdown()
                 frames = sum(int(r["headline"]["frames"]) for r in s.done)
-                rows.append({"workers": workers, "repeat": rep, "clips_done": len(s.done),
-                             "clips_failed": len(s.failed), "wall_seconds": wall,
-                             "clips_per_minute": 60 * len(s.done) / wall,
-                             "output_frames_per_second": frames / wall})  # fmt: skip
+                rows.append({"engine": engine, "workers": workers, "repeat": rep,
+                             "clips_done": len(s.done), "clips_failed": len(s.failed),
+                             "wall_seconds": wall, "clips_per_minute": 60 * len(s.done) / wall,
+                             "output_frames_per_second": frames / wall, **extra})  # fmt: skip
     one = [r for r in rows if r["workers"] == 1]
-    many = [r for r in rows if r["workers"] == args.workers]
+    many = [r for r in rows if r["engine"] == "pool" and r["workers"] == args.workers]
+    on_ray = [r for r in rows if r["engine"] == "ray"]
     ratios = [b["clips_per_minute"] / a["clips_per_minute"] for a, b in zip(one, many, strict=True)]
+    ray_vs_pool = [
+        r["wall_seconds"] / p["wall_seconds"] for p, r in zip(many, on_ray, strict=False)
+    ]
     print(json.dumps({
         "benchmark": "dataset_speed",
         "clips": len(made),
@@ -83,6 +107,7 @@ def main() -> None:
                     "python": platform.python_version()},
         "rows": rows,
         "speedup": ratios,
+        "ray_wall_over_pool_wall": ray_vs_pool,
     }, indent=2))  # fmt: skip
 
 

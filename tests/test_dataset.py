@@ -78,7 +78,7 @@ def test_a_rerun_redoes_nothing_finished_and_redoes_a_changed_input(
     # One input changed: that one alone is redone.
     _trimmed_bvh(shared_data / "cmu" / "35_01.bvh", root / "b.bvh", 30)
     assert main(argv) == 0
-    new = _records(out)[len(first):]
+    new = _records(out)[len(first) :]
     assert [r["key"] for r in new] == ["b"] and new[0]["status"] == "done"
     assert load_motion(out / "b.npz").num_frames > load_motion(out / "a.npz").num_frames
     assert (out / "a.npz").stat().st_mtime_ns == stamps["a.npz"]

@@ -82,6 +82,10 @@ class RetargetCommand:
     workers: int | None = None
     """With a folder or several clips: clips retargeted at once, each in its own process
     (default: the cores). Every outcome goes to <out>/manifest.jsonl; a rerun resumes."""
+    ray: str | None = None
+    """With a folder or several clips: run them as Ray tasks on a cluster (its address, or
+    auto), or on a local Ray instance of --workers CPUs (local). Needs pip install ray
+    (the ray extra); inputs and --out on a path every node sees."""
 
     def validate(self) -> None:
         """Check the settings before any clip is read; :class:`InputError` names the flag."""
@@ -323,6 +327,11 @@ def retarget_clips(cmd: RetargetCommand) -> list[dict]:
 
     if len(cmd.inputs) > 1 or any(p.is_dir() for p in cmd.inputs):
         return _retarget_dataset(cmd)
+    if cmd.ray is not None or cmd.workers is not None:
+        raise InputError(
+            f"{'--ray' if cmd.ray is not None else '--workers'}: for a folder or several clips; "
+            "one clip runs in this process"
+        )
     batch = plan_retarget(
         cmd.inputs, cmd.out, report=cmd.report, robot=cmd.robot, method=cmd.method, ik=cmd.ik,
         mesh=cmd.mesh, dyn=cmd.dyn, units=_units(cmd.units), up=cmd.up, skeleton=cmd.skeleton,
@@ -354,7 +363,7 @@ def _retarget_dataset(cmd: RetargetCommand) -> list[dict]:
                        map_file=cmd.map, menagerie_root=cmd.menagerie_root, start=cmd.start,
                        scene=cmd.scene, body_model=cmd.body_model)  # fmt: skip
     summary = run_dataset(cmd.inputs, cmd.out, opts, dyn=cmd.dyn, csv=cmd.format == "csv",
-                          workers=cmd.workers, quiet=cmd.quiet)  # fmt: skip
+                          workers=cmd.workers, ray=cmd.ray, quiet=cmd.quiet)  # fmt: skip
     for line in summary_lines(summary):
         print(line)
     if summary.failed:
