@@ -148,3 +148,37 @@ def test_bad_dataset_flags_exit_2_before_anything_is_written(
         err = capsys.readouterr().err
         assert err.startswith("humimic: error: ") and expect in err, err
     assert not (tmp_path / "o").exists() and not (root / "inside").exists()
+
+
+def test_refine_a_folder_with_the_manifest(
+    tmp_path: Path, shared_data: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``humimic refine FOLDER``: every robot motion refined on its own (a human-positions
+    ``.npz`` beside them is not a motion and is left alone, a cut motion fails alone), outcomes
+    in the manifest, a rerun redoes nothing."""
+    from test_dynamics import _walk
+
+    from humimic.motion import save_motion
+
+    root = tmp_path / "motions"
+    (root / "sub").mkdir(parents=True)
+    walk = _walk(shared_data)
+    save_motion(walk, root / "walk.npz")
+    save_motion(walk, root / "sub" / "walk2.npz")
+    np.savez(root / "human.npz", positions=np.zeros((3, 2, 3)))
+    (root / "cut.npz").write_bytes((root / "walk.npz").read_bytes()[:300])
+    out = tmp_path / "refined"
+    argv = ["refine", str(root), "--out", str(out), "--quiet", "--workers", "2",
+            "--dyn.samples", "8", "--dyn.iterations", "1", "--dyn.polish_iterations", "1",
+            "--robustness", "0"]  # fmt: skip
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    assert "2 motions refined" in captured.out and "1 of 3 motions failed" in captured.err
+    recs = {r["key"]: r for r in _records(out)}
+    assert recs.keys() == {"walk", "sub/walk2", "cut"}
+    assert recs["walk"]["status"] == recs["sub/walk2"]["status"] == "done"
+    assert recs["cut"]["status"] == "failed" and "cut.npz" in recs["cut"]["error"]
+    assert main(["replay", str(out / "sub" / "walk2.npz")]) == 0
+    assert main(argv) == 0  # the cut file was refused as input: not redone, not failed again
+    assert len(_records(out)) == 3
+    assert "0 motions refined, 3 unchanged" in capsys.readouterr().out

@@ -123,9 +123,10 @@ class RefineCommand:
     replay open-loop on the simulated robot (humimic.retarget.dynamics)."""
 
     motion: Annotated[Path, tyro.conf.Positional]
-    """A robot motion (.npz), e.g. from humimic retarget."""
+    """A robot motion (.npz), e.g. from humimic retarget; or a folder of them (each refined on
+    its own, outcomes in <out>/manifest.jsonl, a rerun resumes: docs/datasets.md)."""
     out: Path
-    """The refined motion (.npz), with its dynamic section."""
+    """The refined motion (.npz), with its dynamic section; a folder for a folder."""
     report: Path | None = None
     """Report (JSON): open-loop replays of the input and of the result, robustness, compute."""
     dyn: DynamicsConfig = field(default_factory=DynamicsConfig)
@@ -139,6 +140,10 @@ class RefineCommand:
     """Where the warp backend simulates (cuda)."""
     quiet: bool = False
     """No progress bar."""
+    workers: int | None = None
+    """With a folder: motions refined at once, each in its own process (default: the cores)."""
+    ray: str | None = None
+    """With a folder: run them as Ray tasks (a cluster's address, auto, or local)."""
 
     def validate(self) -> None:
         """Check the settings before the motion is read; :class:`InputError` names the flag."""
@@ -405,6 +410,30 @@ def run_refine(cmd: RefineCommand) -> None:
     from humimic.retarget.dynamics import refine
 
     cmd.validate()
+    if cmd.motion.is_dir():
+        from humimic.pipeline.dataset import REFINE_HEADLINE, run_refine_dataset, summary_lines
+
+        if cmd.report is not None:
+            raise InputError("--report names one file: with a folder the reports go in --out")
+        summary = run_refine_dataset(cmd.motion, cmd.out, cmd.dyn, robustness=cmd.robustness,
+                                     backend=cmd.backend, device=cmd.device,
+                                     workers=cmd.workers, ray=cmd.ray, quiet=cmd.quiet)  # fmt: skip
+        for line in summary_lines(summary, REFINE_HEADLINE, ("dynamics_mpjpe_mm",),
+                                  done="motions refined"):  # fmt: skip
+            print(line)
+        if summary.failed:
+            first = summary.failed[0]
+            raise InputError(
+                f"{len(summary.failed)} of {len(summary.done) + len(summary.failed)} motions "
+                f"failed (first: {first['input']}: {first.get('error', '?')}); the others are "
+                f"written; see {summary.manifest}"
+            )
+        return
+    if cmd.ray is not None or cmd.workers is not None:
+        raise InputError(
+            f"{'--ray' if cmd.ray is not None else '--workers'}: for a folder of motions; "
+            "one motion runs in this process"
+        )
     if cmd.out.suffix != ".npz":
         raise InputError(f"{cmd.out}: the refined motion must end in .npz")
     check_not_input(cmd.out, {"the motion": cmd.motion}, "--out")

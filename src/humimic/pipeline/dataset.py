@@ -21,7 +21,7 @@ import os
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +94,10 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def settings_digest(opts: ClipOptions, dyn: DynamicsConfig, csv: bool) -> str:
-    """A digest of every setting that changes a clip's output."""
-    data = {"opts": asdict(opts), "dyn": asdict(dyn), "csv": csv}
+def settings_digest(settings: dict[str, Any]) -> str:
+    """A digest of every setting that changes an output (dataclasses by their fields)."""
+    data = {k: asdict(v) if is_dataclass(v) and not isinstance(v, type) else v
+            for k, v in settings.items()}  # fmt: skip
     text = json.dumps(data, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -160,6 +161,91 @@ def retarget_task(task: DatasetTask, opts: ClipOptions, dyn: DynamicsConfig, csv
     return out
 
 
+def refine_task(
+    task: DatasetTask, dyn: DynamicsConfig, robustness: int, backend: str, device: str
+) -> dict:
+    """Refine one robot motion (in a worker process) and write it with its report; its
+    outcome as a record (``humimic refine`` of a folder)."""
+    from humimic.io import json_ready
+    from humimic.motion import load_motion
+    from humimic.pipeline.batch import save_with_report
+    from humimic.retarget.dynamics import refine
+
+    t0 = time.perf_counter()
+    try:
+        motion = load_motion(task.source)
+        refined, report = refine(motion, dyn, robustness=robustness, backend=backend,  # type: ignore[arg-type]
+                                 device=device)  # fmt: skip
+        report = json_ready(report)
+        save_with_report(refined, task.motion_path, report, task.report_path)
+        k, d = report["kinematic_replay"], report["dynamics_replay"]
+        values = (refined.num_frames, k["mpjpe_mm"], d["mpjpe_mm"], k["fell"], d["fell"])
+        headline = dict(zip(REFINE_HEADLINE, values, strict=True))
+        out: dict[str, Any] = {"status": "done", "headline": headline}
+    except HumimicError as e:
+        out = {"status": "failed", "error_kind": "input", "error": str(e)}
+    except Exception as e:  # A bug or a resource, not the input: recorded, redone on a rerun.
+        out = {"status": "failed", "error_kind": "internal", "error": f"{type(e).__name__}: {e}"}
+    out["seconds"] = round(time.perf_counter() - t0, 3)
+    return out
+
+
+def run_refine_dataset(
+    folder: Path,
+    out: Path,
+    dyn: DynamicsConfig,
+    *,
+    robustness: int,
+    backend: str = "cpu",
+    device: str = "cpu",
+    workers: int | None = None,
+    ray: str | None = None,
+    quiet: bool = False,
+) -> DatasetSummary:
+    """``humimic refine FOLDER --out OUT``: every robot motion under the folder refined, with
+    the manifest, resume and failure isolation of :func:`run_dataset`."""
+    t0 = time.perf_counter()
+    dyn.validate()
+    if out.suffix:
+        raise InputError(f"{out}: with a folder --out must be a folder")
+    files = motion_files(folder, out)
+    outs = output_paths((folder,), files, out, None, {})
+    digest = settings_digest({"dyn": dyn, "robustness": robustness, "backend": backend,
+                              "device": device, "kind": "refine"})  # fmt: skip
+    tasks, skipped, manifest = plan_tasks(files, outs, out, digest)
+    return run_tasks(tasks, skipped, manifest, digest, refine_task,
+                     (dyn, robustness, backend, device), workers=workers, ray=ray,
+                     quiet=quiet, t0=t0)  # fmt: skip
+
+
+def motion_files(folder: Path, out: Path) -> list[tuple[Path, Path]]:
+    """The robot motions (``.npz`` with ``qpos`` and ``robot``) under a folder, each with its
+    output name; other ``.npz`` (arrays of human joint positions) are left alone, unreadable ones
+    kept (each then fails alone, saying why).
+
+    Raises:
+        InputError: No motion there, or ``out`` inside the folder.
+    """
+    from humimic.npyio import npz_keys
+
+    if out.resolve() == folder.resolve() or folder.resolve() in out.resolve().parents:
+        raise InputError(f"--out {out}: inside the input folder {folder}; humimic never writes "
+                         "into its inputs: choose a folder outside it")  # fmt: skip
+    found = []
+    for f in sorted(folder.rglob("*.npz")):
+        try:
+            keys = npz_keys(f)
+        except InputError:
+            keys = set()
+        # A motion, or unreadable (no arrays found): the latter fails on its own, saying why.
+        take = {"qpos", "robot"} <= keys or not keys
+        if take:
+            found.append((f, f.relative_to(folder).with_suffix("")))
+    if not found:
+        raise InputError(f"{folder}: no robot motion (.npz with qpos and robot) in this folder")
+    return found
+
+
 def _stale_temporaries(tasks: list[DatasetTask]) -> list[Path]:
     """Temporary files a killed run left beside the outputs (``.<name>.*.tmp``)."""
     found = []
@@ -170,35 +256,19 @@ def _stale_temporaries(tasks: list[DatasetTask]) -> list[Path]:
     return found
 
 
-def plan_dataset(
-    inputs: tuple[Path, ...],
+def plan_tasks(
+    files: list[tuple[Path, Path]],
+    outs: list[tuple[Path, Path | None]],
     out: Path,
-    opts: ClipOptions,
-    *,
-    dyn: DynamicsConfig | None = None,
-    csv: bool = False,
-) -> tuple[list[DatasetTask], list[dict[str, Any]], Manifest, str]:
-    """The inputs, split into those to retarget (largest first) and those a previous run
-    finished, with the manifest and the settings' digest. Settings and paths are checked
-    before anything is written.
+    digest: str,
+) -> tuple[list[DatasetTask], list[dict[str, Any]], Manifest]:
+    """Inputs (with their output names) split into those to run (largest first) and those a
+    previous run finished (their records), and the manifest; the folder made, stale temporary
+    files removed.
 
     Raises:
-        InputError: A bad flag, a missing input, an output that cannot be written.
+        InputError: ``--out`` a file, a manifest that is not a file, a folder not made.
     """
-    dyn = dyn or DynamicsConfig()
-    check_settings(opts.robot, opts.method, opts.ik, opts.mesh, dyn, opts.scene)
-    if not inputs:
-        raise InputError("give at least one input clip or folder")
-    if out.suffix:
-        raise InputError(f"{out}: with several inputs --out must be a folder")
-    files = clip_files(inputs, out)
-    others: dict[str, Path] = {}
-    if opts.map_file is not None:
-        others["--map"] = opts.map_file
-    if opts.scene is not None and str(opts.scene) != "auto":
-        others["--scene"] = opts.scene
-    outs = output_paths(inputs, files, out, None, others)
-    digest = settings_digest(opts, dyn, csv)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: a file, not a folder")
     if (out / MANIFEST_NAME).exists() and not (out / MANIFEST_NAME).is_file():
@@ -233,6 +303,39 @@ def plan_dataset(
     for tmp in _stale_temporaries(tasks):
         tmp.unlink(missing_ok=True)
     tasks.sort(key=lambda t: -t.size)
+    return tasks, skipped, manifest
+
+
+def plan_dataset(
+    inputs: tuple[Path, ...],
+    out: Path,
+    opts: ClipOptions,
+    *,
+    dyn: DynamicsConfig | None = None,
+    csv: bool = False,
+) -> tuple[list[DatasetTask], list[dict[str, Any]], Manifest, str]:
+    """The clips of a retargeting run, split into those to retarget (largest first) and those a
+    previous run finished, with the manifest and the settings' digest. Settings and paths are
+    checked before anything is written.
+
+    Raises:
+        InputError: A bad flag, a missing input, an output that cannot be written.
+    """
+    dyn = dyn or DynamicsConfig()
+    check_settings(opts.robot, opts.method, opts.ik, opts.mesh, dyn, opts.scene)
+    if not inputs:
+        raise InputError("give at least one input clip or folder")
+    if out.suffix:
+        raise InputError(f"{out}: with several inputs --out must be a folder")
+    files = clip_files(inputs, out)
+    others: dict[str, Path] = {}
+    if opts.map_file is not None:
+        others["--map"] = opts.map_file
+    if opts.scene is not None and str(opts.scene) != "auto":
+        others["--scene"] = opts.scene
+    outs = output_paths(inputs, files, out, None, others)
+    digest = settings_digest({"opts": opts, "dyn": dyn, "csv": csv})
+    tasks, skipped, manifest = plan_tasks(files, outs, out, digest)
     return tasks, skipped, manifest, digest
 
 
@@ -248,8 +351,7 @@ def run_dataset(
     on_record: Callable[[dict[str, Any]], None] | None = None,
     quiet: bool = False,
 ) -> DatasetSummary:
-    """Retarget every clip of ``inputs`` into ``out`` on ``workers`` processes (default: the
-    cores), recording each outcome in the manifest as it ends (see the module's text).
+    """Retarget every clip of ``inputs`` into ``out`` (see the module's text).
 
     Args:
         workers: Processes (default: the cores); with ``ray="local"``, the local instance's CPUs.
@@ -268,14 +370,35 @@ def run_dataset(
         InputError: Bad settings or paths (before anything is written).
         KeyboardInterrupt: Interrupted; what finished is in the manifest.
     """
-    from tqdm import tqdm
-
     dyn = dyn or DynamicsConfig()
     t0 = time.perf_counter()
     tasks, skipped, manifest, digest = plan_dataset(inputs, out, opts, dyn=dyn, csv=csv)
-    n = min(workers or default_workers(), max(len(tasks), 1))
-    if n < 1:
+    return run_tasks(tasks, skipped, manifest, digest, retarget_task, (opts, dyn, csv),
+                     workers=workers, ray=ray, on_record=on_record, quiet=quiet, t0=t0)  # fmt: skip
+
+
+def run_tasks(
+    tasks: list[DatasetTask],
+    skipped: list[dict[str, Any]],
+    manifest: Manifest,
+    digest: str,
+    fn: Callable[..., dict[str, Any]],
+    args: tuple,
+    *,
+    workers: int | None = None,
+    ray: str | None = None,
+    on_record: Callable[[dict[str, Any]], None] | None = None,
+    quiet: bool = False,
+    t0: float | None = None,
+) -> DatasetSummary:
+    """Run ``fn(task, *args)`` for every task (in this process, a pool of ``workers``
+    processes, or Ray), recording each outcome in the manifest as it ends."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter() if t0 is None else t0
+    if workers is not None and workers < 1:
         raise InputError(f"--workers {workers}: must be at least 1")
+    n = min(workers or default_workers(), max(len(tasks), 1))
     summary = DatasetSummary(skipped=skipped, manifest=manifest.path)
     bar = tqdm(total=len(tasks), unit="clip", disable=quiet or not tasks, desc="clips")
     frames = 0
@@ -297,12 +420,12 @@ def run_dataset(
 
     try:
         if ray is not None:
-            _run_ray(tasks, opts, dyn, csv, ray, workers, record)
+            _run_ray(tasks, fn, args, ray, workers, record)
         elif n == 1:
             for task in tasks:
-                record(task, retarget_task(task, opts, dyn, csv))
+                record(task, fn(task, *args))
         else:
-            _run_pool(tasks, opts, dyn, csv, n, record)
+            _run_pool(tasks, fn, args, n, record)
     finally:
         bar.close()
     summary.seconds = time.perf_counter() - t0
@@ -311,9 +434,8 @@ def run_dataset(
 
 def _run_pool(
     tasks: list[DatasetTask],
-    opts: ClipOptions,
-    dyn: DynamicsConfig,
-    csv: bool,
+    fn: Callable[..., dict[str, Any]],
+    args: tuple,
     workers: int,
     record: Callable[[DatasetTask, dict[str, Any]], None],
 ) -> None:
@@ -346,7 +468,7 @@ def _run_pool(
         while queue or pending:
             while queue and len(pending) < 2 * workers:
                 task = queue.pop(0)
-                pending[pool.submit(retarget_task, task, opts, dyn, csv)] = task
+                pending[pool.submit(fn, task, *args)] = task
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
                 task = pending.pop(fut)
@@ -380,9 +502,8 @@ def _import_ray() -> Any:
 
 def _run_ray(
     tasks: list[DatasetTask],
-    opts: ClipOptions,
-    dyn: DynamicsConfig,
-    csv: bool,
+    fn: Callable[..., dict[str, Any]],
+    args: tuple,
     address: str,
     workers: int | None,
     record: Callable[[DatasetTask, dict[str, Any]], None],
@@ -399,8 +520,8 @@ def _run_ray(
         except Exception as e:  # Ray's connection errors are many (ConnectionError, RuntimeError).
             detail = " ".join(str(e).split())[:300] or type(e).__name__
             raise InputError(f"--ray {address}: cannot connect ({detail})") from None
-    remote = ray.remote(num_cpus=1, max_retries=0)(retarget_task)
-    pending = {remote.remote(t, opts, dyn, csv): t for t in tasks}
+    remote = ray.remote(num_cpus=1, max_retries=0)(fn)
+    pending = {remote.remote(t, *args): t for t in tasks}
     try:
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
@@ -418,7 +539,13 @@ def _run_ray(
         raise
 
 
-def summary_lines(s: DatasetSummary) -> list[str]:
+REFINE_HEADLINE = ("frames", "kinematic_mpjpe_mm", "dynamics_mpjpe_mm", "kinematic_fell",
+                   "dynamics_fell")  # fmt: skip
+"""The figures a refine record keeps (the full report is the motion's ``.json``)."""
+
+
+def summary_lines(s: DatasetSummary, headline: tuple[str, ...] = HEADLINE,
+                  worst: tuple[str, ...] = WORST, done: str = "clips retargeted") -> list[str]:  # fmt: skip
     """The end-of-run summary: counts, failures with their reasons, the quality distribution
     over every finished clip (this run's and earlier ones'), the worst clips by each figure."""
     import numpy as np
@@ -426,7 +553,7 @@ def summary_lines(s: DatasetSummary) -> list[str]:
     finished = [r for r in s.done + s.skipped if r.get("status") == "done"]
     earlier_failed = [r for r in s.skipped if r.get("status") == "failed"]
     lines = [
-        f"{len(s.done)} clips retargeted, {len(s.skipped)} unchanged since an earlier run "
+        f"{len(s.done)} {done}, {len(s.skipped)} unchanged since an earlier run "
         f"({len(earlier_failed)} of them refused then), {len(s.failed)} failed; "
         f"{s.seconds:.1f} s; manifest {s.manifest}"
     ]
@@ -434,13 +561,13 @@ def summary_lines(s: DatasetSummary) -> list[str]:
         lines.append(f"  failed: {r['input']}: {r.get('error', '?')}")
     if finished:
         lines.append(f"quality over {len(finished)} clips (median / 95th percentile / max):")
-        for k in HEADLINE[1:]:
+        for k in headline[1:]:
             v = np.array([float(x) for r in finished
                           if (x := (r.get("headline") or {}).get(k)) is not None])  # fmt: skip
             if v.size:
                 lines.append(f"  {k}: {np.median(v):.3g} / {np.percentile(v, 95):.3g} / "
                              f"{v.max():.3g}")  # fmt: skip
-        for k in WORST:
+        for k in worst:
             ranked = sorted((r for r in finished if (r.get("headline") or {}).get(k)),
                             key=lambda r: -float(r["headline"][k]))[:3]  # fmt: skip
             if ranked:
