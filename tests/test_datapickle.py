@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pickle
-import random
 import sys
 import types
 from pathlib import Path
@@ -12,6 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from byte_mutants import byte_mutants, read_or_refused
 from humimic.datapickle import read_data_pickle
 from humimic.errors import InputError
 
@@ -123,26 +123,9 @@ def test_mutated_pickles_are_read_or_refused(tmp_path: Path) -> None:
     """Bytes flipped, cut out or put in: data, or an InputError; never another exception
     (2,100 mutants found none when the reader was written; a sample here)."""
     data = {**DATA, "J": sp.csc_matrix(np.eye(3))}
-    path = tmp_path / "m.pkl"
     seen = {"read": 0, "refused": 0}
     for protocol in (0, 2, 4):
-        base = pickle.dumps(data, protocol=protocol)
-        rng = random.Random(protocol)
-        for _ in range(70):
-            b = bytearray(base)
-            for _ in range(rng.randint(1, 5)):
-                k = rng.randrange(len(b))
-                r = rng.random()
-                if r < 0.5:
-                    b[k] = rng.randrange(256)
-                elif r < 0.8:
-                    del b[k : k + rng.randint(1, 30)]
-                else:
-                    b[k:k] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 4)))
-            path.write_bytes(bytes(b))
-            try:
-                read_data_pickle(path)
-                seen["read"] += 1
-            except InputError:
-                seen["refused"] += 1
+        mutants = byte_mutants(pickle.dumps(data, protocol=protocol), protocol, 70)
+        got = read_or_refused(mutants, tmp_path / "m.pkl", read_data_pickle, InputError)
+        seen = {k: seen[k] + got[k] for k in seen}
     assert seen["read"] > 0 and seen["refused"] > 0, seen

@@ -156,9 +156,8 @@ def test_refine_a_folder_with_the_manifest(
     """``humimic refine FOLDER``: every robot motion refined on its own (a human-positions
     ``.npz`` beside them is not a motion and is left alone, a cut motion fails alone), outcomes
     in the manifest, a rerun redoes nothing."""
-    from test_dynamics import _walk
-
     from humimic.motion import save_motion
+    from test_dynamics import _walk
 
     root = tmp_path / "motions"
     (root / "sub").mkdir(parents=True)

@@ -312,27 +312,12 @@ def test_bad_gvhmr_files_exit_2_naming_file_and_field(
 def test_mutated_gvhmr_files_are_read_or_refused(models: Path, tmp_path: Path) -> None:
     """Bytes of a GVHMR result flipped, cut or put in (a zip of pickled tensors): a clip, or a
     humimic error; never another exception."""
-    import random
+    from byte_mutants import byte_mutants, read_or_refused
 
     base = _gvhmr(tmp_path / "base.pt", np.zeros((4, 63)), np.zeros((4, 3)), np.zeros((4, 3)),
                   np.zeros((4, 10))).read_bytes()  # fmt: skip
-    rng = random.Random(3)
-    path = tmp_path / "m.pt"
-    seen = {"read": 0, "refused": 0}
-    for _ in range(60):
-        b = bytearray(base)
-        for _ in range(rng.randint(1, 4)):
-            k = rng.randrange(len(b))
-            if rng.random() < 0.5:
-                b[k] = rng.randrange(256)
-            else:
-                del b[k : k + rng.randint(1, 200)]
-        path.write_bytes(bytes(b))
-        try:
-            load_clip(path)
-            seen["read"] += 1
-        except HumimicError:
-            seen["refused"] += 1
+    seen = read_or_refused(byte_mutants(base, 3, 60, edits=4, cut=200), tmp_path / "m.pt",
+                           load_clip, HumimicError)  # fmt: skip
     assert seen["refused"] > 0, seen
 
 

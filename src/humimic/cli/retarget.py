@@ -7,7 +7,7 @@ import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import tyro
 
@@ -23,6 +23,9 @@ from humimic.configs.runs import check_device
 from humimic.errors import InputError
 from humimic.io import check_not_input, check_writable, json_ready
 from humimic.pipeline.batch import Method, frame_bars
+
+if TYPE_CHECKING:
+    from humimic.pipeline.dataset import DatasetSummary
 
 MAX_ROBUSTNESS = 1000
 """The most perturbed replays ``humimic refine --robustness`` makes for its report."""
@@ -369,16 +372,22 @@ def _retarget_dataset(cmd: RetargetCommand) -> list[dict]:
                        scene=cmd.scene, body_model=cmd.body_model)  # fmt: skip
     summary = run_dataset(cmd.inputs, cmd.out, opts, dyn=cmd.dyn, csv=cmd.format == "csv",
                           workers=cmd.workers, ray=cmd.ray, quiet=cmd.quiet)  # fmt: skip
-    for line in summary_lines(summary):
+    _finish_dataset(summary_lines(summary), summary, "clips")
+    return [r.get("headline", {}) for r in summary.done]
+
+
+def _finish_dataset(lines: list[str], summary: DatasetSummary, noun: str) -> None:
+    """Print a dataset run's summary; :class:`InputError` (exit 2) when any input failed,
+    naming the first and the manifest."""
+    for line in lines:
         print(line)
     if summary.failed:
         first = summary.failed[0]
         raise InputError(
-            f"{len(summary.failed)} of {len(summary.done) + len(summary.failed)} clips failed "
+            f"{len(summary.failed)} of {len(summary.done) + len(summary.failed)} {noun} failed "
             f"(first: {first['input']}: {first.get('error', '?')}); the others are written; "
             f"see {summary.manifest}"
         )
-    return [r.get("headline", {}) for r in summary.done]
 
 
 def run_retarget(cmd: RetargetCommand) -> None:
@@ -418,16 +427,9 @@ def run_refine(cmd: RefineCommand) -> None:
         summary = run_refine_dataset(cmd.motion, cmd.out, cmd.dyn, robustness=cmd.robustness,
                                      backend=cmd.backend, device=cmd.device,
                                      workers=cmd.workers, ray=cmd.ray, quiet=cmd.quiet)  # fmt: skip
-        for line in summary_lines(summary, REFINE_HEADLINE, ("dynamics_mpjpe_mm",),
-                                  done="motions refined"):  # fmt: skip
-            print(line)
-        if summary.failed:
-            first = summary.failed[0]
-            raise InputError(
-                f"{len(summary.failed)} of {len(summary.done) + len(summary.failed)} motions "
-                f"failed (first: {first['input']}: {first.get('error', '?')}); the others are "
-                f"written; see {summary.manifest}"
-            )
+        lines = summary_lines(summary, REFINE_HEADLINE, ("dynamics_mpjpe_mm",),
+                              done="motions refined")  # fmt: skip
+        _finish_dataset(lines, summary, "motions")
         return
     if cmd.ray is not None or cmd.workers is not None:
         raise InputError(

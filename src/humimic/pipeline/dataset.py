@@ -143,22 +143,32 @@ _RETARGETERS: dict[str, Any] = {}
 """A worker process's retargeters, one per skeleton, kept across its clips."""
 
 
-def retarget_task(task: DatasetTask, opts: ClipOptions, dyn: DynamicsConfig, csv: bool) -> dict:
-    """Retarget and write one clip (in a worker process); its outcome as a record."""
+def _outcome(work: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """A task's record: ``done`` with the headline ``work()`` returns, or ``failed`` with the
+    error, its kind (``input``: refused, not redone on a rerun; ``internal``: a bug or a
+    resource, redone), and the seconds it took."""
     t0 = time.perf_counter()
     try:
+        out: dict[str, Any] = {"status": "done", "headline": work()}
+    except HumimicError as e:
+        out = {"status": "failed", "error_kind": "input", "error": str(e)}
+    except Exception as e:  # Not the input's fault: recorded, redone on a rerun.
+        out = {"status": "failed", "error_kind": "internal", "error": f"{type(e).__name__}: {e}"}
+    out["seconds"] = round(time.perf_counter() - t0, 3)
+    return out
+
+
+def retarget_task(task: DatasetTask, opts: ClipOptions, dyn: DynamicsConfig, csv: bool) -> dict:
+    """Retarget and write one clip (in a worker process); its outcome as a record."""
+
+    def work() -> dict[str, Any]:
         job = plan_clip(task.source, task.motion_path, task.report_path, opts, _RETARGETERS)
         batch = RetargetBatch(jobs=[job], retargeters=_RETARGETERS, method=opts.method,
                               fps=opts.ik.fps, dyn=dyn, csv=csv)  # fmt: skip
         (result,) = list(batch.run())
-        headline = {k: result.report.get(k) for k in HEADLINE}
-        out: dict[str, Any] = {"status": "done", "headline": headline}
-    except HumimicError as e:
-        out = {"status": "failed", "error_kind": "input", "error": str(e)}
-    except Exception as e:  # A bug or a resource, not the input: recorded, redone on a rerun.
-        out = {"status": "failed", "error_kind": "internal", "error": f"{type(e).__name__}: {e}"}
-    out["seconds"] = round(time.perf_counter() - t0, 3)
-    return out
+        return {k: result.report.get(k) for k in HEADLINE}
+
+    return _outcome(work)
 
 
 def refine_task(
@@ -171,8 +181,7 @@ def refine_task(
     from humimic.pipeline.batch import save_with_report
     from humimic.retarget.dynamics import refine
 
-    t0 = time.perf_counter()
-    try:
+    def work() -> dict[str, Any]:
         motion = load_motion(task.source)
         refined, report = refine(motion, dyn, robustness=robustness, backend=backend,  # type: ignore[arg-type]
                                  device=device)  # fmt: skip
@@ -180,14 +189,9 @@ def refine_task(
         save_with_report(refined, task.motion_path, report, task.report_path)
         k, d = report["kinematic_replay"], report["dynamics_replay"]
         values = (refined.num_frames, k["mpjpe_mm"], d["mpjpe_mm"], k["fell"], d["fell"])
-        headline = dict(zip(REFINE_HEADLINE, values, strict=True))
-        out: dict[str, Any] = {"status": "done", "headline": headline}
-    except HumimicError as e:
-        out = {"status": "failed", "error_kind": "input", "error": str(e)}
-    except Exception as e:  # A bug or a resource, not the input: recorded, redone on a rerun.
-        out = {"status": "failed", "error_kind": "internal", "error": f"{type(e).__name__}: {e}"}
-    out["seconds"] = round(time.perf_counter() - t0, 3)
-    return out
+        return dict(zip(REFINE_HEADLINE, values, strict=True))
+
+    return _outcome(work)
 
 
 def run_refine_dataset(
