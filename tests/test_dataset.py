@@ -140,7 +140,7 @@ def test_bad_dataset_flags_exit_2_before_anything_is_written(
     afile.write_text("x")
     for argv, expect in (
         (["--out", str(afile)], "a file, not a folder"),
-        (["--out", str(tmp_path / "o"), "--workers", "0"], "--workers 0: must be at least 1"),
+        (["--out", str(tmp_path / "o"), "--workers", "0"], "--workers 0: must be in 1 to"),
         (["--out", str(tmp_path / "o"), "--report", str(tmp_path / "r.json")], "--report"),
         (["--out", str(root / "inside")], "inside the input folder"),
     ):

@@ -31,6 +31,15 @@ MAX_ROBUSTNESS = 1000
 """The most perturbed replays ``humimic refine --robustness`` makes for its report."""
 
 
+MAX_WORKERS = 1024
+"""Most worker processes one machine runs (beyond it, surely a typo)."""
+
+
+def _check_workers(workers: int | None) -> None:
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers {workers}: must be in 1 to {MAX_WORKERS}")
+
+
 @dataclass(frozen=True, kw_only=True)
 class RetargetCommand:
     """Retarget human motion clips (BVH, FBX, SMPL-family parameters, joint-position arrays,
@@ -92,6 +101,7 @@ class RetargetCommand:
 
     def validate(self) -> None:
         """Check the settings before any clip is read; :class:`InputError` names the flag."""
+        _check_workers(self.workers)
         self.ik.validate()
         self.mesh.validate()
         self.dyn.validate()
@@ -150,6 +160,7 @@ class RefineCommand:
 
     def validate(self) -> None:
         """Check the settings before the motion is read; :class:`InputError` names the flag."""
+        _check_workers(self.workers)
         self.dyn.validate()
         if self.backend == "warp":
             check_device(self.device)
