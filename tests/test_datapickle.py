@@ -129,3 +129,20 @@ def test_mutated_pickles_are_read_or_refused(tmp_path: Path) -> None:
         got = read_or_refused(mutants, tmp_path / "m.pkl", read_data_pickle, InputError)
         seen = {k: seen[k] + got[k] for k in seen}
     assert seen["read"] > 0 and seen["refused"] > 0, seen
+
+
+def test_a_memo_index_is_not_an_allocation(tmp_path: Path) -> None:
+    """``LONG_BINPUT`` with the largest index (protocol 2: push 1, memo it at 2**31 - 1, stop):
+    read with a few kilobytes. The C unpickler grows a list to the index (16 GiB here); a
+    mutated 2 KB file once took it 24 s."""
+    import tracemalloc
+
+    path = tmp_path / "memo.pkl"
+    path.write_bytes(b"\x80\x02K\x01r\xff\xff\xff\x7f.")
+    tracemalloc.start()
+    try:
+        assert read_data_pickle(path) == 1
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, peak
