@@ -181,3 +181,17 @@ def test_refine_a_folder_with_the_manifest(
     assert main(argv) == 0  # the cut file was refused as input: not redone, not failed again
     assert len(_records(out)) == 3
     assert "0 motions refined, 3 unchanged" in capsys.readouterr().out
+
+
+def test_a_manifest_line_cut_by_a_kill_costs_only_that_clip(tmp_path: Path) -> None:
+    """A record cut mid-line (the run killed while writing it) is ignored, and the next record
+    starts on a line of its own."""
+    from humimic.pipeline.dataset import Manifest
+
+    path = tmp_path / MANIFEST_NAME
+    path.write_text('{"key": "a", "status": "done"}\n{"key": "b", "sta')
+    m = Manifest(path)
+    assert set(m.last) == {"a"} and m.unreadable == 1
+    m.append({"key": "c", "status": "done"})
+    again = Manifest(path)
+    assert set(again.last) == {"a", "c"} and again.unreadable == 1

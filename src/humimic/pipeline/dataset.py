@@ -118,6 +118,12 @@ class Manifest:
                     continue
                 if isinstance(rec, dict) and isinstance(rec.get("key"), str):
                     self.last[rec["key"]] = rec
+            with open(path, "rb+") as f:  # A line cut by a kill: end it, lest the next join it.
+                f.seek(0, os.SEEK_END)
+                if f.tell():
+                    f.seek(-1, os.SEEK_END)
+                    if f.read(1) != b"\n":
+                        f.write(b"\n")
 
     def append(self, record: dict[str, Any]) -> None:
         line = json.dumps(record, allow_nan=False, default=str) + "\n"
