@@ -111,7 +111,7 @@ def load_fbx(
         raise InputError(f"{p}: no skeleton: the file has no joint nodes (LimbNode or Root)")
     joints = _largest_skeleton(joints, parent)
     names = tuple(str(nodes[i].name) for i in joints)
-    joint_parents = tuple(_nearest_joint(i, parent, joints) for i in joints)
+    joint_parents = _joint_parents(joints, parent)
 
     stack = _pick_take(p, scene, take)
     times, fps = _frame_times(p, stack)
@@ -184,15 +184,16 @@ def _largest_skeleton(joints: list[int], parent: list[int]) -> list[int]:
     return [i for i, t in zip(joints, tops, strict=True) if t == best]
 
 
-def _nearest_joint(i: int, parent: list[int], joints: list[int]) -> int:
-    """Index (into ``joints``) of node ``i``'s nearest joint ancestor, -1 for none."""
+def _joint_parents(joints: list[int], parent: list[int]) -> tuple[int, ...]:
+    """Each joint's nearest joint ancestor, as an index into ``joints`` (-1 for none)."""
     pos = {n: k for k, n in enumerate(joints)}
-    k = parent[i]
-    while k >= 0:
-        if k in pos:
-            return pos[k]
-        k = parent[k]
-    return -1
+    out = []
+    for i in joints:
+        k = parent[i]
+        while k >= 0 and k not in pos:
+            k = parent[k]
+        out.append(pos[k] if k >= 0 else -1)
+    return tuple(out)
 
 
 def _ancestors_of(joints: list[int], parent: list[int]) -> set[int]:

@@ -237,6 +237,16 @@ def check_settings(robot: str, method: Method, ik: RetargetConfig, mesh: Interac
         )
 
 
+def other_inputs(map_file: Path | None, scene: Path | None) -> dict[str, Path]:
+    """The inputs besides the clips, by flag (no output may overwrite them)."""
+    others: dict[str, Path] = {}
+    if map_file is not None:
+        others["--map"] = map_file
+    if scene is not None and str(scene) != "auto":
+        others["--scene"] = scene
+    return others
+
+
 def output_paths(
     inputs: tuple[Path, ...],
     files: list[tuple[Path, Path]],
@@ -427,14 +437,8 @@ def plan_retarget(
     check_settings(robot, method, ik, mesh, dyn, scene)
     if not inputs:
         raise InputError("give at least one input clip or folder")
-    auto_scene = scene is not None and str(scene) == "auto"
     files = clip_files(inputs, out)
-    others: dict[str, Path] = {}
-    if map_file is not None:
-        others["--map"] = map_file
-    if scene is not None and not auto_scene:
-        others["--scene"] = scene
-    outs = output_paths(inputs, files, out, report, others)
+    outs = output_paths(inputs, files, out, report, other_inputs(map_file, scene))
 
     opts = ClipOptions(robot=robot, method=method, ik=ik, mesh=mesh, units=units, up=up,
                        skeleton=skeleton, map_file=map_file, menagerie_root=menagerie_root,

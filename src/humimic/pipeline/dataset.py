@@ -32,6 +32,7 @@ from humimic.pipeline.batch import (
     RetargetBatch,
     check_settings,
     clip_files,
+    other_inputs,
     output_paths,
     plan_clip,
 )
@@ -338,12 +339,7 @@ def plan_dataset(
     if out.suffix:
         raise InputError(f"{out}: with several inputs --out must be a folder")
     files = clip_files(inputs, out)
-    others: dict[str, Path] = {}
-    if opts.map_file is not None:
-        others["--map"] = opts.map_file
-    if opts.scene is not None and str(opts.scene) != "auto":
-        others["--scene"] = opts.scene
-    outs = output_paths(inputs, files, out, None, others)
+    outs = output_paths(inputs, files, out, None, other_inputs(opts.map_file, opts.scene))
     digest = settings_digest({"opts": opts, "dyn": dyn, "csv": csv})
     tasks, skipped, manifest = plan_tasks(files, outs, out, digest)
     return tasks, skipped, manifest, digest

@@ -342,12 +342,11 @@ class KinematicRetargeter:
                 self._set_stage_costs(targets, t, stage)
                 limits = self._stage1_limits if stage == 1 and t > 0 else self.limits
                 prev = np.inf
-                iters_left = max_iters * budget
-                for _ in range(iters_left):
+                allowed = max_iters * budget
+                for i in range(allowed):
                     conf.integrate_inplace(self._solve(frame, limits), 1.0)
                     n += 1
-                    iters_left -= 1
-                    if not iters_left:
+                    if i + 1 == allowed:
                         break  # No next iteration for the error to decide on.
                     err = self._task_error()
                     if prev - err < cfg.tol * prev:
