@@ -123,6 +123,81 @@ def test_floor_limit_rows_are_height_derivatives(arm: mink.Configuration) -> Non
     assert cons.h[0] == pytest.approx(expected_sphere_bottom)
 
 
+MESH_FOOT_XML = """
+<mujoco>
+  <asset>
+    <!-- A foot mesh whose toe reaches 3 cm ahead of and 1 cm under its sole box, as an added
+         robot's mesh foot does on the box it is given; one vertex inside the hull. -->
+    <mesh name="foot_mesh" vertex="-0.06 -0.03 0  0.08 -0.03 0  0.08 0.03 0  -0.06 0.03 0
+                                    -0.05 0 -0.02  0.11 0.01 -0.03  0.02 0 0.04  0 0 0"/>
+  </asset>
+  <worldbody>
+    <geom name="floor" type="plane" size="0 0 1"/>
+    <body name="base" pos="0 0 0.4">
+      <freejoint/>
+      <geom name="torso" type="capsule" fromto="0 0 -0.1 0 0 0.1" size="0.05"/>
+      <body name="foot" pos="0 0 -0.3">
+        <joint name="ankle" axis="0 1 0" range="-1 1"/>
+        <geom name="sole" type="box" size="0.07 0.03 0.01" pos="0.01 0 -0.03"/>
+        <geom name="shell" type="mesh" mesh="foot_mesh" pos="0 0 -0.02"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.mark.parametrize("pitch", [-0.5, -0.2, 0.0, 0.3, 0.6])
+def test_floor_limit_keeps_a_mesh_foot_above_the_floor_not_only_its_box(pitch: float) -> None:
+    """A foot mesh beyond its sole box (Romeo's and Talos's went 11-28 mm into the floor at
+    toe-off while the box stayed above): the limit's lowest point is the mesh's lowest, as
+    MuJoCo's own plane-mesh distance says, and its rows are height derivatives."""
+    model = mujoco.MjModel.from_xml_string(MESH_FOOT_XML)
+    conf = mink.Configuration(model)
+    q = model.qpos0.copy()
+    q[2] = 0.39
+    q[3:7] = Rotation.from_euler("xyz", [0.15, 0.1, 0.4]).as_quat(scalar_first=True)
+    q[7] = pitch
+    conf.update(q)
+    limit = FloorLimit(model, ["foot"])
+    assert len(limit.meshes) == 1 and len(limit.meshes[0][1]) == 7  # The hull, not the inner one.
+    cons = limit.compute_qp_inequalities(conf, 1.0)
+    assert cons.G is not None and cons.h is not None
+    floor, shell, sole = (model.geom(n).id for n in ("floor", "shell", "sole"))
+    fromto = np.zeros(6)
+    mesh_low = mujoco.mj_geomDistance(model, conf.data, floor, shell, 1.0, fromto)
+    box_low = mujoco.mj_geomDistance(model, conf.data, floor, sole, 1.0, fromto)
+    assert float(cons.h.min()) == pytest.approx(min(mesh_low, box_low), abs=1e-9)
+    assert float(cons.h[8:].min()) == pytest.approx(mesh_low, abs=1e-9)  # After the 8 corners.
+
+    def heights(c: mink.Configuration) -> np.ndarray:
+        h = limit.compute_qp_inequalities(c, 1.0).h
+        assert h is not None and len(h) == len(cons.h)  # The same points either side.
+        return h.copy()
+
+    np.testing.assert_allclose(-cons.G, fd_jacobian(conf, heights), atol=1e-6)
+
+
+def test_a_mesh_foot_pitched_into_the_floor_is_seen_where_its_box_is_not() -> None:
+    """The case the box alone missed: toe down, the box above the floor, the mesh 1 cm in."""
+    model = mujoco.MjModel.from_xml_string(MESH_FOOT_XML)
+    conf = mink.Configuration(model)
+    floor, shell, sole = (model.geom(n).id for n in ("floor", "shell", "sole"))
+    q = model.qpos0.copy()
+    q[7] = 0.2
+    conf.update(q)
+    fromto = np.zeros(6)
+    q[2] -= mujoco.mj_geomDistance(model, conf.data, floor, sole, 1.0, fromto) - 0.001
+    conf.update(q)  # The box's lowest corner 1 mm above the floor.
+    mesh_low = mujoco.mj_geomDistance(model, conf.data, floor, shell, 1.0, fromto)
+    assert mesh_low < -0.005
+    limit = FloorLimit(model, ["foot"])
+    h = limit.compute_qp_inequalities(conf, 1.0).h
+    assert h is not None
+    assert h[:8].min() == pytest.approx(0.001)
+    assert h[8:].min() == pytest.approx(mesh_low)
+
+
 def test_point_travel_limit_rows_and_step(arm: mink.Configuration) -> None:
     model = arm.model
     body = model.body("lower").id

@@ -102,9 +102,35 @@ def point_jacobians(
     return out
 
 
-class FloorLimit(mink.Limit):
-    """Keep contact points on or above the floor plane ``z = height``: a hard limit.
+def mesh_hull_points(model: mujoco.MjModel, geom: int) -> np.ndarray:
+    """A mesh geom's convex-hull vertices in its body's frame (all its vertices where MuJoCo
+    kept no hull). Shape: (V, 3)."""
+    mesh = int(model.geom_dataid[geom])
+    adr, num = int(model.mesh_vertadr[mesh]), int(model.mesh_vertnum[mesh])
+    verts = model.mesh_vert[adr : adr + num]
+    graph = int(model.mesh_graphadr[mesh])
+    if graph >= 0:
+        nvert = int(model.mesh_graph[graph])
+        verts = verts[model.mesh_graph[graph + 2 + nvert : graph + 2 + 2 * nvert]]
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
+    return model.geom_pos[geom] + verts @ rot.reshape(3, 3).T
 
+
+MESH_FLOOR_BAND = 0.02
+"""A foot mesh's hull vertices within this height [m] of its lowest are kept above the floor
+at each evaluation: the floor is a plane, so to first order the lowest point after a step is
+one of them."""
+MESH_FLOOR_POINTS = 32
+"""At most this many of them per mesh, the lowest first."""
+
+
+class FloorLimit(mink.Limit):
+    """Keep the feet on or above the floor plane ``z = height``: a hard limit.
+
+    The contact points of :func:`foot_contact_points` (spheres, boxes, capsules), and the
+    lowest hull vertices of the feet's collision meshes (an added robot's foot is its mesh
+    standing on a sole box: at toe-off the mesh's toe or heel is what reaches the floor).
     Linearized as ``z_i + J_z,i dq >= height`` for every point ``i``, i.e.
     ``-J_z,i dq <= z_i - height``, exact to first order.
     """
@@ -118,12 +144,37 @@ class FloorLimit(mink.Limit):
         self.model = model
         self.height = height
         self.ids, self.pts, self.rad = foot_contact_points(model, bodies)
+        wanted = {model.body(name).id for name in bodies}
+        self.meshes = [
+            (int(model.geom_bodyid[g]), mesh_hull_points(model, g))
+            for g in range(model.ngeom)
+            if model.geom_bodyid[g] in wanted
+            and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
+            and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
+        ]
+
+    def points(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The points constrained in ``data``'s configuration (after kinematics).
+
+        Returns:
+            body ids (N,), world positions (N, 3), bottom heights (N,).
+        """
+        first, low_first = contact_point_heights(data, self.ids, self.pts, self.rad)
+        ids, world, bottom = [self.ids], [first], [low_first]
+        for body, hull in self.meshes:
+            p = body_points(data, np.full(len(hull), body), hull)
+            low = np.argsort(p[:, 2])[:MESH_FLOOR_POINTS]
+            low = low[p[low, 2] <= p[low[0], 2] + MESH_FLOOR_BAND]
+            ids.append(np.full(len(low), body))
+            world.append(p[low])
+            bottom.append(p[low, 2])
+        return np.concatenate(ids), np.concatenate(world), np.concatenate(bottom)
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         del dt  # A position limit.
         data = configuration.data
-        world, bottom = contact_point_heights(data, self.ids, self.pts, self.rad)
-        G = -point_jacobians(self.model, data, self.ids, world)[:, 2]
+        ids, world, bottom = self.points(data)
+        G = -point_jacobians(self.model, data, ids, world)[:, 2]
         return Constraint(G=G, h=bottom - self.height)
 
 
