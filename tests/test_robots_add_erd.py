@@ -1,7 +1,6 @@
 """``humimic robots add`` on example-robot-data's humanoid URDFs (slow: about a minute, and
 needs ``pip install example-robot-data==6.0.0``, about 130 MB, which humimic does not install):
-Talos, Romeo, iCub and the G1 are found whole and retarget the CMU walk with the quality bar
-(Talos not yet: an expected failure, strict);
+Talos, Romeo, iCub and the G1 are found whole and retarget the CMU walk with the quality bar;
 simple_humanoid, which has collision geometry on its trunk only, is refused naming that."""
 
 from __future__ import annotations
@@ -32,18 +31,7 @@ def _erd() -> Path:
 @pytest.mark.parametrize(
     ("name", "urdf", "missing"),
     [
-        pytest.param(
-            "talos",
-            "talos_data/robots/talos_reduced.urdf",
-            [],
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason=(
-                    "1 frame 1.35 mm into a pair of its collision meshes that overlap 50 mm at "
-                    "rest: the repair's line search finds no step that helps (BENCHMARKS.md)"
-                ),
-            ),
-        ),
+        ("talos", "talos_data/robots/talos_reduced.urdf", []),
         ("romeo", "romeo_description/urdf/romeo_small.urdf", []),
         ("icub", "icub_description/robots/icub_reduced.urdf", ["head"]),
         ("g1_urdf", "g1_description/urdf/g1_29dof_rev_1_0.urdf", ["head"]),

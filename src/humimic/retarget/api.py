@@ -176,6 +176,7 @@ class Retargeter:
             "source_frames_per_second": clip.num_frames / seconds,
             "qp_iterations_per_frame": float(np.mean(res.iterations)),
             "relaxed_qp_iterations": res.relaxed_iterations,
+            "retried_frames": res.retried_frames,
             "human_height_m": tg.human_height,
             "human_ground_m": tg.human_ground,
             "leg_scale": tg.scale,

@@ -160,6 +160,8 @@ class KinematicResult:
         solve_seconds: Wall time of the IK loop alone.
         iterations: QP solves per frame. Shape: (T,).
         relaxed_iterations: QP solves in which conflicting limits had to be made soft.
+        retried_frames: Frames solved a second time, with guarded steps, because the
+            first left a pair deeper than the report counts.
     """
 
     qpos: np.ndarray
@@ -167,6 +169,7 @@ class KinematicResult:
     solve_seconds: float
     iterations: np.ndarray
     relaxed_iterations: int
+    retried_frames: int = 0
 
 
 REPAIR_HALVINGS = 4
@@ -184,6 +187,7 @@ class _Frame:
     step: np.ndarray | None = None
     relaxed: int = 0
     yielded: int = 0
+    retried: int = 0
 
 
 class KinematicRetargeter:
@@ -336,23 +340,21 @@ class KinematicRetargeter:
             if t > 0 and cfg.smooth_weight > 0:
                 self.smooth.set_target(out[t - 1])
                 frame.tasks = [*self.tasks, self.smooth]
-            budget = cfg.first_frame_iters if t == 0 else 1
-            n = 0
-            for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
-                self._set_stage_costs(targets, t, stage)
-                limits = self._stage1_limits if stage == 1 and t > 0 else self.limits
-                prev = np.inf
-                allowed = max_iters * budget
-                for i in range(allowed):
-                    conf.integrate_inplace(self._solve(frame, limits), 1.0)
-                    n += 1
-                    if i + 1 == allowed:
-                        break  # No next iteration for the error to decide on.
-                    err = self._task_error()
-                    if prev - err < cfg.tol * prev:
-                        break
-                    prev = err
-            n += self._repair(frame)
+            start = conf.q.copy()
+            n, depth = self._solve_frame(frame, targets, guarded=False)
+            if depth > 0.0:
+                # A self-collision frame by the report's count, which the repair could not
+                # undo (two limbs crossed: the first stage skips the self-collision rows, and
+                # one step can carry a thigh through the other from beyond the detection
+                # distance). Once more from the frame's start, every limit in both stages and
+                # no step that takes a pair deeper inside its line; the less deep kept.
+                first = conf.q.copy()
+                conf.update(start)
+                more, again = self._solve_frame(frame, targets, guarded=True)
+                n += more
+                frame.retried += 1
+                if again > depth:
+                    conf.update(first)
             q = conf.q.copy()
             # Project away round-off beyond the joint ranges (the limit keeps it below 1e-9).
             q[7:] = np.clip(q[7:], self._range_lo, self._range_hi)
@@ -367,25 +369,82 @@ class KinematicRetargeter:
             solve_seconds=time.perf_counter() - t0,
             iterations=iters,
             relaxed_iterations=frame.relaxed,
+            retried_frames=frame.retried,
         )
 
-    def _repair(self, frame: _Frame) -> int:
+    def _solve_frame(self, frame: _Frame, targets: Targets, *, guarded: bool) -> tuple[int, float]:
+        """The frame's two stages of QPs and its repair, from the configuration as it is.
+        ``guarded``: self-collision rows in both stages, and a step that leaves some pair
+        deeper inside its repair line than before (and inside it) halved
+        (:data:`REPAIR_HALVINGS` times, then not taken). Returns the QPs solved and how far
+        the frame ends beyond the depth the report counts (:meth:`_repair`)."""
+        cfg, conf, t = self.cfg, self.configuration, frame.t
+        budget = cfg.first_frame_iters if t == 0 else 1
+        n = 0
+        for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
+            self._set_stage_costs(targets, t, stage)
+            limits = self._stage1_limits if stage == 1 and t > 0 and not guarded else self.limits
+            prev = np.inf
+            allowed = max_iters * budget
+            for i in range(allowed):
+                dq = self._solve(frame, limits)
+                n += 1
+                if guarded:
+                    self._guarded_step(dq)
+                else:
+                    conf.integrate_inplace(dq, 1.0)
+                if i + 1 == allowed:
+                    break  # No next iteration for the error to decide on.
+                err = self._task_error()
+                if prev - err < cfg.tol * prev:
+                    break
+                prev = err
+        repairs, depth = self._repair(frame)
+        return n + repairs, depth
+
+    def _self_slack(self) -> float:
+        """:meth:`SelfCollisionLimit.repair_slack` now (``inf`` without the limit)."""
+        limit = self.self_collision
+        if limit is None:
+            return np.inf
+        return limit.repair_slack(self.configuration, self.cfg.collision_margin)
+
+    def _guarded_step(self, dq: np.ndarray) -> None:
+        """Take ``dq``, halved while it leaves a pair deeper inside its repair line than
+        before; not at all if :data:`REPAIR_HALVINGS` halvings do not help."""
+        conf = self.configuration
+        q0, before = conf.q.copy(), self._self_slack()
+        for _ in range(REPAIR_HALVINGS + 1):
+            conf.integrate_inplace(dq, 1.0)
+            if self._self_slack() >= min(before, 0.0):
+                return
+            conf.update(q0)
+            dq = 0.5 * dq
+
+    def _repair(self, frame: _Frame) -> tuple[int, float]:
         """Extra QPs while a self-collision pair is inside its repair line
         (:meth:`SelfCollisionLimit.repair_slack`), or a held
         foot point has travelled more than 2 % beyond its radius (the limits are linearized:
         a large last step can overshoot them). The metrics check every pair in every
         frame, and report what this leaves.
+
+        Returns:
+            The QPs solved, and how far the configuration it leaves is beyond the depth the
+            report counts (:attr:`SelfCollisionLimit.counted_depth`; positive: a
+            self-collision frame; ``-inf`` without the limit).
         """
         limit, planted = self.self_collision, self.planted
         if limit is None and planted is None:
-            return 0
+            return 0, -np.inf
         conf, margin = self.configuration, self.cfg.collision_margin
 
-        def slack() -> float:
-            return np.inf if limit is None else limit.repair_slack(conf, margin)
+        def slack() -> tuple[float, float]:
+            if limit is None:
+                return np.inf, -np.inf
+            return limit.repair_slack(conf, margin), limit.counted_depth
 
         n = 0
-        now = slack()
+        now, counted = slack()
         for _ in range(self.cfg.repair_iters):
             if now >= 0.0 and (planted is None or planted.max_excess(conf.data) <= 0.02):
                 break
@@ -397,15 +456,15 @@ class KinematicRetargeter:
             for _ in range(REPAIR_HALVINGS + 1):
                 conf.update(q0)
                 conf.integrate_inplace(dq, 1.0)
-                after = slack()
+                after, depth = slack()
                 if after >= min(now, 0.0):
-                    now = after
+                    now, counted = after, depth
                     break
                 dq = 0.5 * dq
             else:
                 conf.update(q0)
                 break
-        return n
+        return n, counted
 
     def _solve(
         self, frame: _Frame, limits: list[mink.Limit], yielding: mink.Limit | None = None

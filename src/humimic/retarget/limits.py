@@ -237,6 +237,10 @@ SELF_REPAIR_DEPTH = 5e-4
 """A self-collision pair this much deeper than its overlap at rest [m] is repaired after a
 frame's last step: half the 1 mm the report counts."""
 
+SELF_COUNTED_DEPTH = 1e-3
+"""How much deeper than its overlap at rest [m] a pair must be for the report to count its
+frame as a self-collision frame (:func:`humimic.retarget.metrics.evaluate`)."""
+
 
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     """mink's collision avoidance on an exact list of geom pairs, each with its own floor,
@@ -262,9 +266,11 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     Attributes:
         min_slack: Smallest ``distance - floor`` found by the last evaluation (inf if none
             near).
+        counted_depth: Set by :meth:`repair_slack`.
     """
 
     min_slack: float = np.inf
+    counted_depth: float = -np.inf
 
     def __init__(
         self,
@@ -346,6 +352,10 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         last evaluation: a pair farther than the detection distance there can still meet in
         one step of the trust region (0.3 rad of a hip moves a forearm 10 cm past a thigh).
         Pairs whose bounding spheres are farther apart than their line are skipped.
+
+        Also sets :attr:`counted_depth`: how far the deepest pair is beyond the depth the
+        report counts (:data:`SELF_COUNTED_DEPTH` past its overlap at rest; positive: this
+        configuration is a self-collision frame; ``-inf`` when no pair is near its line).
         """
         floors = self.floors
         lines = np.maximum(floors - 0.5 * margin, np.minimum(floors, 0.0) - SELF_REPAIR_DEPTH)
@@ -357,7 +367,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         diff = data.geom_xpos[g1] - data.geom_xpos[g2]
         reach = np.maximum(rsum + lines, 0.0)
         near = np.flatnonzero(np.einsum("ij,ij->i", diff, diff) <= reach * reach)
-        out = np.inf
+        out, self.counted_depth = np.inf, -np.inf
         for idx in near:
             d = mujoco.mj_geomDistance(
                 self.model,
@@ -368,4 +378,6 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
                 self._fromto,
             )
             out = min(out, float(d - lines[idx]))
+            counted = min(float(floors[idx]), 0.0) - SELF_COUNTED_DEPTH - float(d)
+            self.counted_depth = max(self.counted_depth, counted)
         return out
