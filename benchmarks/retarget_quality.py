@@ -37,7 +37,7 @@ KEYS = ("frames", "frames_per_second", "keypoint_error_mm_mean", "keypoint_error
         "foot_skating_mm_per_s", "planted_foot_skating_mm_per_s", "max_ground_penetration_mm", "median_lowest_foot_mm",
         "joint_limit_violations", "self_collision_pairs", "self_collision_frames",
         "max_self_penetration_mm", "worst_self_collision", "self_collision_rest_overlaps",
-        "relaxed_qp_iterations",
+        "relaxed_qp_iterations", "retried_frames",
         "turned_knee_frames")  # fmt: skip
 
 
