@@ -191,8 +191,7 @@ def _climb_contacts(shared_data: Path, lift: float, sink: float) -> tuple[int, d
     from dataclasses import replace as dc_replace
 
     from humimic.datasets.scene import load_scene
-    from humimic.retarget.interaction import InteractionMeshRetargeter, contact_radii
-    from humimic.retarget.scene import human_contacts
+    from humimic.retarget.interaction import InteractionMeshRetargeter
     from humimic.robots import get_robot
     from humimic.robots.maps import get_map
 
@@ -207,7 +206,7 @@ def _climb_contacts(shared_data: Path, lift: float, sink: float) -> tuple[int, d
                                   InteractionConfig())  # fmt: skip
     tg = r.kin.targets(clip)
     placed, floor = r.scene_placement(clip, dc_replace(scene, objects=objects), tg)
-    found, _ = human_contacts(placed, tg.scaled, contact_radii(m, r.kin.geometry), 0.02)
+    found, _ = r.human_contacts(placed, tg)
     return int((found >= 0).sum()), floor
 
 
@@ -232,3 +231,64 @@ def test_the_scene_is_placed_by_where_the_toes_rest_on_it(shared_data: Path) -> 
     assert floor_sink["toe_clearance_m"] == pytest.approx(
         floor0["toe_clearance_m"] + 0.04, abs=0.01
     )
+
+
+@pytest.mark.parametrize("robot", ["op3", "g1", "t1"])
+def test_the_scene_in_the_robot_model_is_the_scene_as_given(robot: str) -> None:
+    """Each object's mesh in the IK model, posed by its mocap body, has the scene's own
+    vertices in the world: the OP3's default mesh class scales meshes by 0.001, and the
+    scene's boxes had inherited it (points, so no robot of that kind ever met its scene)."""
+    import mujoco
+
+    from humimic.retarget.kinematic import ik_model, scene_geoms
+    from humimic.robots import get_robot
+    from humimic.robots.maps import get_map
+
+    v, f = box_mesh(np.array([0.4, 0.3, 0.2]))
+    pose = np.array([[0.5, -0.2, 0.1, np.cos(0.3), 0.0, 0.0, np.sin(0.3)]])
+    scene = Scene(objects=(SceneObject(name="box", vertices=v, faces=f, poses=pose),),
+                  source="test")  # fmt: skip
+    model, _ = ik_model(get_robot(robot), get_map("cmu", robot), scene=scene)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    (g,) = scene_geoms(model)
+    mesh = model.geom_dataid[g]
+    local = model.mesh_vert[
+        model.mesh_vertadr[mesh] : model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]
+    ]
+    world = local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g]
+    expected = scene.objects[0].world_vertices(0)
+    # The same point set (MuJoCo re-centres and turns a mesh into its inertial frame).
+    dist = np.linalg.norm(world[:, None] - expected[None], axis=-1)
+    assert dist.min(axis=1).max() < 1e-6 and dist.min(axis=0).max() < 1e-6
+
+
+def _climb_contacts_by_point(shared_data: Path, robot: str) -> dict[str, int]:
+    """Human-scene contacts per key point on 8 s of climbing clip 2, retargeted to ``robot``."""
+    from humimic.datasets.scene import load_scene
+    from humimic.retarget.interaction import InteractionMeshRetargeter
+    from humimic.robots import get_robot
+    from humimic.robots.maps import get_map
+
+    folder = shared_data / "holosoma_climb" / "mocap_climb_seq_2"
+    clip = load_clip(next(folder.glob("*.npy"))).slice(0, 960)
+    m = get_map("holosoma", robot)
+    r = InteractionMeshRetargeter(get_robot(robot), m, RetargetConfig(fps=30.0),
+                                  InteractionConfig())  # fmt: skip
+    tg = r.kin.targets(clip)
+    placed, _ = r.scene_placement(clip, load_scene(folder), tg)
+    found, _ = r.human_contacts(placed, tg)
+    return {n: int(c) for n, c in zip(m.keypoints, (found >= 0).sum(axis=0), strict=True)}
+
+
+def test_the_humans_contacts_do_not_depend_on_the_robots_size_or_arms(shared_data: Path) -> None:
+    """The human's hands, hips and knees touch the boxes where the human's do, whichever robot
+    the clip goes to: on the 0.5 m OP3 a fixed 5 cm contact radius stood for 19 cm of the
+    human, and the T1's long-armed targets reached boxes the human's hands never did."""
+    g1 = _climb_contacts_by_point(shared_data, "g1")
+    feet = {n for n in g1 if n.endswith(("ankle", "toe"))}
+    assert sum(g1[n] for n in feet) > 200
+    for robot in ("op3", "t1"):
+        other = _climb_contacts_by_point(shared_data, robot)
+        for name in set(g1) - feet:
+            assert abs(other[name] - g1[name]) <= 0.05 * g1[name] + 2, (robot, name, other, g1)

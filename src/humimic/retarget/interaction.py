@@ -82,16 +82,18 @@ ADVANCE_HALVINGS = 5
 """Bisection steps of a frame's warm start that would enter the scene (to 1/32 of it)."""
 
 HAND_CONTACT_RADIUS = 0.05
-"""Contact radius of key points that are not foot points [m] (a joint centre inside a limb)."""
+"""Contact radius of key points that are not foot points, at human scale [m] (a joint centre
+inside a limb)."""
 
 
-def contact_radii(m: RetargetMap, geometry: RobotGeometry) -> np.ndarray:
-    """How far each key point sits from a surface it rests on: its height in the robot's
-    standing pose for the feet's ankle and toe points, :data:`HAND_CONTACT_RADIUS` for the
-    others. Shape: (K,)."""
+def contact_radii(m: RetargetMap, geometry: RobotGeometry, scale: float) -> np.ndarray:
+    """How far each key point of the targets sits from a surface it rests on: its height in
+    the robot's standing pose for the feet's ankle and toe points (the targets put the feet
+    there), :data:`HAND_CONTACT_RADIUS` times ``scale`` (the targets' robot/human scale) for
+    the others, whose targets are the human's joint centres scaled. Shape: (K,)."""
     feet = {n for f in m.feet.values() for n in (f.ankle, f.toe)}
     return np.array(
-        [geometry.keypoints[k, 2] if n in feet else HAND_CONTACT_RADIUS
+        [geometry.keypoints[k, 2] if n in feet else HAND_CONTACT_RADIUS * scale
          for k, n in enumerate(m.keypoints)]
     )  # fmt: skip
 
@@ -228,6 +230,35 @@ class InteractionMeshRetargeter:
                 "z_offset_m": z_offset}  # fmt: skip
         return placed, info
 
+    def human_contacts(self, scene: Scene, tg: Targets) -> tuple[np.ndarray, np.ndarray]:
+        """The scene object each key point of the human touches, and how firmly
+        (:func:`~humimic.retarget.scene.human_contacts`), in ``scene`` mapped as the targets
+        are (:meth:`scene_placement`).
+
+        Found on the human, not on the robot's targets: the feet's ankle and toe points are
+        the targets' (at the robot's standing heights over the human's clearance), the other
+        key points the human's own joint centres (``tg.human``) under the targets' vertical
+        calibration (the planted toes at the robot's standing toe height), taken
+        :data:`HAND_CONTACT_RADIUS` inside the limb and with ``contact_distance`` of slack,
+        both at human scale and scaled as the scene is. The targets hang the robot's bone
+        lengths along the human's bones, so a robot with long arms "touched" boxes the
+        human's hands never reached (the T1's wrists 456 times on climbing clip 1, the G1's
+        41), and a fixed 5 + 2 cm on the 0.5 m OP3 stood for 26 cm of the human (its pelvis,
+        knees and elbows touched the boxes wherever the human passed them).
+        """
+        m = self.map
+        names = list(m.keypoints)
+        feet = [names.index(n) for f in m.feet.values() for n in (f.ankle, f.toe)]
+        toes = [names.index(f.toe) for f in m.feet.values()]
+        human = tg.human.copy()
+        planted = tg.contacts[:, :, 1]
+        z = human[:, toes, 2]
+        ref = np.median(z[planted]) if planted.any() else np.percentile(z.min(axis=1), 1)
+        human[..., 2] += self.kin.geometry.keypoints[toes, 2].mean() - ref
+        human[:, feet] = tg.scaled[:, feet]
+        radius = contact_radii(m, self.kin.geometry, tg.scale)
+        return human_contacts(scene, human, radius, self.icfg.contact_distance * tg.scale)
+
     def run(
         self, clip: HumanClip, scene: Scene, progress: Callable[[int], Any] | None = None
     ) -> InteractionResult:
@@ -280,8 +311,7 @@ class InteractionMeshRetargeter:
         limits = [*(lim for lim in kin.limits if lim is not kin.planted), scene_limit, travel]
         samples = scene_r.surface_points(icfg.scene_spacing)
         spacings = scene_r.sampling_spacings(icfg.scene_spacing)
-        radius = contact_radii(self.map, kin.geometry)
-        contacts, firm = human_contacts(scene_r, tg.scaled, radius, icfg.contact_distance)
+        contacts, firm = self.human_contacts(scene_r, tg)
         # A foot point is planted on the floor (the kinematic targets' contacts) or on an
         # object (a scene contact while the human's point moves slower than contact_speed).
         feet_flat = foot_idx.ravel()

@@ -68,8 +68,10 @@ def ik_model(
         body.add_site(name=KEYPOINT_SITE_PREFIX + name, pos=list(kp.offset), group=5)
     for obj in scene.objects if scene is not None else ():
         mesh_name = SCENE_BODY_PREFIX + obj.name
+        # Unscaled whatever the robot's default mesh class says: the OP3's scales its meshes
+        # by 0.001 (millimetres), which shrank every box of the scene to a point.
         spec.add_mesh(name=mesh_name, uservert=obj.vertices.ravel().tolist(),
-                      userface=obj.faces.ravel().tolist())  # fmt: skip
+                      userface=obj.faces.ravel().tolist(), scale=[1.0, 1.0, 1.0])  # fmt: skip
         body = spec.worldbody.add_body(name=mesh_name, mocap=True, pos=obj.poses[0, :3].tolist(),
                                        quat=obj.poses[0, 3:].tolist())  # fmt: skip
         body.add_geom(name=mesh_name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name,
