@@ -61,6 +61,21 @@ def test_kinematic_walks_through_the_pad_interaction_mesh_steps_onto_it(shared_d
     assert r["keypoint_error_mm_mean"] <= 40.0, r["keypoint_error_mm_mean"]
 
 
+@pytest.mark.parametrize("robot", ["t1", "op3"])
+def test_box_feet_step_onto_the_pad_not_into_it(robot: str, shared_data: Path) -> None:
+    """The T1's and the OP3's feet are boxes: one pair of witness points per foot and object
+    let the foot turn about them into the pad (48 and 20 mm, in 24 and 17 frames). Their sole
+    corners are kept out of the scene too."""
+    path, scene = _pad_under_feet(shared_data)
+    clip = load_clip(path).slice(1, 97)
+    r = Retargeter(robot, "cmu", RetargetConfig(fps=30.0), method="interaction-mesh",
+                   mesh=InteractionConfig()).run(clip, scene=scene).report  # fmt: skip
+    assert r["kinematic"]["max_scene_penetration_mm"] > 15.0  # It walks through the pad.
+    assert r["max_scene_penetration_mm"] <= 1.0 and r["scene_penetration_frames"] == 0, r
+    assert r["human_contacts"] > 0 and r["contact_preservation"] >= 0.9
+    assert r["keypoint_error_mm_mean"] <= 40.0 and r["joint_limit_violations"] == 0
+
+
 def test_motion_file_has_the_scene_tracks(shared_data: Path, tmp_path: Path) -> None:
     out = _walk_on_pad(shared_data)
     poses = out.motion.extras["scene_poses"]  # type: ignore[index]

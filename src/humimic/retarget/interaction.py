@@ -30,6 +30,7 @@ from humimic.retarget.kinematic import (
     _Frame,
     robot_collision_geoms,
     scene_geoms,
+    sole_corner_geoms,
 )
 from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.scene import human_contacts, scene_floor
@@ -287,6 +288,7 @@ class InteractionMeshRetargeter:
             raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
         floor = model.geom(self.robot.floor_geom).id
         scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
+        scene_pairs += [(c, o) for c in sole_corner_geoms(model) for o in obj_geoms]
         scene_limit = SelfCollisionLimit(
             model,
             np.array(scene_pairs, dtype=int),

@@ -78,11 +78,58 @@ def ik_model(
                       contype=1, conaffinity=1, group=2, rgba=[0.55, 0.6, 0.7, 0.6])  # fmt: skip
     try:
         model = spec.compile()
+        if scene is not None and _add_sole_corners(spec, model, [f.body for f in m.feet.values()]):
+            model = spec.compile()
     except ValueError as e:
         where = f"{scene.source}: " if scene is not None and scene.source else ""
         detail = " ".join(str(e).split())
         raise InputError(f"{where}the scene cannot be added to the robot model: {detail}") from None
     return model, {j: a.velocity_limit for j, a in acts.items()}
+
+
+SOLE_CORNER_PREFIX = "humimic_corner_"
+SOLE_CORNER_RADIUS = 1e-3
+"""Radius [m] of the spheres at a box foot's corners (their surfaces at the corners)."""
+
+
+def _add_sole_corners(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: list[str]) -> bool:
+    """Tiny spheres at the sole corners of the feet's collision boxes (the four lowest in the
+    rest pose), without contact bits or mass: the scene limit keeps them out of the objects
+    too. One box against a box-shaped
+    object gives one pair of witness points, which does not hold the foot's turn about them:
+    the T1's box feet ended up to 72 mm inside the climbing clips' boxes. Returns whether any
+    were added (:func:`sole_corner_geoms` finds them)."""
+    added = False
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)  # The rest pose, qpos0.
+    for name in feet:
+        b = model.body(name).id
+        for g in range(model.ngeom):
+            if (model.geom_bodyid[g] != b or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX
+                    or (model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0)):  # fmt: skip
+                continue
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+            inner = np.maximum(model.geom_size[g] - SOLE_CORNER_RADIUS, 0.0)
+            corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)
+            local = model.geom_pos[g] + (corners * inner) @ rot.reshape(3, 3).T
+            world_z = (data.geom_xpos[g] + (corners * inner) @ data.geom_xmat[g].reshape(3, 3).T)[
+                :, 2
+            ]
+            # The sole: the box's four corners lowest in the rest pose.
+            for i in np.argsort(world_z, kind="stable")[:4]:
+                spec.body(name).add_geom(
+                    name=f"{SOLE_CORNER_PREFIX}{g}_{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                    size=[SOLE_CORNER_RADIUS, 0, 0], pos=local[i].tolist(),
+                    contype=0, conaffinity=0, group=5, density=0.0, mass=0.0,
+                )  # fmt: skip
+                added = True
+    return added
+
+
+def sole_corner_geoms(model: mujoco.MjModel) -> list[int]:
+    """Geom ids of :func:`_add_sole_corners`'s spheres in a model of :func:`ik_model`."""
+    return [g for g in range(model.ngeom) if model.geom(g).name.startswith(SOLE_CORNER_PREFIX)]
 
 
 def scene_geoms(model: mujoco.MjModel) -> list[int]:
