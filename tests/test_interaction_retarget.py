@@ -62,18 +62,52 @@ def test_kinematic_walks_through_the_pad_interaction_mesh_steps_onto_it(shared_d
 
 
 @pytest.mark.parametrize("robot", ["t1", "op3"])
-def test_box_feet_step_onto_the_pad_not_into_it(robot: str, shared_data: Path) -> None:
+def test_box_feet_step_onto_the_pad_not_into_it(
+    robot: str, shared_data: Path, tmp_path: Path
+) -> None:
     """The T1's and the OP3's feet are boxes: one pair of witness points per foot and object
     let the foot turn about them into the pad (48 and 20 mm, in 24 and 17 frames). Their sole
-    corners are kept out of the scene too."""
+    corners are kept out of the scene too. The report's self-collision is the independent
+    all-pairs check's on the exported robot (the corners renumber the robot's geoms in the
+    model with the scene: the report once measured the scene-less model's pair ids there)."""
+    from humimic.robots import export_nominal, get_robot
+    from test_self_collision import _independent_self_penetration
+
     path, scene = _pad_under_feet(shared_data)
     clip = load_clip(path).slice(1, 97)
-    r = Retargeter(robot, "cmu", RetargetConfig(fps=30.0), method="interaction-mesh",
-                   mesh=InteractionConfig()).run(clip, scene=scene).report  # fmt: skip
+    out = Retargeter(robot, "cmu", RetargetConfig(fps=30.0), method="interaction-mesh",
+                     mesh=InteractionConfig()).run(clip, scene=scene)  # fmt: skip
+    r = out.report
+    frames, deepest = _independent_self_penetration(
+        export_nominal(get_robot(robot), tmp_path / f"{robot}.xml"), out.motion.qpos
+    )
+    assert r["self_collision_frames"] == frames
+    assert r["max_self_penetration_mm"] == pytest.approx(deepest, abs=1e-6)
     assert r["kinematic"]["max_scene_penetration_mm"] > 15.0  # It walks through the pad.
     assert r["max_scene_penetration_mm"] <= 1.0 and r["scene_penetration_frames"] == 0, r
     assert r["human_contacts"] > 0 and r["contact_preservation"] >= 0.9
     assert r["keypoint_error_mm_mean"] <= 40.0 and r["joint_limit_violations"] == 0
+
+
+@pytest.mark.parametrize("robot", ["berkeley_humanoid", "apollo"])
+def test_the_interaction_reports_self_collision_is_the_independent_checks(
+    robot: str, shared_data: Path, tmp_path: Path
+) -> None:
+    """The sole corners renumber the robot's geoms in the model with the scene; the report
+    measured the scene-less model's pair ids there (on this walk: 1 frame at 1.07 mm on the
+    Berkeley Humanoid, 5 at 5.95 mm on the Apollo, where every geom pair of the exported
+    robot, by mj_geomDistance, has none)."""
+    from humimic.robots import export_nominal, get_robot
+    from test_self_collision import _independent_self_penetration
+
+    path, scene = _pad_under_feet(shared_data)
+    out = Retargeter(robot, "cmu", RetargetConfig(fps=30.0), method="interaction-mesh",
+                     mesh=InteractionConfig()).run(load_clip(path).slice(1, 97), scene=scene)  # fmt: skip
+    frames, deepest = _independent_self_penetration(
+        export_nominal(get_robot(robot), tmp_path / f"{robot}.xml"), out.motion.qpos
+    )
+    assert out.report["self_collision_frames"] == frames
+    assert out.report["max_self_penetration_mm"] == pytest.approx(deepest, abs=1e-6)
 
 
 def test_motion_file_has_the_scene_tracks(shared_data: Path, tmp_path: Path) -> None:

@@ -25,6 +25,7 @@ from humimic.retarget.interaction import (
 from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX, KinematicRetargeter
 from humimic.retarget.metrics import evaluate, evaluate_scene
 from humimic.retarget.scene import scene_arrays
+from humimic.robots.collision import self_collision_pairs
 from humimic.robots.maps import RetargetMap, get_map, load_map_file
 from humimic.robots.registry import get_robot
 
@@ -153,7 +154,13 @@ class Retargeter:
             keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
             keypoint_targets=tg.scaled,
             foot_bodies=[f.body for f in self.map.feet.values()],
-            self_collision=self.ik.self_collision_pairs,
+            # The pairs of the model measured: the interaction method's has the scene and the
+            # sole corners, which renumber the robot's geoms after them.
+            self_collision=(
+                self.ik.self_collision_pairs
+                if model is self.ik.model
+                else self_collision_pairs(model, self.robot.root_body)
+            ),
             floor_geom=self.robot.floor_geom,
             human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
             human_foot_contact=np.asarray(tg.contacts.any(axis=2)),
