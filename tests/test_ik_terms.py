@@ -163,6 +163,7 @@ def test_floor_limit_keeps_a_mesh_foot_above_the_floor_not_only_its_box(pitch: f
     assert len(limit.meshes) == 1 and len(limit.meshes[0][1]) == 7  # The hull, not the inner one.
     cons = limit.compute_qp_inequalities(conf, 1.0)
     assert cons.G is not None and cons.h is not None
+    n_rows = len(cons.h)
     floor, shell, sole = (model.geom(n).id for n in ("floor", "shell", "sole"))
     fromto = np.zeros(6)
     mesh_low = mujoco.mj_geomDistance(model, conf.data, floor, shell, 1.0, fromto)
@@ -172,7 +173,7 @@ def test_floor_limit_keeps_a_mesh_foot_above_the_floor_not_only_its_box(pitch: f
 
     def heights(c: mink.Configuration) -> np.ndarray:
         h = limit.compute_qp_inequalities(c, 1.0).h
-        assert h is not None and len(h) == len(cons.h)  # The same points either side.
+        assert h is not None and len(h) == n_rows  # The same points either side.
         return h.copy()
 
     np.testing.assert_allclose(-cons.G, fd_jacobian(conf, heights), atol=1e-6)
