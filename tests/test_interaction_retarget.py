@@ -341,3 +341,25 @@ def test_the_humans_contacts_do_not_depend_on_the_robots_size_or_arms(shared_dat
         other = _climb_contacts_by_point(shared_data, robot)
         for name in set(g1) - feet:
             assert abs(other[name] - g1[name]) <= 0.05 * g1[name] + 2, (robot, name, other, g1)
+
+
+@pytest.mark.slow
+def test_interaction_frames_with_crossed_links_are_solved_again(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """Climbing clip 1 on the Berkeley Humanoid (about 30 s): the scene's pull left its two
+    hip ab/ad links 2.6 mm into each other in 4 frames. Those frames are solved again with
+    guarded steps; the independent check finds none left."""
+    from humimic.datasets.scene import load_scene
+    from humimic.robots import export_nominal, get_robot
+    from test_self_collision import _independent_self_penetration
+
+    folder = shared_data / "holosoma_climb" / "mocap_climb_seq_1"
+    out = Retargeter("berkeley_humanoid", "holosoma", RetargetConfig(), method="interaction-mesh",
+                     mesh=InteractionConfig()).run(
+        load_clip(next(folder.glob("*.npy"))), scene=load_scene(folder))  # fmt: skip
+    assert out.report["interaction_retried_frames"] >= 1
+    frames, deepest = _independent_self_penetration(
+        export_nominal(get_robot("berkeley_humanoid"), tmp_path / "bh.xml"), out.motion.qpos
+    )
+    assert (frames, out.report["self_collision_frames"]) == (0, 0), deepest

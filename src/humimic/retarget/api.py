@@ -219,6 +219,7 @@ class Retargeter:
             "kinematic_seconds": ires.kinematic.solve_seconds,
             "interaction_qp_iterations_per_frame": float(np.mean(ires.iterations)),
             "interaction_relaxed_qp_iterations": ires.relaxed_iterations,
+            "interaction_retried_frames": ires.retried_frames,
             "interaction_toe_limit_yielded_qp_iterations": ires.yielded_iterations,
             "mesh_scene_points_mean": float(np.mean(ires.mesh_scene_points)),
             "scene_spacing_mm": {

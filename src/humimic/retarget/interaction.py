@@ -60,6 +60,8 @@ class InteractionResult:
         human_contacts: The scene object each human key point touches (-1: none), from
             :func:`~humimic.retarget.scene.human_contacts`. Shape: (T, K).
         scene_floor: Where the clip's floor was put (:meth:`InteractionMeshRetargeter.scene_placement`).
+        retried_frames: Frames solved again with guarded steps after a self-collision the
+            report would count.
     """
 
     qpos: np.ndarray
@@ -74,6 +76,7 @@ class InteractionResult:
     scene_spacings: list[float]
     human_contacts: np.ndarray
     scene_floor: dict[str, Any]
+    retried_frames: int = 0
 
 
 REPAIR_DEPTH = 1e-3
@@ -347,6 +350,7 @@ class InteractionMeshRetargeter:
             """One QP; where the limits conflict, the toes' travel limit yields first."""
             return kin._solve(frame, limits, yielding=travel)
 
+        retried = 0
         t0 = time.perf_counter()
         for t in range(T):
             set_scene_pose(model, conf.data, scene_r, t)
@@ -414,49 +418,84 @@ class InteractionMeshRetargeter:
             frame.t, frame.tasks = t, tasks
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             frame.step = step
-            n = 0
-            for _ in range(icfg.iterations):
-                dq = solve(frame)
-                conf.integrate_inplace(dq, 1.0)
-                n += 1
-                if float(np.abs(dq).max()) < icfg.tol:
-                    break
-            # Repair: the limits are linearized, so the last step can end inside an object;
-            # step again without the pull onto surfaces while it does. Every robot-scene pair
-            # is checked: a step can carry a geom into an object it was farther from than the
-            # limit's detection distance (a foot 20 mm inside a box, seq_1 of the climbing
-            # clips, went unseen by a check of the pairs that were near before the step).
-            # The same for a self-collision pair left inside its repair line (the kinematic
-            # pass's repair, SelfCollisionLimit.repair_slack): the scene's pull can bring a
-            # thigh onto a shin (the Berkeley Humanoid's, 1.7 mm in 310 frames of climbing
-            # clip 1, before).
-            frame.tasks = [task for task in tasks if task is not touch]
-            for _ in range(self.cfg.repair_iters):
-                if (_deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH
-                        and kin._self_slack() >= 0.0):  # fmt: skip
-                    break
-                conf.integrate_inplace(solve(frame), 1.0)
-                n += 1
-            # Reattach: the repair may have moved a touching body off its surface. Step again
-            # with the pull aiming contact_gap off the surface (at zero gap it fights the
-            # linearized limit), keeping a step only if it reattaches more contacts than it
-            # loses and nothing ends inside the scene.
-            if touch in tasks and icfg.reattach_iterations > 0:
-                frame.tasks, touch.gap = tasks, icfg.contact_gap
-                attached = _attached(touch, conf, icfg.contact_distance)
-                for _ in range(icfg.reattach_iterations):
-                    if attached.all():
-                        break
-                    before = conf.q.copy()
-                    conf.integrate_inplace(solve(frame), 1.0)
+
+            def solve_frame(tasks: list[mink.Task], guarded: bool) -> int:
+                """The frame's QPs, repair and reattachment from the configuration as it is;
+                ``guarded``: each step halved while it takes a self-collision pair deeper
+                (:meth:`KinematicRetargeter._guarded_step`). Returns the QPs solved."""
+
+                def take(dq: np.ndarray) -> None:
+                    if guarded:
+                        kin._guarded_step(dq)
+                    else:
+                        conf.integrate_inplace(dq, 1.0)
+
+                n = 0
+                frame.tasks = tasks
+                touch.gap = 0.0
+                for _ in range(icfg.iterations):
+                    dq = solve(frame)
+                    take(dq)
                     n += 1
-                    now = _attached(touch, conf, icfg.contact_distance)
-                    deep = (_deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
-                            or kin._self_slack() < 0.0)  # fmt: skip
-                    if deep or now.sum() <= attached.sum():
-                        conf.update(before)
+                    if float(np.abs(dq).max()) < icfg.tol:
                         break
-                    attached = now
+                # Repair: the limits are linearized, so the last step can end inside an
+                # object; step again without the pull onto surfaces while it does. Every
+                # robot-scene pair is checked: a step can carry a geom into an object it was
+                # farther from than the limit's detection distance (a foot 20 mm inside a box,
+                # seq_1 of the climbing clips, went unseen by a check of the pairs that were
+                # near before the step). The same while a self-collision pair is inside its
+                # repair line (SelfCollisionLimit.repair_slack), as in the kinematic pass.
+                frame.tasks = [task for task in tasks if task is not touch]
+                for _ in range(self.cfg.repair_iters):
+                    if (_deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH
+                            and kin._self_slack() >= 0.0):  # fmt: skip
+                        break
+                    take(solve(frame))
+                    n += 1
+                # Reattach: the repair may have moved a touching body off its surface. Step
+                # again with the pull aiming contact_gap off the surface (at zero gap it fights
+                # the linearized limit), keeping a step only if it reattaches more contacts
+                # than it loses and nothing ends inside the scene or deeper in a pair.
+                if touch in tasks and icfg.reattach_iterations > 0:
+                    frame.tasks, touch.gap = tasks, icfg.contact_gap
+                    attached = _attached(touch, conf, icfg.contact_distance)
+                    for _ in range(icfg.reattach_iterations):
+                        if attached.all():
+                            break
+                        before = conf.q.copy()
+                        conf.integrate_inplace(solve(frame), 1.0)
+                        n += 1
+                        now = _attached(touch, conf, icfg.contact_distance)
+                        deep = (_deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
+                                or kin._self_slack() < 0.0)  # fmt: skip
+                        if deep or now.sum() <= attached.sum():
+                            conf.update(before)
+                            break
+                        attached = now
+                return n
+
+            def counted_depth() -> float:
+                """How far the frame is past the depth the report counts (positive: a
+                self-collision frame; SelfCollisionLimit.counted_depth)."""
+                if kin.self_collision is None:
+                    return -np.inf
+                kin._self_slack()
+                return kin.self_collision.counted_depth
+
+            start = conf.q.copy()
+            n = solve_frame(tasks, guarded=False)
+            depth = counted_depth()
+            if depth > 0.0:
+                # A self-collision the report would count, as in the kinematic pass
+                # (KinematicRetargeter.run): once more from the frame's start with guarded
+                # steps, the less deep kept.
+                first = conf.q.copy()
+                conf.update(start)
+                n += solve_frame(tasks, guarded=True)
+                retried += 1
+                if counted_depth() > depth:
+                    conf.update(first)
             q = conf.q.copy()
             q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
             out[t] = q
@@ -472,6 +511,7 @@ class InteractionMeshRetargeter:
             iterations=iters,
             relaxed_iterations=frame.relaxed,
             yielded_iterations=frame.yielded,
+            retried_frames=retried,
             mesh_scene_points=n_scene,
             scene_spacings=spacings,
             human_contacts=contacts,
