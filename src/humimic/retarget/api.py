@@ -154,13 +154,9 @@ class Retargeter:
             keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
             keypoint_targets=tg.scaled,
             foot_bodies=[f.body for f in self.map.feet.values()],
-            # The pairs of the model measured: the interaction method's has the scene and the
-            # sole corners, which renumber the robot's geoms after them.
-            self_collision=(
-                self.ik.self_collision_pairs
-                if model is self.ik.model
-                else self_collision_pairs(model, self.robot.root_body)
-            ),
+            # The pairs of the model measured (the interaction method's has the scene and the
+            # sole corners, which renumber the robot's geoms after them).
+            self_collision=self_collision_pairs(model, self.robot.root_body),
             floor_geom=self.robot.floor_geom,
             human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
             human_foot_contact=np.asarray(tg.contacts.any(axis=2)),

@@ -246,8 +246,8 @@ class InteractionMeshRetargeter:
         :data:`HAND_CONTACT_RADIUS` inside the limb and with ``contact_distance`` of slack,
         both at human scale and scaled as the scene is. The targets hang the robot's bone
         lengths along the human's bones, so a robot with long arms "touched" boxes the
-        human's hands never reached (the T1's wrists 456 times on climbing clip 1, the G1's
-        41), and a fixed 5 + 2 cm on the 0.5 m OP3 stood for 26 cm of the human (its pelvis,
+        human's hands never reached (climbing clip 1, radii scaled: the T1's wrists 456 times,
+        the G1's never), and a fixed 5 + 2 cm on the 0.5 m OP3 stood for 26 cm of the human (its pelvis,
         knees and elbows touched the boxes wherever the human passed them).
         """
         m = self.map
@@ -350,6 +350,55 @@ class InteractionMeshRetargeter:
             """One QP; where the limits conflict, the toes' travel limit yields first."""
             return kin._solve(frame, limits, yielding=travel)
 
+        def solve_frame(tasks: list[mink.Task], guarded: bool) -> int:
+            """The frame's QPs, repair and reattachment from the configuration as it is;
+            ``guarded``: each step halved while it takes a self-collision pair deeper
+            (:meth:`KinematicRetargeter._step`). Returns the QPs solved."""
+            n = 0
+            frame.tasks = tasks
+            touch.gap = 0.0
+            for _ in range(icfg.iterations):
+                dq = solve(frame)
+                kin._step(dq, guarded=guarded)
+                n += 1
+                if float(np.abs(dq).max()) < icfg.tol:
+                    break
+            # Repair: the limits are linearized, so the last step can end inside an object;
+            # step again without the pull onto surfaces while it does. Every robot-scene pair
+            # is checked: a step can carry a geom into an object it was farther from than the
+            # limit's detection distance (a foot 20 mm inside a box, seq_1 of the climbing
+            # clips, went unseen by a check of the pairs that were near before the step). The
+            # same while a self-collision pair is inside its repair line
+            # (SelfCollisionLimit.repair_slack), as in the kinematic pass.
+            frame.tasks = [task for task in tasks if task is not touch]
+            for _ in range(self.cfg.repair_iters):
+                if (_deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH
+                        and kin._self_check()[0] >= 0.0):  # fmt: skip
+                    break
+                kin._step(solve(frame), guarded=guarded)
+                n += 1
+            # Reattach: the repair may have moved a touching body off its surface. Step again
+            # with the pull aiming contact_gap off the surface (at zero gap it fights the
+            # linearized limit), keeping a step only if it reattaches more contacts than it
+            # loses and nothing ends inside the scene or deeper in a pair.
+            if touch in tasks and icfg.reattach_iterations > 0:
+                frame.tasks, touch.gap = tasks, icfg.contact_gap
+                attached = _attached(touch, conf, icfg.contact_distance)
+                for _ in range(icfg.reattach_iterations):
+                    if attached.all():
+                        break
+                    before = conf.q.copy()
+                    conf.integrate_inplace(solve(frame), 1.0)
+                    n += 1
+                    now = _attached(touch, conf, icfg.contact_distance)
+                    deep = (_deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
+                            or kin._self_check()[0] < 0.0)  # fmt: skip
+                    if deep or now.sum() <= attached.sum():
+                        conf.update(before)
+                        break
+                    attached = now
+            return n
+
         retried = 0
         t0 = time.perf_counter()
         for t in range(T):
@@ -419,73 +468,9 @@ class InteractionMeshRetargeter:
             frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
             frame.step = step
 
-            def solve_frame(tasks: list[mink.Task], guarded: bool) -> int:
-                """The frame's QPs, repair and reattachment from the configuration as it is;
-                ``guarded``: each step halved while it takes a self-collision pair deeper
-                (:meth:`KinematicRetargeter._guarded_step`). Returns the QPs solved."""
-
-                def take(dq: np.ndarray) -> None:
-                    if guarded:
-                        kin._guarded_step(dq)
-                    else:
-                        conf.integrate_inplace(dq, 1.0)
-
-                n = 0
-                frame.tasks = tasks
-                touch.gap = 0.0
-                for _ in range(icfg.iterations):
-                    dq = solve(frame)
-                    take(dq)
-                    n += 1
-                    if float(np.abs(dq).max()) < icfg.tol:
-                        break
-                # Repair: the limits are linearized, so the last step can end inside an
-                # object; step again without the pull onto surfaces while it does. Every
-                # robot-scene pair is checked: a step can carry a geom into an object it was
-                # farther from than the limit's detection distance (a foot 20 mm inside a box,
-                # seq_1 of the climbing clips, went unseen by a check of the pairs that were
-                # near before the step). The same while a self-collision pair is inside its
-                # repair line (SelfCollisionLimit.repair_slack), as in the kinematic pass.
-                frame.tasks = [task for task in tasks if task is not touch]
-                for _ in range(self.cfg.repair_iters):
-                    if (_deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH
-                            and kin._self_slack() >= 0.0):  # fmt: skip
-                        break
-                    take(solve(frame))
-                    n += 1
-                # Reattach: the repair may have moved a touching body off its surface. Step
-                # again with the pull aiming contact_gap off the surface (at zero gap it fights
-                # the linearized limit), keeping a step only if it reattaches more contacts
-                # than it loses and nothing ends inside the scene or deeper in a pair.
-                if touch in tasks and icfg.reattach_iterations > 0:
-                    frame.tasks, touch.gap = tasks, icfg.contact_gap
-                    attached = _attached(touch, conf, icfg.contact_distance)
-                    for _ in range(icfg.reattach_iterations):
-                        if attached.all():
-                            break
-                        before = conf.q.copy()
-                        conf.integrate_inplace(solve(frame), 1.0)
-                        n += 1
-                        now = _attached(touch, conf, icfg.contact_distance)
-                        deep = (_deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
-                                or kin._self_slack() < 0.0)  # fmt: skip
-                        if deep or now.sum() <= attached.sum():
-                            conf.update(before)
-                            break
-                        attached = now
-                return n
-
-            def counted_depth() -> float:
-                """How far the frame is past the depth the report counts (positive: a
-                self-collision frame; SelfCollisionLimit.counted_depth)."""
-                if kin.self_collision is None:
-                    return -np.inf
-                kin._self_slack()
-                return kin.self_collision.counted_depth
-
             start = conf.q.copy()
             n = solve_frame(tasks, guarded=False)
-            depth = counted_depth()
+            depth = kin._self_check()[1]
             if depth > 0.0:
                 # A self-collision the report would count, as in the kinematic pass
                 # (KinematicRetargeter.run): once more from the frame's start with guarded
@@ -494,7 +479,7 @@ class InteractionMeshRetargeter:
                 conf.update(start)
                 n += solve_frame(tasks, guarded=True)
                 retried += 1
-                if counted_depth() > depth:
+                if kin._self_check()[1] > depth:
                     conf.update(first)
             q = conf.q.copy()
             q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)

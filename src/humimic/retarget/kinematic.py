@@ -307,6 +307,7 @@ class KinematicRetargeter:
         # more than its distance at rest (self_collision_floors).
         self.self_collision_pairs = self_collision_pairs(model, robot.root_body)
         self.self_collision: SelfCollisionLimit | None = None
+        self._checked: tuple[np.ndarray, float, float] | None = None  # _self_check's last.
         if cfg.self_collision:
             pairs = self.self_collision_pairs
             self.self_collision = SelfCollisionLimit(
@@ -427,7 +428,7 @@ class KinematicRetargeter:
         deeper inside its repair line than before (and inside it) halved
         (:data:`REPAIR_HALVINGS` times, then not taken). Returns the QPs solved and how far
         the frame ends beyond the depth the report counts (:meth:`_repair`)."""
-        cfg, conf, t = self.cfg, self.configuration, frame.t
+        cfg, t = self.cfg, frame.t
         budget = cfg.first_frame_iters if t == 0 else 1
         n = 0
         for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
@@ -436,12 +437,8 @@ class KinematicRetargeter:
             prev = np.inf
             allowed = max_iters * budget
             for i in range(allowed):
-                dq = self._solve(frame, limits)
+                self._step(self._solve(frame, limits), guarded=guarded)
                 n += 1
-                if guarded:
-                    self._guarded_step(dq)
-                else:
-                    conf.integrate_inplace(dq, 1.0)
                 if i + 1 == allowed:
                     break  # No next iteration for the error to decide on.
                 err = self._task_error()
@@ -451,21 +448,31 @@ class KinematicRetargeter:
         repairs, depth = self._repair(frame)
         return n + repairs, depth
 
-    def _self_slack(self) -> float:
-        """:meth:`SelfCollisionLimit.repair_slack` now (``inf`` without the limit)."""
+    def _self_check(self) -> tuple[float, float]:
+        """:meth:`SelfCollisionLimit.repair_slack` and the
+        :attr:`~SelfCollisionLimit.counted_depth` it sets, for the configuration as it is
+        (``(inf, -inf)`` without the limit). Kept for the last configuration checked: the
+        repair, a guarded step and a retried frame ask again of the same one."""
         limit = self.self_collision
         if limit is None:
-            return np.inf
-        return limit.repair_slack(self.configuration, self.cfg.collision_margin)
+            return np.inf, -np.inf
+        q = self.configuration.q
+        if self._checked is None or not np.array_equal(self._checked[0], q):
+            slack = limit.repair_slack(self.configuration, self.cfg.collision_margin)
+            self._checked = (q.copy(), slack, limit.counted_depth)
+        return self._checked[1], self._checked[2]
 
-    def _guarded_step(self, dq: np.ndarray) -> None:
-        """Take ``dq``, halved while it leaves a pair deeper inside its repair line than
-        before; not at all if :data:`REPAIR_HALVINGS` halvings do not help."""
+    def _step(self, dq: np.ndarray, *, guarded: bool) -> None:
+        """Take ``dq``; ``guarded``: halved while it leaves a pair deeper inside its repair
+        line than before, not at all if :data:`REPAIR_HALVINGS` halvings do not help."""
         conf = self.configuration
-        q0, before = conf.q.copy(), self._self_slack()
+        if not guarded:
+            conf.integrate_inplace(dq, 1.0)
+            return
+        q0, before = conf.q.copy(), self._self_check()[0]
         for _ in range(REPAIR_HALVINGS + 1):
             conf.integrate_inplace(dq, 1.0)
-            if self._self_slack() >= min(before, 0.0):
+            if self._self_check()[0] >= min(before, 0.0):
                 return
             conf.update(q0)
             dq = 0.5 * dq
@@ -482,18 +489,12 @@ class KinematicRetargeter:
             report counts (:attr:`SelfCollisionLimit.counted_depth`; positive: a
             self-collision frame; ``-inf`` without the limit).
         """
-        limit, planted = self.self_collision, self.planted
-        if limit is None and planted is None:
+        planted = self.planted
+        if self.self_collision is None and planted is None:
             return 0, -np.inf
-        conf, margin = self.configuration, self.cfg.collision_margin
-
-        def slack() -> tuple[float, float]:
-            if limit is None:
-                return np.inf, -np.inf
-            return limit.repair_slack(conf, margin), limit.counted_depth
-
+        conf = self.configuration
         n = 0
-        now, counted = slack()
+        now, counted = self._self_check()
         for _ in range(self.cfg.repair_iters):
             if now >= 0.0 and (planted is None or planted.max_excess(conf.data) <= 0.02):
                 break
@@ -505,7 +506,7 @@ class KinematicRetargeter:
             for _ in range(REPAIR_HALVINGS + 1):
                 conf.update(q0)
                 conf.integrate_inplace(dq, 1.0)
-                after, depth = slack()
+                after, depth = self._self_check()
                 if after >= min(now, 0.0):
                     now, counted = after, depth
                     break
