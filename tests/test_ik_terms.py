@@ -418,3 +418,61 @@ def test_posture_objective_equals_minks_dense_one(arm: mink.Configuration) -> No
         np.testing.assert_array_equal(a.H, b.H)
         np.testing.assert_allclose(a.c, b.c, rtol=0, atol=1e-15)
         assert np.all(a.H[:6] == 0) and np.any(a.c[6:] != 0)
+
+
+@pytest.mark.parametrize("robot_name", ["g1", "op3"])
+def test_self_collision_skipping_changes_nothing(
+    robot_name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Along a walk of small steps (joints and floating base), the limit that skips pairs it
+    has seen far apart gives exactly the rows, bounds and repair figures of one that computes
+    every pair afresh, while computing fewer distances."""
+    from humimic.robots import get_robot, nominal_model
+    from humimic.robots.collision import self_collision_floors, self_collision_pairs
+
+    robot = get_robot(robot_name)
+    model = nominal_model(robot)
+    pairs = self_collision_pairs(model, robot.root_body)
+    floors = self_collision_floors(model, pairs, 0.01)
+
+    def make() -> SelfCollisionLimit:
+        return SelfCollisionLimit(model, pairs, floors, gain=0.85,
+                                  collision_detection_distance=0.04)  # fmt: skip
+
+    calls = [0]
+    real = mujoco.mj_geomDistance
+
+    def counted(*args: object) -> float:
+        calls[0] += 1
+        return real(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(mujoco, "mj_geomDistance", counted)
+    kept, conf = make(), mink.Configuration(model)
+    rng = np.random.default_rng(11)
+    lo, hi = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
+    q = model.qpos0.copy()
+    q[7:] = np.clip(q[7:], lo, hi)
+    used, fresh_used = 0, 0
+    for step in range(120):
+        # Mostly small steps, now and then a jump (a new clip, a cold start).
+        scale = 0.6 if step % 40 == 39 else 0.03
+        dq = scale * rng.standard_normal(model.nv)
+        mujoco.mj_integratePos(model, q, dq, 1.0)
+        q[7:] = np.clip(q[7:], lo, hi)
+        conf.update(q)
+        calls[0] = 0
+        cons = kept.compute_qp_inequalities(conf, 1.0)
+        slack = kept.repair_slack(conf, 0.01)
+        used += calls[0]
+        calls[0] = 0
+        fresh = make()
+        want = fresh.compute_qp_inequalities(conf, 1.0)
+        want_slack = fresh.repair_slack(conf, 0.01)
+        fresh_used += calls[0]
+        assert cons.G is not None and want.G is not None
+        np.testing.assert_array_equal(cons.G, want.G)
+        np.testing.assert_array_equal(cons.h, want.h)
+        assert slack == want_slack
+        assert kept.counted_depth == fresh.counted_depth
+        assert kept.min_slack == fresh.min_slack
+    assert used < 0.6 * fresh_used

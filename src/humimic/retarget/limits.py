@@ -242,6 +242,15 @@ SELF_COUNTED_DEPTH = 1e-3
 frame as a self-collision frame (:func:`humimic.retarget.metrics.evaluate`)."""
 
 
+SKIP_REACH = 0.05
+"""How far beyond the distance it needs [m] a pair's distance is computed, so that the pair can
+be skipped until its geoms have moved that much (:meth:`SelfCollisionLimit._distances`)."""
+
+SKIP_TOLERANCE = 1e-4
+"""A pair is skipped only when its bound clears the distance needed by this much [m]: more
+than the collision routines' own tolerance."""
+
+
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     """mink's collision avoidance on an exact list of geom pairs, each with its own floor,
     changed to also push penetrating pairs apart.
@@ -290,6 +299,21 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             collision_detection_distance=collision_detection_distance,
         )
         self.floors = np.asarray(floors, dtype=float).reshape(len(self._given))
+        g = np.array(self._given, dtype=int).reshape(-1, 2)
+        self._g = g
+        self._rbound = model.geom_rbound[g]  # (P, 2)
+        # For _distances: each pair seen from its larger geom (the other one moves in its
+        # frame), the other's pose in that frame when the distance was last computed, and
+        # that distance. A plane has no bounding radius (rbound 0): its pairs are never
+        # skipped.
+        larger = np.argmax(self._rbound, axis=1)
+        self._frame_geom = g[np.arange(len(g)), larger]
+        self._moving_geom = g[np.arange(len(g)), 1 - larger]
+        self._moving_rbound = model.geom_rbound[self._moving_geom]
+        self._ref_pos = np.zeros((len(g), 3))
+        self._ref_mat = np.zeros((len(g), 3, 3))
+        self._ref_dist = np.full(len(g), -np.inf)
+        self._skippable = np.all(self._rbound > 0.0, axis=1)
 
     def _construct_geom_id_pairs(self, geom_pairs: Any) -> list[tuple[int, int]]:
         del geom_pairs  # The given pairs, as given.
@@ -305,27 +329,20 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             if self.broadphase and self.max_num_contacts >= 16
             else range(self.max_num_contacts)
         )
-        fromto = self._fromto
-        active, dists, ends = [], [], []
-        for idx in indices:
-            g1, g2 = self.geom_id_pairs[idx]
-            dist = mujoco.mj_geomDistance(
-                model, data, g1, g2, self.collision_detection_distance, fromto
-            )
-            if abs(dist - self.collision_detection_distance) < 1e-12:
-                continue
-            active.append(idx)
-            dists.append(dist)
-            ends.append(fromto.copy())
+        detection = self.collision_detection_distance
+        candidates = np.asarray(indices, dtype=int)
+        dists, ends = self._distances(data, candidates, detection)
+        near = np.abs(dists - detection) >= 1e-12
+        active = candidates[near]
         self.min_slack = np.inf
-        if active:
+        if active.size:
             # The rows of mink's compute_contact_normal_jacobian, all pairs at once: the
             # normal (from the first witness point to the second) times the difference of the
             # two points' Jacobians.
-            idx = np.array(active)
-            d = np.array(dists)
-            ft = np.array(ends)  # (A, 6)
-            geoms = np.array([self.geom_id_pairs[i] for i in active])  # (A, 2)
+            idx = active
+            d = dists[near]
+            ft = ends[near]  # (A, 6)
+            geoms = self._g[active]  # (A, 2)
             bodies = model.geom_bodyid[geoms]
             jac1 = point_jacobians(model, data, bodies[:, 0], ft[:, :3])
             jac2 = point_jacobians(model, data, bodies[:, 1], ft[:, 3:])
@@ -338,8 +355,63 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             G[idx] = np.where(d >= 0, -1.0, 1.0)[:, None] * rows
             h[idx] = self.gain * (d - self.floors[idx]) / dt
             self.min_slack = float(np.min(d - self.floors[idx]))
-        self._active = active
+        self._active = active.tolist()
         return Constraint(G=G, h=h)
+
+    def _distances(
+        self, data: mujoco.MjData, idx: np.ndarray, distmax: float | np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``mj_geomDistance`` of the pairs ``idx``, each capped at its ``distmax`` exactly as
+        that function caps it, and their witness points (zeros where capped).
+
+        A pair is not computed when its geoms cannot have come within its ``distmax`` since
+        its distance was last computed. A distance depends only on the pose of one geom in
+        the other's frame (that of the larger); every point of the smaller geom lies within
+        its bounding radius of its origin, so moving that origin by ``dx`` and turning the
+        geom by ``theta`` (both in the larger's frame) moves none of its points farther
+        than ``|dx| + 2 sin(theta / 2) rbound`` (for a mesh, its convex hull moves with its
+        vertices), and the distance changes by no more than that. Distances are computed
+        :data:`SKIP_REACH` beyond ``distmax`` so that a pair just out of reach is skipped
+        for the next few steps; the answer within ``distmax`` does not depend on it
+        (mj_geomDistance's cap only filters).
+
+        Shapes: ``idx`` (K,); returns (K,) and (K, 6).
+        """
+        cap = np.broadcast_to(np.asarray(distmax, dtype=float), idx.shape)
+        pos, mat = self._relative_poses(data, idx)
+        moved = np.linalg.norm(pos - self._ref_pos[idx], axis=1)
+        # |R - R_ref| in the spectral norm: 2 sin(theta / 2) = sqrt(3 - trace(R_ref' R)).
+        trace = np.einsum("kij,kij->k", mat, self._ref_mat[idx])
+        turned = np.sqrt(np.maximum(3.0 - trace, 0.0)) * self._moving_rbound[idx]
+        lower = self._ref_dist[idx] - (moved + turned)
+        dists = cap.copy()
+        ends = np.zeros((idx.size, 6))
+        fromto = self._fromto
+        for k in np.flatnonzero(~(lower > cap + SKIP_TOLERANCE)):
+            p = int(idx[k])
+            g1, g2 = self._given[p]
+            dist = mujoco.mj_geomDistance(
+                self.model, data, g1, g2, float(cap[k]) + SKIP_REACH, fromto
+            )
+            if self._skippable[p]:
+                self._ref_pos[p] = pos[k]
+                self._ref_mat[p] = mat[k]
+                self._ref_dist[p] = dist
+            if dist < cap[k]:
+                dists[k] = dist
+                ends[k] = fromto
+        return dists, ends
+
+    def _relative_poses(
+        self, data: mujoco.MjData, idx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Position (K, 3) and rotation (K, 3, 3) of each pair's smaller geom in its larger
+        geom's frame."""
+        frame = data.geom_xmat[self._frame_geom[idx]].reshape(-1, 3, 3)
+        offset = data.geom_xpos[self._moving_geom[idx]] - data.geom_xpos[self._frame_geom[idx]]
+        pos = np.einsum("kji,kj->ki", frame, offset)
+        moving = data.geom_xmat[self._moving_geom[idx]].reshape(-1, 3, 3)
+        return pos, np.einsum("kji,kjl->kil", frame, moving)
 
     def repair_slack(self, configuration: mink.Configuration, margin: float) -> float:
         """How far the worst pair is now inside its repair line [m] (negative: repair it;
@@ -359,25 +431,11 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         """
         floors = self.floors
         lines = np.maximum(floors - 0.5 * margin, np.minimum(floors, 0.0) - SELF_REPAIR_DEPTH)
-        if not hasattr(self, "_pair_arrays"):
-            g = np.array(self.geom_id_pairs, dtype=int).reshape(-1, 2)
-            self._pair_arrays = (g[:, 0], g[:, 1], self.model.geom_rbound[g].sum(axis=1))
-        g1, g2, rsum = self._pair_arrays
         data = configuration.data
-        diff = data.geom_xpos[g1] - data.geom_xpos[g2]
-        reach = np.maximum(rsum + lines, 0.0)
+        diff = data.geom_xpos[self._g[:, 0]] - data.geom_xpos[self._g[:, 1]]
+        reach = np.maximum(self._rbound.sum(axis=1) + lines, 0.0)
         near = np.flatnonzero(np.einsum("ij,ij->i", diff, diff) <= reach * reach)
-        out, self.counted_depth = np.inf, -np.inf
-        for idx in near:
-            d = mujoco.mj_geomDistance(
-                self.model,
-                data,
-                int(g1[idx]),
-                int(g2[idx]),
-                max(float(lines[idx]), 0.0) + 1e-3,
-                self._fromto,
-            )
-            out = min(out, float(d - lines[idx]))
-            counted = min(float(floors[idx]), 0.0) - SELF_COUNTED_DEPTH - float(d)
-            self.counted_depth = max(self.counted_depth, counted)
-        return out
+        d, _ = self._distances(data, near, np.maximum(lines[near], 0.0) + 1e-3)
+        counted = np.minimum(floors[near], 0.0) - SELF_COUNTED_DEPTH - d
+        self.counted_depth = float(np.max(counted, initial=-np.inf))
+        return float(np.min(d - lines[near], initial=np.inf))
