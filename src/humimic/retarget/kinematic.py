@@ -435,7 +435,9 @@ class KinematicRetargeter:
             self._set_stage_costs(targets, t, stage)
             limits = self._stage1_limits if stage == 1 and t > 0 and not guarded else self.limits
             prev = np.inf
-            allowed = max_iters * budget
+            # The cold start of frame 0 always begins with the orientation-led stage (it may
+            # have to turn the whole body); a warm-started frame only if stage1_iters asks.
+            allowed = (max(max_iters, 1) if stage == 1 and t == 0 else max_iters) * budget
             for i in range(allowed):
                 self._step(self._solve(frame, limits), guarded=guarded)
                 n += 1

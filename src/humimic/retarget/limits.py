@@ -386,20 +386,24 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         lower = self._ref_dist[idx] - (moved + turned)
         dists = cap.copy()
         ends = np.zeros((idx.size, 6))
-        fromto = self._fromto
-        for k in np.flatnonzero(~(lower > cap + SKIP_TOLERANCE)):
-            p = int(idx[k])
-            g1, g2 = self._given[p]
-            dist = mujoco.mj_geomDistance(
-                self.model, data, g1, g2, float(cap[k]) + SKIP_REACH, fromto
-            )
-            if self._skippable[p]:
-                self._ref_pos[p] = pos[k]
-                self._ref_mat[p] = mat[k]
-                self._ref_dist[p] = dist
-            if dist < cap[k]:
-                dists[k] = dist
-                ends[k] = fromto
+        need = np.flatnonzero(~(lower > cap + SKIP_TOLERANCE))
+        if not need.size:
+            return dists, ends
+        pairs = idx[need]
+        got = np.empty(need.size)
+        fromto = np.zeros((need.size, 6))
+        model, given, distance = self.model, self._given, mujoco.mj_geomDistance
+        reach = (cap[need] + SKIP_REACH).tolist()
+        for j, p in enumerate(pairs.tolist()):
+            g1, g2 = given[p]
+            got[j] = distance(model, data, g1, g2, reach[j], fromto[j])
+        keep = self._skippable[pairs]
+        self._ref_pos[pairs[keep]] = pos[need[keep]]
+        self._ref_mat[pairs[keep]] = mat[need[keep]]
+        self._ref_dist[pairs[keep]] = got[keep]
+        within = got < cap[need]
+        dists[need[within]] = got[within]
+        ends[need[within]] = fromto[within]
         return dists, ends
 
     def _relative_poses(

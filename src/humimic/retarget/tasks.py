@@ -104,7 +104,8 @@ class OrientationsTask(mink.Task):
         super().__init__(cost=np.ones(3 * n))
         self.targets = np.tile(np.eye(3), (n, 1, 1))
         self.last_error = np.zeros(3 * n)
-        self._jr = np.zeros((3, model.nv))
+        self._jr = np.zeros((n, 3, model.nv))
+        self._cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def set_costs(self, costs: np.ndarray) -> None:
         """Per-body costs [1/rad]. Shape: (B,)."""
@@ -113,10 +114,22 @@ class OrientationsTask(mink.Task):
     def _rotations(self, data: mujoco.MjData) -> np.ndarray:
         return data.xmat[self.body_ids].reshape(-1, 3, 3)
 
-    def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
+    def _log(self, configuration: mink.Configuration) -> tuple[np.ndarray, np.ndarray]:
+        """The bodies' rotations (B, 3, 3) and their errors as rotation vectors (B, 3), kept
+        for the configuration and targets they were computed at (the solver asks for the
+        error after a step, then for the objective at the same configuration)."""
+        q = configuration.data.qpos
+        c = self._cache
+        if c is not None and np.array_equal(c[0], q) and np.array_equal(c[3], self.targets):
+            return c[1], c[2]
         r = self._rotations(configuration.data)
         rel = np.einsum("nji,njk->nik", self.targets, r)
-        e = rotation_log(rel).ravel()
+        phi = rotation_log(rel)
+        self._cache = (q.copy(), r, phi, np.array(self.targets, dtype=float))
+        return r, phi
+
+    def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
+        e = self._log(configuration)[1].ravel()
         self.last_error = e
         return e
 
@@ -127,16 +140,14 @@ class OrientationsTask(mink.Task):
         self, configuration: mink.Configuration
     ) -> tuple[np.ndarray, np.ndarray]:
         data = configuration.data
-        r = self._rotations(data)
-        rel = np.einsum("nji,njk->nik", self.targets, r)
-        phi = rotation_log(rel)
+        r, phi = self._log(configuration)
         jinv = so3_right_jacobian_inverse(phi)
-        out = np.zeros((3 * len(self.body_ids), self.model.nv))
+        jr = self._jr
         for i, b in enumerate(self.body_ids):
-            mujoco.mj_jacBody(self.model, data, None, self._jr, int(b))
-            out[3 * i : 3 * i + 3] = jinv[i] @ (r[i].T @ self._jr)
+            mujoco.mj_jacBody(self.model, data, None, jr[i], int(b))
+        out = jinv @ (r.transpose(0, 2, 1) @ jr)
         self.last_error = phi.ravel()
-        return self.last_error, out
+        return self.last_error, out.reshape(-1, self.model.nv)
 
     def compute_qp_objective(self, configuration: mink.Configuration) -> mink.Objective:
         """The objective from one evaluation of the error and the Jacobian (one log each)."""
