@@ -152,6 +152,13 @@ def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
     ]
 
 
+PLANTED_SLACK = 0.02
+"""A held foot point may end a frame this fraction of its travel radius beyond it before the
+repair steps in."""
+
+FLOOR_SLACK = 5e-4
+"""A foot point may end a frame this far [m] below the floor before the repair steps in."""
+
 DAQP_SOFT = 8
 """daqp's sense flag of a soft constraint (its slack is penalized, not forbidden)."""
 
@@ -292,8 +299,10 @@ class KinematicRetargeter:
                 "collision geoms to stand on"
             ) from None
         self.limits: list[mink.Limit] = []
+        self.floor: FloorLimit | None = None
         if cfg.floor_limit:
-            self.limits.append(FloorLimit(model, foot_bodies))
+            self.floor = FloorLimit(model, foot_bodies)
+            self.limits.append(self.floor)
         # Planted feet: a foot contact point on the floor while the human's foot is down is
         # held (horizontally) where the previous frame left it; set per frame (_hold_planted).
         self.planted: PointTravelLimit | None = None
@@ -434,7 +443,9 @@ class KinematicRetargeter:
         for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
             self._set_stage_costs(targets, t, stage)
             limits = self._stage1_limits if stage == 1 and t > 0 and not guarded else self.limits
-            prev = np.inf
+            # The error before the stage's first step: a warm start that one QP barely
+            # improves (by less than tol) needs no second one.
+            prev = self._task_error()
             # The cold start of frame 0 always begins with the orientation-led stage (it may
             # have to turn the whole body); a warm-started frame only if stage1_iters asks.
             allowed = (max(max_iters, 1) if stage == 1 and t == 0 else max_iters) * budget
@@ -481,36 +492,57 @@ class KinematicRetargeter:
 
     def _repair(self, frame: _Frame) -> tuple[int, float]:
         """Extra QPs while a self-collision pair is inside its repair line
-        (:meth:`SelfCollisionLimit.repair_slack`), or a held
-        foot point has travelled more than 2 % beyond its radius (the limits are linearized:
-        a large last step can overshoot them). The metrics check every pair in every
-        frame, and report what this leaves.
+        (:meth:`SelfCollisionLimit.repair_slack`), a held foot point has travelled more than
+        :data:`PLANTED_SLACK` beyond its radius, or a foot point is more than
+        :data:`FLOOR_SLACK` under the floor (the limits are linearized: a large last step
+        can overshoot them). No step is taken that leaves any of the three worse. The
+        metrics check every pair in every frame, and report what this leaves.
 
         Returns:
             The QPs solved, and how far the configuration it leaves is beyond the depth the
             report counts (:attr:`SelfCollisionLimit.counted_depth`; positive: a
             self-collision frame; ``-inf`` without the limit).
         """
-        planted = self.planted
-        if self.self_collision is None and planted is None:
+        planted, floor = self.planted, self.floor
+        if self.self_collision is None and planted is None and floor is None:
             return 0, -np.inf
         conf = self.configuration
         n = 0
         now, counted = self._self_check()
+
+        def excess() -> tuple[float, float]:
+            """How far a held point is beyond its travel (fraction of its radius), and how
+            deep the lowest foot point is under the floor [m] (``-inf`` without the limit)."""
+            travel = -np.inf if planted is None else planted.max_excess(conf.data)
+            sunk = (
+                -np.inf
+                if floor is None
+                else floor.height - float(np.min(floor.points(conf.data)[2]))
+            )
+            return travel, sunk
+
+        travel, sunk = excess()
         for _ in range(self.cfg.repair_iters):
-            if now >= 0.0 and (planted is None or planted.max_excess(conf.data) <= 0.02):
+            if now >= 0.0 and travel <= PLANTED_SLACK and sunk <= FLOOR_SLACK:
                 break
-            # A step that leaves some pair deeper inside its repair line than before is
-            # halved (the limits are linearized: a full step can tunnel a hand into a thigh
-            # that was apart when the rows were made); none found, the frame stays as it is.
+            # A step that leaves some pair deeper inside its repair line than before, a held
+            # point farther beyond its travel or a foot deeper in the floor is halved (the
+            # limits are linearized: a full step can tunnel a hand into a thigh that was apart
+            # when the rows were made, or swing a held toe past its anchor); none found, the
+            # frame stays as it is.
             q0, dq = conf.q.copy(), self._solve(frame, self.limits)
             n += 1
             for _ in range(REPAIR_HALVINGS + 1):
                 conf.update(q0)
                 conf.integrate_inplace(dq, 1.0)
                 after, depth = self._self_check()
-                if after >= min(now, 0.0):
-                    now, counted = after, depth
+                moved, deeper = excess()
+                if (
+                    after >= min(now, 0.0)
+                    and moved <= max(travel, PLANTED_SLACK)
+                    and deeper <= max(sunk, FLOOR_SLACK)
+                ):
+                    now, counted, travel, sunk = after, depth, moved, deeper
                     break
                 dq = 0.5 * dq
             else:
