@@ -392,7 +392,7 @@ def test_preset_is_the_base_of_ik_flags(tmp_path: Path, shared_data: Path) -> No
     fast = json.loads((tmp_path / "fast.json").read_text())
     assert main([*argv, "--report", str(tmp_path / "f4.json"), "--ik.stage2-iters", "4"]) == 0
     f4 = json.loads((tmp_path / "f4.json").read_text())
-    # fast allows 1 QP per frame after the first; with stage2_iters 4 it uses at least 2.
+    # fast allows 1 + 1 QPs per frame after the first; with stage2_iters 4 it may use more.
     assert f4["qp_iterations_per_frame"] > fast["qp_iterations_per_frame"]
 
 

@@ -79,9 +79,9 @@ VALID: dict[str, dict[str, set[str]]] = {
                 "first-frame-iters",
             )
         },
-        # The orientation-led stage runs on the first frame only by default; the position
-        # stage is then the only one after it, and 0 of both is refused.
+        # One stage may be skipped (the other one still runs: both 0 are refused).
         "--ik.stage1-iters": _OFF,
+        "--ik.stage2-iters": _OFF,
         # Detect self-collision only at contact (retargets a walk: tried by hand).
         "--ik.collision-detection": _OFF,
         # A height: the clip's floor may be below its world origin, or at it.

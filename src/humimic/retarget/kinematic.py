@@ -443,12 +443,12 @@ class KinematicRetargeter:
         for stage, max_iters in ((1, cfg.stage1_iters), (2, cfg.stage2_iters)):
             self._set_stage_costs(targets, t, stage)
             limits = self._stage1_limits if stage == 1 and t > 0 and not guarded else self.limits
-            # The error before the stage's first step: a warm start that one QP barely
-            # improves (by less than tol) needs no second one.
-            prev = self._task_error()
             # The cold start of frame 0 always begins with the orientation-led stage (it may
             # have to turn the whole body); a warm-started frame only if stage1_iters asks.
             allowed = (max(max_iters, 1) if stage == 1 and t == 0 else max_iters) * budget
+            # The error before the stage's first step: a warm start that one QP barely
+            # improves (by less than tol) needs no second one.
+            prev = self._task_error() if allowed > 1 else np.inf
             for i in range(allowed):
                 self._step(self._solve(frame, limits), guarded=guarded)
                 n += 1
