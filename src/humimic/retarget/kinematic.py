@@ -446,9 +446,7 @@ class KinematicRetargeter:
             # The cold start of frame 0 always begins with the orientation-led stage (it may
             # have to turn the whole body); a warm-started frame only if stage1_iters asks.
             allowed = (max(max_iters, 1) if stage == 1 and t == 0 else max_iters) * budget
-            # The error before the stage's first step: a warm start that one QP barely
-            # improves (by less than tol) needs no second one.
-            prev = self._task_error() if allowed > 1 else np.inf
+            prev = np.inf
             for i in range(allowed):
                 self._step(self._solve(frame, limits), guarded=guarded)
                 n += 1

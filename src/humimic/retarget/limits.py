@@ -299,8 +299,6 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             collision_detection_distance=collision_detection_distance,
         )
         self.floors = np.asarray(floors, dtype=float).reshape(len(self._given))
-        # The last evaluation: (pose key, constraint, candidate pairs, their distances).
-        self._memo: tuple[tuple[Any, ...], Constraint, np.ndarray, np.ndarray] | None = None
         g = np.array(self._given, dtype=int).reshape(-1, 2)
         self._g = g
         self._rbound = model.geom_rbound[g]  # (P, 2)
@@ -321,29 +319,9 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         del geom_pairs  # The given pairs, as given.
         return list(self._given)
 
-    def _pose_key(self, data: mujoco.MjData, dt: float) -> tuple[Any, ...]:
-        return (id(data), dt, data.qpos.copy(), data.geom_xpos.copy(), data.geom_xmat.copy())
-
-    def _same_pose(self, data: mujoco.MjData, dt: float) -> bool:
-        """Whether the last evaluation was of this very configuration (same data, step,
-        generalized positions and geom poses): its rows are then this one's."""
-        m = self._memo
-        return (
-            m is not None
-            and m[0][0] == id(data)
-            and m[0][1] == dt
-            and np.array_equal(m[0][2], data.qpos)
-            and np.array_equal(m[0][3], data.geom_xpos)
-            and np.array_equal(m[0][4], data.geom_xmat)
-        )
-
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         model = self.model
         data = configuration.data
-        if self._same_pose(data, dt):
-            assert self._memo is not None
-            return self._memo[1]
-        key = self._pose_key(data, dt)
         h = np.full((self.max_num_contacts,), np.inf)
         G = np.zeros((self.max_num_contacts, model.nv))
         indices = (
@@ -378,9 +356,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             h[idx] = self.gain * (d - self.floors[idx]) / dt
             self.min_slack = float(np.min(d - self.floors[idx]))
         self._active = active.tolist()
-        cons = Constraint(G=G, h=h)
-        self._memo = (key, cons, candidates, dists)
-        return cons
+        return Constraint(G=G, h=h)
 
     def _distances(
         self, data: mujoco.MjData, idx: np.ndarray, distmax: float | np.ndarray
@@ -463,18 +439,7 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         diff = data.geom_xpos[self._g[:, 0]] - data.geom_xpos[self._g[:, 1]]
         reach = np.maximum(self._rbound.sum(axis=1) + lines, 0.0)
         near = np.flatnonzero(np.einsum("ij,ij->i", diff, diff) <= reach * reach)
-        caps = np.maximum(lines[near], 0.0) + 1e-3
-        if np.all(caps <= self.collision_detection_distance):
-            # The rows' own evaluation of this configuration (the next QP's, when the frame
-            # ends here) holds every distance under the detection distance exactly; a pair
-            # not among them is at least that far, beyond its cap.
-            self.compute_qp_inequalities(configuration, 1.0)
-            assert self._memo is not None
-            known = np.full(len(self._given), np.inf)
-            known[self._memo[2]] = self._memo[3]
-            d = np.minimum(known[near], caps)
-        else:
-            d, _ = self._distances(data, near, caps)
+        d, _ = self._distances(data, near, np.maximum(lines[near], 0.0) + 1e-3)
         counted = np.minimum(floors[near], 0.0) - SELF_COUNTED_DEPTH - d
         self.counted_depth = float(np.max(counted, initial=-np.inf))
         return float(np.min(d - lines[near], initial=np.inf))
