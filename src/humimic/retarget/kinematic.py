@@ -512,11 +512,7 @@ class KinematicRetargeter:
             """How far a held point is beyond its travel (fraction of its radius), and how
             deep the lowest foot point is under the floor [m] (``-inf`` without the limit)."""
             travel = -np.inf if planted is None else planted.max_excess(conf.data)
-            sunk = (
-                -np.inf
-                if floor is None
-                else floor.height - float(np.min(floor.points(conf.data)[2]))
-            )
+            sunk = -np.inf if floor is None else floor.max_depth(conf.data)
             return travel, sunk
 
         travel, sunk = excess()

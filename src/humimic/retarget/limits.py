@@ -170,6 +170,10 @@ class FloorLimit(mink.Limit):
             bottom.append(p[low, 2])
         return np.concatenate(ids), np.concatenate(world), np.concatenate(bottom)
 
+    def max_depth(self, data: mujoco.MjData) -> float:
+        """How far [m] the lowest constrained point is under the floor (negative: above it)."""
+        return self.height - float(np.min(self.points(data)[2]))
+
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> Constraint:
         del dt  # A position limit.
         data = configuration.data
@@ -339,11 +343,9 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             # The rows of mink's compute_contact_normal_jacobian, all pairs at once: the
             # normal (from the first witness point to the second) times the difference of the
             # two points' Jacobians.
-            idx = active
             d = dists[near]
             ft = ends[near]  # (A, 6)
-            geoms = self._g[active]  # (A, 2)
-            bodies = model.geom_bodyid[geoms]
+            bodies = model.geom_bodyid[self._g[active]]  # (A, 2)
             jac1 = point_jacobians(model, data, bodies[:, 0], ft[:, :3])
             jac2 = point_jacobians(model, data, bodies[:, 1], ft[:, 3:])
             normal = ft[:, 3:] - ft[:, :3]
@@ -352,10 +354,9 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
             normal = np.where(length > 1e-15, normal / np.maximum(length, 1e-300), [1.0, 0, 0])
             rows = np.einsum("ak,akv->av", normal, jac2 - jac1)
             # For a penetrating pair the witness normal flips, hence the sign on G.
-            G[idx] = np.where(d >= 0, -1.0, 1.0)[:, None] * rows
-            h[idx] = self.gain * (d - self.floors[idx]) / dt
-            self.min_slack = float(np.min(d - self.floors[idx]))
-        self._active = active.tolist()
+            G[active] = np.where(d >= 0, -1.0, 1.0)[:, None] * rows
+            h[active] = self.gain * (d - self.floors[active]) / dt
+            self.min_slack = float(np.min(d - self.floors[active]))
         return Constraint(G=G, h=h)
 
     def _distances(
