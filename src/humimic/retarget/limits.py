@@ -246,15 +246,6 @@ SELF_COUNTED_DEPTH = 1e-3
 frame as a self-collision frame (:func:`humimic.retarget.metrics.evaluate`)."""
 
 
-SKIP_REACH = 0.05
-"""How far beyond the distance it needs [m] a pair's distance is computed, so that the pair can
-be skipped until its geoms have moved that much (:meth:`SelfCollisionLimit._distances`)."""
-
-SKIP_TOLERANCE = 1e-4
-"""A pair is skipped only when its bound clears the distance needed by this much [m]: more
-than the collision routines' own tolerance."""
-
-
 class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     """mink's collision avoidance on an exact list of geom pairs, each with its own floor,
     changed to also push penetrating pairs apart.
@@ -306,18 +297,6 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
         g = np.array(self._given, dtype=int).reshape(-1, 2)
         self._g = g
         self._rbound = model.geom_rbound[g]  # (P, 2)
-        # For _distances: each pair seen from its larger geom (the other one moves in its
-        # frame), the other's pose in that frame when the distance was last computed, and
-        # that distance. A plane has no bounding radius (rbound 0): its pairs are never
-        # skipped.
-        larger = np.argmax(self._rbound, axis=1)
-        self._frame_geom = g[np.arange(len(g)), larger]
-        self._moving_geom = g[np.arange(len(g)), 1 - larger]
-        self._moving_rbound = model.geom_rbound[self._moving_geom]
-        self._ref_pos = np.zeros((len(g), 3))
-        self._ref_mat = np.zeros((len(g), 3, 3))
-        self._ref_dist = np.full(len(g), -np.inf)
-        self._skippable = np.all(self._rbound > 0.0, axis=1)
 
     def _construct_geom_id_pairs(self, geom_pairs: Any) -> list[tuple[int, int]]:
         del geom_pairs  # The given pairs, as given.
@@ -362,61 +341,15 @@ class SelfCollisionLimit(mink.CollisionAvoidanceLimit):
     def _distances(
         self, data: mujoco.MjData, idx: np.ndarray, distmax: float | np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``mj_geomDistance`` of the pairs ``idx``, each capped at its ``distmax`` exactly as
-        that function caps it, and their witness points (zeros where capped).
-
-        A pair is not computed when its geoms cannot have come within its ``distmax`` since
-        its distance was last computed. A distance depends only on the pose of one geom in
-        the other's frame (that of the larger); every point of the smaller geom lies within
-        its bounding radius of its origin, so moving that origin by ``dx`` and turning the
-        geom by ``theta`` (both in the larger's frame) moves none of its points farther
-        than ``|dx| + 2 sin(theta / 2) rbound`` (for a mesh, its convex hull moves with its
-        vertices), and the distance changes by no more than that. Distances are computed
-        :data:`SKIP_REACH` beyond ``distmax`` so that a pair just out of reach is skipped
-        for the next few steps; the answer within ``distmax`` does not depend on it
-        (mj_geomDistance's cap only filters).
-
-        Shapes: ``idx`` (K,); returns (K,) and (K, 6).
-        """
-        cap = np.broadcast_to(np.asarray(distmax, dtype=float), idx.shape)
-        pos, mat = self._relative_poses(data, idx)
-        moved = np.linalg.norm(pos - self._ref_pos[idx], axis=1)
-        # |R - R_ref| in the spectral norm: 2 sin(theta / 2) = sqrt(3 - trace(R_ref' R)).
-        trace = np.einsum("kij,kij->k", mat, self._ref_mat[idx])
-        turned = np.sqrt(np.maximum(3.0 - trace, 0.0)) * self._moving_rbound[idx]
-        lower = self._ref_dist[idx] - (moved + turned)
-        dists = cap.copy()
-        ends = np.zeros((idx.size, 6))
-        need = np.flatnonzero(~(lower > cap + SKIP_TOLERANCE))
-        if not need.size:
-            return dists, ends
-        pairs = idx[need]
-        got = np.empty(need.size)
-        fromto = np.zeros((need.size, 6))
+        """``mj_geomDistance`` of the pairs ``idx``, each capped at its ``distmax``, and their
+        witness points (zeros where capped). Shapes: ``idx`` (K,); returns (K,) and (K, 6)."""
+        cap = np.broadcast_to(np.asarray(distmax, dtype=float), idx.shape).tolist()
+        dists, ends = np.empty(idx.size), np.zeros((idx.size, 6))
         model, given, distance = self.model, self._given, mujoco.mj_geomDistance
-        reach = (cap[need] + SKIP_REACH).tolist()
-        for j, p in enumerate(pairs.tolist()):
+        for k, p in enumerate(idx.tolist()):
             g1, g2 = given[p]
-            got[j] = distance(model, data, g1, g2, reach[j], fromto[j])
-        keep = self._skippable[pairs]
-        self._ref_pos[pairs[keep]] = pos[need[keep]]
-        self._ref_mat[pairs[keep]] = mat[need[keep]]
-        self._ref_dist[pairs[keep]] = got[keep]
-        within = got < cap[need]
-        dists[need[within]] = got[within]
-        ends[need[within]] = fromto[within]
+            dists[k] = distance(model, data, g1, g2, cap[k], ends[k])
         return dists, ends
-
-    def _relative_poses(
-        self, data: mujoco.MjData, idx: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Position (K, 3) and rotation (K, 3, 3) of each pair's smaller geom in its larger
-        geom's frame."""
-        frame = data.geom_xmat[self._frame_geom[idx]].reshape(-1, 3, 3)
-        offset = data.geom_xpos[self._moving_geom[idx]] - data.geom_xpos[self._frame_geom[idx]]
-        pos = np.einsum("kji,kj->ki", frame, offset)
-        moving = data.geom_xmat[self._moving_geom[idx]].reshape(-1, 3, 3)
-        return pos, np.einsum("kji,kjl->kil", frame, moving)
 
     def repair_slack(self, configuration: mink.Configuration, margin: float) -> float:
         """How far the worst pair is now inside its repair line [m] (negative: repair it;
