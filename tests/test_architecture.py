@@ -145,3 +145,69 @@ def test_the_check_sees_lazy_and_relative_imports(tmp_path: Path) -> None:
 @pytest.mark.parametrize("part", sorted(PARTS))
 def test_the_parts_never_import_each_other(part: str) -> None:
     assert not (ALLOWED[part] & (PARTS - {part}))
+
+
+STEPPERS = frozenset({"mj_step", "mj_step1", "mj_step2"})
+"""MuJoCo's stepping functions: only ``sim/`` calls them (:mod:`humimic.sim.rollout`)."""
+
+
+def physics_steps(root: Path = SRC) -> list[str]:
+    """Each use of :data:`STEPPERS` outside ``sim/``, as ``file:line: name``: an attribute
+    (``mujoco.mj_step``), a bare name, ``from mujoco import mj_step`` and a ``getattr`` by
+    string. Docstrings and comments may mention them."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        if layer(_module_of_under(path, root)) == "sim":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            found = None
+            if isinstance(node, ast.Attribute) and node.attr in STEPPERS:
+                found = node.attr
+            elif isinstance(node, ast.Name) and node.id in STEPPERS:
+                found = node.id
+            elif isinstance(node, ast.ImportFrom):
+                found = next((a.name for a in node.names if a.name in STEPPERS), None)
+            elif (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id == "getattr"
+                and any(isinstance(a, ast.Constant) and a.value in STEPPERS for a in node.args)
+            ):
+                found = "getattr"
+            if found:
+                bad.append(f"{path.relative_to(root.parent)}:{getattr(node, 'lineno', 0)}: {found}")
+    return bad
+
+
+def _module_of_under(path: Path, root: Path) -> str:
+    rel = path.relative_to(root.parent).with_suffix("")
+    parts = list(rel.parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_only_sim_steps_physics() -> None:
+    bad = physics_steps()
+    assert not bad, "mj_step outside sim/ (step through humimic.sim.rollout):\n" + "\n".join(bad)
+
+
+def test_the_step_check_sees_every_form(tmp_path: Path) -> None:
+    """Each way of reaching ``mj_step`` outside ``sim/`` is found; ``sim/`` itself, a
+    docstring and other MuJoCo calls are not."""
+    pkg = tmp_path / "humimic"
+    (pkg / "retarget").mkdir(parents=True)
+    (pkg / "sim").mkdir()
+    (pkg / "sim" / "ok.py").write_text("import mujoco\n\ndef f(m, d):\n    mujoco.mj_step(m, d)\n")
+    (pkg / "retarget" / "a.py").write_text(
+        '"""Steps with mj_step."""\nimport mujoco\n\ndef f(m, d):\n'
+        "    mujoco.mj_forward(m, d)\n    mujoco.mj_step(m, d)\n"
+    )
+    (pkg / "retarget" / "b.py").write_text("from mujoco import mj_step2\n")
+    (pkg / "retarget" / "c.py").write_text(
+        "import mujoco\n\ndef g(m, d):\n    getattr(mujoco, 'mj_step1')(m, d)\n"
+    )
+    found = [b.split("humimic/", 1)[1] for b in physics_steps(pkg)]
+    assert found == [
+        "retarget/a.py:6: mj_step",
+        "retarget/b.py:1: mj_step2",
+        "retarget/c.py:4: getattr",
+    ]

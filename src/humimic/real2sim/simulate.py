@@ -21,6 +21,7 @@ from humimic.real2sim.robotlog import ImuLog, PoseTrack, RobotLog
 from humimic.robots.collision import tree_path
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
+from humimic.sim import rollout
 from humimic.sim.effects import Injection, apply_to_spec, value_problem
 from humimic.sim.joints import JointMap
 from humimic.sim.lqr import LqrWeights, control_step_jacobians, riccati
@@ -206,7 +207,7 @@ def simulate_log(
             q[i] = jm.link(data.qpos, jm.play_q, jm.qadr)  # The link side.
             qd[i] = jm.link(data.qvel, jm.play_d, jm.dadr)
             effort[i, act] = data.actuator_force
-        mujoco.mj_step(model, data)
+        rollout.step(model, data)
     t = np.arange(n_states) * state_every * PHYSICS_DT
     M = len(t_cmd)
     q_s, qd_s, effort_s = _sensed(q + offset, qd, effort, settings, rng)
@@ -415,8 +416,7 @@ def _simulate_floating(
     # A balance controller (a robot on the floor needs one: joint PD alone tips over): the
     # LQR of the standing robot, its reference the commanded joint pose with the base upright.
     cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
-    for _ in range(round(0.3 / PHYSICS_DT)):  # Land on the feet (PD alone tips over later).
-        mujoco.mj_step(model, data)
+    rollout.step(model, data, round(0.3 / PHYSICS_DT))  # Land (PD alone tips over later).
     # The controller is designed on the nominal robot (its designer does not know the
     # effects; MuJoCo's derivatives do not support actuator delays either) and reads the
     # robot's base and its link-side joints.
@@ -447,7 +447,7 @@ def _simulate_floating(
     for step in range(settle):
         if step % cmd_every == 0:
             data.ctrl[:] = balanced(cmd_q[0] - offset)
-        mujoco.mj_step(model, data)
+        rollout.step(model, data)
     height0 = float(data.xpos[root, 2])
     n_steps = round(settings.duration / PHYSICS_DT)
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
@@ -479,7 +479,7 @@ def _simulate_floating(
                 data.sensordata[7:10],
             )
             pos[i], pose_q[i] = data.xpos[root], data.xquat[root]
-        mujoco.mj_step(model, data)
+        rollout.step(model, data)
     t = np.arange(n_states) * state_every * PHYSICS_DT
     M = len(t_cmd)
 

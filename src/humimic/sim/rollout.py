@@ -1,8 +1,13 @@
-"""The two ways humimic runs open-loop physics: batched rollouts and a plain replay.
+"""The one place humimic steps CPU physics: batched rollouts, a plain replay, and stepping
+one ``MjData`` in a closed loop.
 
 :func:`batched` is the one call into ``mujoco.rollout`` (C++ threads, many models and start
 states at once) that the CPU backend and the log predictions share; :func:`replay` is plain
-``mj_step`` on one model, the reference a user's ``humimic replay`` reproduces.
+``mj_step`` on one model, the reference a user's ``humimic replay`` reproduces;
+:func:`step` and :func:`step_recorded` advance a live ``MjData`` for callers that compute each
+control from the state they read (iLQR's feedback, the committed windows of dynamics
+retargeting, real2sim's drive and balance controllers). Outside this package no module calls
+``mj_step`` (``tests/test_architecture.py``).
 """
 
 from __future__ import annotations
@@ -86,8 +91,32 @@ def replay(
     states = np.zeros((ctrl.shape[0], state.size))
     sens = np.zeros((ctrl.shape[0], model.nsensordata))
     for s in range(ctrl.shape[0]):
-        data.ctrl[:] = ctrl[s]
-        mujoco.mj_step(model, data)
+        step(model, data, ctrl=ctrl[s])
         mujoco.mj_getState(model, data, states[s], FULL)
         sens[s] = data.sensordata
     return states, sens
+
+
+def step(
+    model: mujoco.MjModel, data: mujoco.MjData, nstep: int = 1, *, ctrl: np.ndarray | None = None
+) -> None:
+    """Advance ``data`` by ``nstep`` physics steps (``mj_step``) under ``ctrl`` (default: the
+    controls it holds), in place."""
+    if ctrl is not None:
+        data.ctrl[:] = ctrl
+    mujoco.mj_step(model, data, nstep)
+
+
+def step_recorded(
+    model: mujoco.MjModel, data: mujoco.MjData, ctrl: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Advance ``data`` one physics step per row of ``ctrl`` (shape (S, nu)), in place.
+
+    Returns:
+        ``qpos`` and ``qvel`` after each step. Shape: (S, nq), (S, nv).
+    """
+    qpos, qvel = np.zeros((len(ctrl), model.nq)), np.zeros((len(ctrl), model.nv))
+    for s in range(len(ctrl)):
+        step(model, data, ctrl=ctrl[s])
+        qpos[s], qvel[s] = data.qpos, data.qvel
+    return qpos, qvel

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from humimic.sim import rollout
 from humimic.sim.lqr import control_step_jacobians, riccati
 
 StageFn = Callable[
@@ -142,9 +143,7 @@ def ilqr(
                 mujoco.mj_differentiatePos(model, dq, 1.0, xq[t], d.qpos)
                 dx = np.concatenate([dq, d.qvel - xv[t], d.act - xa[t]])
                 un[t] = np.clip(u[t] + alpha * k[t] + K[t] @ dx, lower, upper)
-                d.ctrl[:] = un[t]
-                for _ in range(decimation):
-                    mujoco.mj_step(model, d)
+                rollout.step(model, d, decimation, ctrl=un[t])
             cn = float(cost(un))
             if cn < c:
                 u, c, taken, stale = un, cn, alpha, True

@@ -455,11 +455,7 @@ class DynamicsRetargeter:
             c = min(C, H)
             u_b = np.repeat(u_b, d, axis=0)
             ctrl_out.append(u_b[: c * d])
-            seg_q, seg_v = np.zeros((c * d, self.nq)), np.zeros((c * d, self.nv))
-            for s in range(c * d):
-                live.ctrl[:] = u_b[s]
-                mujoco.mj_step(self.model, live)
-                seg_q[s], seg_v[s] = live.qpos, live.qvel
+            seg_q, seg_v = rollout.step_recorded(self.model, live, u_b[: c * d])
             qpos_out.append(seg_q)
             qvel_out.append(seg_v)
             mujoco.mj_getState(self.model, live, state, spec)
