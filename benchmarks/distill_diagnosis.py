@@ -54,11 +54,11 @@ def main() -> None:
             lab.append(y.numpy())
             off.append(obs["teacher_offset"].numpy())
             if args.teacher_base == "feedback":
-                _, fb = env._other_bases["feedback"]
+                _, fb = env.bases.others["feedback"]
                 assert fb is not None  # The feedback base has its gains.
                 K, ref_q, ref_v = fb
                 f = env.state.frame
-                dx = env._state_deviation(ref_q[f], ref_v[f])
+                dx = env.bases.state_deviation(ref_q[f], ref_v[f])
                 for name, s in blocks.items():
                     part = torch.einsum("nij,nj->ni", K[f][:, :, s], dx[:, s]) / env.action_scale
                     parts[name].append(part.numpy())

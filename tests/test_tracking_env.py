@@ -445,14 +445,14 @@ def test_a_failed_episodes_physics_comes_back_at_its_reset(
     assert not torch.equal(after[0], before[0]) and torch.equal(after[1], before[1])
 
     env = make_env(model, motion, n=2, dr="default", adaptive=AdaptiveSampling(dr_replay=0.5))
-    assert env._replay is not None and len(env._replay) == 0
-    env._replay.share = 1.0
+    assert env.events.replay is not None and len(env.events.replay) == 0
+    env.events.replay.share = 1.0
     floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
     be = env.backend
     assert isinstance(be, MujocoCpuBackend)
     friction = be.model_of(0).geom_friction[floor, 0]
     before, after = fail_env_0(env)
-    assert len(env._replay) == 1
+    assert len(env.events.replay) == 1
     assert torch.equal(after, before)  # Env 0 has its failed draw again; env 1 kept its own.
     assert be.model_of(0).geom_friction[floor, 0] == friction
     with pytest.raises(InputError, match="dr_replay"):
@@ -464,9 +464,9 @@ def test_reset_state_is_the_noisy_reference(model: mujoco.MjModel, motion: Motio
     a matrix) against the quaternion formulas of reference state initialization."""
     env = make_env(model, motion, n=2)
     frames = np.array([3, 40, 70])
-    u, rot, left = env._draw_reset_noise(3)
-    env._reset_noise = dr_mod.Blocks(lambda n: (u, rot, left), block=3)
-    qpos, qvel = env._reset_state(frames)
+    u, rot, left = env.events.draw_reset_noise(3)
+    env.events.reset_noise = dr_mod.Blocks(lambda n: (u, rot, left), block=3)
+    qpos, qvel = env.events.reset_state(frames)
     ref_quat = motion.qpos[frames, 3:7] / np.linalg.norm(motion.qpos[frames, 3:7], axis=1)[:, None]
     root_quat = tf.quat_mul(tf.quat_from_euler_xyz(u[:, 3:6]), ref_quat)
     np.testing.assert_allclose(qpos[:, 3:7], root_quat, atol=1e-12)
@@ -733,3 +733,22 @@ def test_base_lin_vel_group_is_the_roots_velocity_in_its_frame(
         assert 0.3 < float(diff.abs().max()) <= 0.5 + 1e-6
     finally:
         noisy.close()
+
+
+def test_observation_layout_from_the_terms() -> None:
+    """The group widths and the policy's noise half-widths come from the terms; checked here
+    against the layout written out by hand (the order docs/tracking.md gives)."""
+    from humimic.sim.randomization import ObservationNoise
+    from humimic.tracking import observations as ob
+
+    dims = ob.ObsDims(joints=5, bodies=4, feet=2, params=7)
+    assert ob.group_size(ob.POLICY_TERMS, dims) == 2 * 5 + 3 + 6 + 3 + 3 + 3 * 5
+    assert ob.group_size(ob.CRITIC_EXTRA_TERMS, dims) == 7 + 3 + 9 * 4 + 2
+    assert ob.offset(ob.CRITIC_EXTRA_TERMS, "base_lin_vel", dims) == 7
+    n = ObservationNoise(anchor_pos=1.0, anchor_ori=2.0, projected_gravity=3.0,
+                         base_ang_vel=4.0, joint_pos=5.0, joint_vel=6.0)  # fmt: skip
+    want = [0.0] * 10 + [1.0] * 3 + [2.0] * 6 + [3.0] * 3 + [4.0] * 3 + [5.0] * 5 + [6.0] * 5
+    scale = ob.noise_scale(ob.POLICY_TERMS, n, dims)
+    assert scale is not None
+    np.testing.assert_array_equal(scale.numpy(), np.array(want + [0.0] * 5, dtype=np.float32))
+    assert ob.noise_scale(ob.POLICY_TERMS, None, dims) is None
