@@ -76,6 +76,7 @@ def main() -> None:
             for engine, workers in configs:
                 out = Path(tmp) / f"out_{engine}_{workers}_{rep}"
                 extra = {}
+                ray = None
                 if engine == "ray":
                     ray = importlib.import_module("ray")  # the ray extra
 
@@ -86,7 +87,7 @@ def main() -> None:
                 s = run_dataset((folder,), out, ClipOptions(robot="g1"), workers=workers,
                                 ray="local" if engine == "ray" else None, quiet=True)  # fmt: skip
                 wall = time.perf_counter() - t0
-                if engine == "ray":
+                if ray is not None:
                     ray.shutdown()
                 frames = sum(int(r["headline"]["frames"]) for r in s.done)
                 rows.append({"engine": engine, "workers": workers, "repeat": rep,

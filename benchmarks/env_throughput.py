@@ -165,6 +165,7 @@ def main() -> None:
         gen = torch.Generator().manual_seed(0)
         actions = [0.3 * torch.randn(n, 29, generator=gen) for _ in range(args.steps)]
         envs = {"eager": TrackingEnv(cfg, motion, n, model=model)}
+        compile_s = float("nan")
         if not args.no_compile:
             t0 = time.perf_counter()
             envs["compiled"] = TrackingEnv(replace(cfg, torch_compile=True), motion, n, model=model)

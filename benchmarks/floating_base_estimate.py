@@ -103,6 +103,7 @@ def _deployment(run: Path, episodes: int, seed: int) -> dict:
     }
     for h in HORIZONS:
         row: dict = {}
+        p = base = None
         for name, lg in variants.items():
             p = Predictor(m, lg, horizon=h, stride=0.02)
             base = p.base
@@ -114,6 +115,7 @@ def _deployment(run: Path, episodes: int, seed: int) -> dict:
                 row[name]["velocity_error_mm_s_median_xyz"] = (1e3 * np.median(
                     np.abs(base.qvel[:, :3] - qvel[p.starts, :3]), axis=0)).tolist()  # fmt: skip
                 row[name]["source"] = base.source
+        assert p is not None and base is not None  # The last variant's predictor.
         p.base = replace(base, qpos=qpos[p.starts, :7].copy(), qvel=qvel[p.starts, :6].copy())
         row["true_base"] = {"kstep_mrad": 1e3 * p.error(c).kstep_rmse_rad}
         out[f"horizon_{h}s"] = row

@@ -711,6 +711,7 @@ def test_base_lin_vel_group_is_the_roots_velocity_in_its_frame(
     of 0.5 m/s."""
     env = make_env(model, motion, n=4, dr="none")
     try:
+        obs = env.get_observations()
         for _ in range(5):
             obs, *_ = env.step(0.3 * torch.ones(4, env.num_actions))
         r, k = env.backend.read(), env.state.root_index

@@ -516,6 +516,7 @@ def _plots(
     # (Inverse dynamics of the logged motion: on the floor it needs the contact forces, which
     # the log lacks, so a floating-base log gets no signature plot.)
     claimed = diagnosis.claimed if log.base == "fixed" else []
+    res_nom = res_cor = np.zeros(0)
     if claimed:  # Residual torques once, for every signature plot.
         idx = _fit_samples(log)
         res_nom, res_cor = residual_torque(nominal, log, idx), residual_torque(corrected, log, idx)

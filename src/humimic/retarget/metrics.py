@@ -164,6 +164,7 @@ def evaluate(
     knees = knee_joints(model, foot_bodies)
     root = _root_body(model) or 0
     knee_cos = np.ones((T, len(knees)))
+    knee0 = np.zeros((len(knees), 3))
     if knees:
         data.qpos[:] = model.qpos0
         mujoco.mj_kinematics(model, data)

@@ -103,7 +103,7 @@ class StudentView(VecEnv):
         return self.env.episode_length_buf
 
     @episode_length_buf.setter
-    def episode_length_buf(self, value: torch.Tensor) -> None:
+    def episode_length_buf(self, value: torch.Tensor) -> None:  # pyright: ignore[reportIncompatibleVariableOverride]
         self.env.episode_length_buf = value
 
     def _compute_offset(self) -> torch.Tensor:

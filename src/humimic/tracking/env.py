@@ -134,7 +134,7 @@ class TrackingEnv(VecEnv):
     ) -> None:
         cfg.validate()
         _check_motion(cfg, motion)
-        self.cfg = cfg
+        self.cfg = cfg  # pyright: ignore[reportIncompatibleVariableOverride]
         self.num_envs = num_envs
         self.device = torch.device(device)
         if self.device.type == "cuda" and self.device.index is None:
