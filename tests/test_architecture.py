@@ -211,3 +211,53 @@ def test_the_step_check_sees_every_form(tmp_path: Path) -> None:
         "retarget/b.py:1: mj_step2",
         "retarget/c.py:4: getattr",
     ]
+
+
+BOUNDARIES = {"rsl_rl": "humimic.tracking.rsl"}
+"""Third-party packages that one module wraps: only it imports them."""
+
+
+def boundary_breaches(root: Path = SRC) -> list[str]:
+    """Each import of a :data:`BOUNDARIES` package outside its module, ``file:line: pkg``
+    (lazy imports and ``importlib`` strings included)."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        mine = _module_of_under(path, root)
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            names: list[str] = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [node.module or ""]
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                # A module path in a string (importlib, a class path such as "pkg.mod:Cls").
+                names = [node.value] if re.fullmatch(r"[\w.:]+", node.value) else []
+            for name in names:
+                pkg = name.split(".")[0].split(":")[0]
+                if pkg in BOUNDARIES and BOUNDARIES[pkg] != mine:
+                    bad.append(
+                        f"{path.relative_to(root.parent)}:{getattr(node, 'lineno', 0)}: {pkg}"
+                    )
+    return bad
+
+
+def test_third_party_boundaries_hold() -> None:
+    bad = boundary_breaches()
+    assert not bad, "import through the boundary module instead:\n" + "\n".join(bad)
+
+
+def test_the_boundary_check_sees_every_form(tmp_path: Path) -> None:
+    pkg = tmp_path / "humimic"
+    (pkg / "tracking").mkdir(parents=True)
+    (pkg / "tracking" / "rsl.py").write_text("from rsl_rl.env import VecEnv\n")
+    (pkg / "tracking" / "env.py").write_text(
+        '"""Uses rsl_rl\'s runner."""\nimport importlib\n\ndef f():\n'
+        "    import rsl_rl.runners\n    return importlib.import_module('rsl_rl.env')\n"
+    )
+    (pkg / "tracking" / "rma.py").write_text("from rsl_rl.modules import MLP\n")
+    found = [b.split("humimic/", 1)[1] for b in boundary_breaches(pkg)]
+    assert found == [
+        "tracking/env.py:5: rsl_rl",
+        "tracking/env.py:6: rsl_rl",
+        "tracking/rma.py:1: rsl_rl",
+    ]

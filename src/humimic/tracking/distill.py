@@ -12,14 +12,12 @@ from typing import Any
 
 import torch
 import yaml
-from rsl_rl.env import VecEnv
-from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
 from humimic.configs.runs import DistillSettings, PpoConfig
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable
-from humimic.tracking.rsl import RMA_ACTOR
+from humimic.tracking.rsl import RMA_ACTOR, MLPModel, VecEnv
 
 STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),

@@ -10,7 +10,6 @@ import os
 import mujoco
 import numpy as np
 import torch
-from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from humimic.errors import HumimicError, InputError
@@ -25,6 +24,7 @@ from humimic.tracking.bases import BaseTargets
 from humimic.tracking.command import MotionCommand
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.events import Events
+from humimic.tracking.rsl import VecEnv
 from humimic.tracking.state import TrackingState
 
 

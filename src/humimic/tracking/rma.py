@@ -8,11 +8,10 @@ import copy
 from typing import Any
 
 import torch
-from rsl_rl.algorithms import Distillation
-from rsl_rl.models import MLPModel
-from rsl_rl.modules import MLP, EmpiricalNormalization
 from tensordict import TensorDict
 from torch import nn
+
+from humimic.tracking.rsl import MLP, Distillation, EmpiricalNormalization, MLPModel
 
 
 def _group_dim(obs: TensorDict, groups: list[str]) -> int:

@@ -1,4 +1,6 @@
-"""The one boundary module to rsl_rl (pinned: rsl-rl-lib 5.5.1).
+"""The one boundary module to rsl_rl (pinned: rsl-rl-lib 5.5.1): no other module imports it
+(``tests/test_architecture.py``); the env, the RMA actor and the distillation take rsl_rl's
+classes from here.
 
 :func:`train_cfg` turns a :class:`~humimic.configs.runs.PpoConfig` (mjlab's G1 tracking values
 where they fit a CPU, ``humimic train --ppo.*``) into the dict ``OnPolicyRunner`` reads.
@@ -16,6 +18,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from rsl_rl.algorithms import Distillation as Distillation
+from rsl_rl.env import VecEnv as VecEnv
+from rsl_rl.models import MLPModel as MLPModel
+from rsl_rl.modules import MLP as MLP
+from rsl_rl.modules import EmpiricalNormalization as EmpiricalNormalization
 
 from humimic.configs.runs import PpoConfig
 from humimic.errors import InputError
