@@ -22,7 +22,7 @@ import numpy as np
 
 from humimic.real2sim import LogSettings, simulate_log
 from humimic.real2sim.actuator_net import NetConfig, fit_residual_net
-from humimic.real2sim.diagnose import FIT_END
+from humimic.real2sim.fitting import FIT_END
 from humimic.real2sim.residual import Correction, Predictor
 from humimic.robots import get_robot
 from humimic.sim.models import prediction_spec

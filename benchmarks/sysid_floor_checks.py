@@ -47,7 +47,7 @@ from unittest.mock import patch
 import numpy as np
 
 from humimic.real2sim import LogSettings, floating, simulate_log, write_robot_log
-from humimic.real2sim.diagnose import BASE_PROBES, FIT_END, noise_floor
+from humimic.real2sim.fitting import BASE_PROBES, FIT_END, noise_floor
 from humimic.real2sim.floating import gyro_bias, prediction_step
 from humimic.real2sim.report import load_robot_log, run_diagnosis
 from humimic.real2sim.residual import Predictor

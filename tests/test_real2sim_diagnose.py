@@ -19,17 +19,11 @@ import pytest
 
 from humimic.cli.main import main
 from humimic.real2sim import LogSettings, RobotLog, simulate_log
-from humimic.real2sim.diagnose import (
-    FIT_END,
-    Diagnosis,
-    Finding,
-    apply_effect,
-    backlash_models,
-    diagnose_log,
-)
+from humimic.real2sim.diagnose import FIT_END, Diagnosis, Finding, diagnose_log
+from humimic.real2sim.fitting import backlash_models
 from humimic.real2sim.residual import Correction, Predictor, kstep_error
 from humimic.robots import get_robot
-from humimic.sim.effects import apply_to_spec, parse_injection
+from humimic.sim.effects import apply_effect, apply_to_spec, parse_injection
 from humimic.sim.models import prediction_spec
 
 DURATION = 12.0
@@ -260,7 +254,7 @@ def test_an_effect_refitted_to_nothing_has_no_size() -> None:
     """The final refit can move an effect back to "no effect" when the others explain its
     joints (a 0.0 ms delay on all joints was claimed on the backpack's log): such a value is
     no finding."""
-    from humimic.real2sim.diagnose import _Pair, _sized
+    from humimic.real2sim.candidates import _Pair, _sized
 
     delay = _Pair(effect="delay", index=0, joints=np.arange(3), lo=0.0, hi=0.05, none=0.0,
                   probe=0.01, group=(0, 1, 2), label="all_joints")  # fmt: skip

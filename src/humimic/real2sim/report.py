@@ -27,11 +27,9 @@ from humimic.real2sim.diagnose import (
     SEARCHED,
     Diagnosis,
     Finding,
-    backlash_models,
     diagnose_log,
-    fit_predictors,
-    noise_floor,
 )
+from humimic.real2sim.fitting import backlash_models, fit_predictors, noise_floor
 from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
@@ -151,7 +149,7 @@ def _unexplained(
     before: KStepError, after: KStepError, noise: np.ndarray
 ) -> tuple[float, np.ndarray]:
     """Share of the error above the noise floor (twice each joint's ``noise``, see
-    :func:`~humimic.real2sim.diagnose.noise_floor`) left after the correction, and the joints
+    :func:`~humimic.real2sim.fitting.noise_floor`) left after the correction, and the joints
     that still stand out."""
     floor = 2.0 * noise
 
