@@ -19,7 +19,7 @@ import pytest
 
 from archives import zip_bytes
 from humimic.cli.main import main
-from humimic.real2sim import LogSettings, RobotLog, imports, simulate_log
+from humimic.real2sim import LogSettings, RobotLog, imports_unitree, simulate_log
 from humimic.real2sim.report import load_robot_log
 from humimic.robots import get_robot
 
@@ -376,7 +376,7 @@ def test_an_npz_bomb_is_refused_from_its_directory_before_it_is_unpacked(
     """A deflated member that unpacks to more than the cap (here lowered to 1 MiB, so that
     the test stays small; the shipped cap is 4 GiB) is refused from the sizes the zip
     directory declares: ``np.load`` unpacked all of it first (6 GB for a 5.76 GB member)."""
-    monkeypatch.setattr(imports, "MAX_LOG_ARRAY_BYTES", 1 << 20)
+    monkeypatch.setattr(imports_unitree, "MAX_LOG_ARRAY_BYTES", 1 << 20)
     src = tmp_path / "bomb.npz"
     np.savez_compressed(src, q=np.zeros((2 << 20) // 8))
     assert src.stat().st_size < 64 << 10
