@@ -93,6 +93,7 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
              "--ppo.learning-rate", "3e-4", "--ppo.actor-hidden-dims", "32", "16"]  # fmt: skip
     assert main(_train_args(motion_file, out, 1, *tuned)) == 0
     cfg = yaml.safe_load((out / "config.yaml").read_text())
+    assert cfg["schema"] == 2  # RUN_SCHEMA: the layout it was written in.
     assert cfg["settings"]["task"]["action_scale"] == 0.5
     assert cfg["settings"]["task"]["reward_weights"] == {"body_pos": 2.0}
     assert cfg["settings"]["task"]["reward_stds"] == {"anchor_pos": 0.3}
@@ -139,20 +140,31 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
 def test_run_records_the_feedback_it_trains_with_and_older_runs_read_as_trained() -> None:
     """A run records the LQR root cost its task resolves to, so a later change of the default
     does not change what eval rebuilds; a config.yaml written before the setting existed reads
-    as the root cost and anchor reward of then (10; std 0.3, weight 0.5)."""
+    as the root cost and anchor reward of then (10; std 0.3, weight 0.5): the upgrade of a
+    schema-1 config.yaml (no ``schema`` key), the one place older run folders are read."""
     from dataclasses import asdict
 
     from humimic.configs.runs import TrainSettings
     from humimic.tracking.config import tracking_task
-    from humimic.tracking.runs import _settings_from, resolved_settings
+    from humimic.tracking.runs import (
+        RUN_SCHEMA,
+        _settings_from,
+        resolved_settings,
+        upgrade_run_config,
+    )
     from humimic.tracking.train import task_config
+
+    def read_v1(settings: dict) -> TrainSettings:
+        config = upgrade_run_config({"settings": settings}, Path("run/config.yaml"))
+        assert config["schema"] == RUN_SCHEMA
+        return _settings_from(config["settings"])
 
     r = resolved_settings(TrainSettings(motion=Path("m.npz"), out=Path("run")))
     assert r.task.feedback_root_cost == tracking_task("g1").feedback.base_position
     old = asdict(r)
     del old["task"]["feedback_root_cost"], old["task"]["reward_stds"]
     old["task"]["reward_weights"] = {"body_pos": 2.0}
-    read = _settings_from(old).task
+    read = read_v1(old).task
     assert read.feedback_root_cost == 10.0
     task = task_config("g1", "none", 0, settings=read)
     assert task.feedback.base_position == 10.0
@@ -166,7 +178,32 @@ def test_run_records_the_feedback_it_trains_with_and_older_runs_read_as_trained(
     assert _settings_from(asdict(two)).task.feedback_delay == 2
     before = asdict(two)
     del before["task"]["feedback_delay"]
-    assert _settings_from(before).task.feedback_delay == 0
+    assert read_v1(before).task.feedback_delay == 0
+
+
+def test_run_config_schema_is_recorded_and_a_newer_one_refused(tmp_path: Path) -> None:
+    """config.yaml records its schema; one from a newer humimic, or a schema that is not a
+    whole number, is refused naming the file (not read as if it were this one's); a current
+    one is read as written (no schema-1 defaults over its fields)."""
+    from dataclasses import asdict
+
+    from humimic.configs.runs import TrainSettings
+    from humimic.errors import InputError
+    from humimic.tracking.runs import RUN_SCHEMA, upgrade_run_config
+
+    where = tmp_path / "config.yaml"
+    for bad, match in ((RUN_SCHEMA + 1, "newer humimic"), ("2", "whole number"), (True, "whole")):
+        with pytest.raises(InputError, match=match) as e:
+            upgrade_run_config({"schema": bad, "settings": {}}, where)
+        assert str(where) in str(e.value)
+    settings = asdict(TrainSettings(motion=Path("m.npz"), out=Path("run")))
+    settings["task"]["action_base"] = None
+    kept = upgrade_run_config({"schema": RUN_SCHEMA, "settings": settings}, where)
+    assert kept["settings"]["task"]["action_base"] is None  # Schema 2: not filled in.
+    old = upgrade_run_config(
+        {"settings": asdict(TrainSettings(motion=Path("m.npz"), out=Path("r")))}, where
+    )
+    assert old["settings"]["task"]["action_base"] == "default"
 
 
 @pytest.mark.parametrize(

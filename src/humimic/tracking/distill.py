@@ -271,6 +271,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
     from humimic.tracking.runs import (
+        RUN_SCHEMA,
         recorded_motion,
         resolve_checkpoint,
         resolved_source,
@@ -360,6 +361,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
                     dr=resolved_source(s.dr, DR_PROFILES),
                 )
                 blob = {
+                    "schema": RUN_SCHEMA,
                     "kind": "student",
                     "settings": yaml_ready(asdict(teacher)),
                     "distill": yaml_ready(asdict(recorded)),

@@ -32,6 +32,11 @@ from humimic.sim.randomization import DR_PROFILES
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.rsl import tracking_ppo, train_cfg
 
+RUN_SCHEMA = 2
+"""The layout version of a run folder's ``config.yaml`` (its ``schema`` key): 2 records every
+task field; 1 (no ``schema`` key: run folders from before 2026-12-07) may lack fields added
+since, which :func:`upgrade_run_config` fills as those runs trained."""
+
 REFERENCE_FILE = "reference.npz"
 """The refined reference a run writes into its folder when it refined its motion itself
 (:mod:`humimic.pipeline.reference`)."""
@@ -293,11 +298,32 @@ def settings_differences(old: Any, new: Any, names: tuple[str, ...], prefix: str
     return out
 
 
-def _settings_from(data: dict[str, Any]) -> TrainSettings:
-    """Training settings from config.yaml's ``settings``: the nested configs from their
-    mappings (older run folders have no ``task`` and ``ppo``: the defaults, and trained on
-    the ``default`` action base), PPO's resolved as :func:`resolved_settings` records it."""
-    task = dict(data.get("task") or {})
+def upgrade_run_config(config: dict[str, Any], path: Path) -> dict[str, Any]:
+    """``config`` (a run folder's config.yaml, read from ``path``) in the layout of
+    :data:`RUN_SCHEMA`: the one place older run folders are read differently. Schema 1 (no
+    ``schema`` key): a task recorded without a field added since trained as it was then
+    (the default action base before action bases, the LQR root cost and anchor reward of
+    before 2026-12-02, no command delay in the LQR design, no replay of failed DR draws).
+
+    Raises:
+        InputError: A schema newer than this humimic's, or not a schema number.
+    """
+    schema = config.get("schema", 1)
+    if not isinstance(schema, int) or isinstance(schema, bool) or schema < 1:
+        raise InputError(f"{path}: 'schema' must be a positive whole number, got {schema!r}")
+    if schema > RUN_SCHEMA:
+        raise InputError(
+            f"{path}: written by a newer humimic (run folder schema {schema}; this one reads "
+            f"up to {RUN_SCHEMA}): upgrade humimic"
+        )
+    if schema < 2 and isinstance(config.get("settings"), dict):
+        config["settings"]["task"] = _task_v1(dict(config["settings"].get("task") or {}))
+    config["schema"] = RUN_SCHEMA
+    return config
+
+
+def _task_v1(task: dict[str, Any]) -> dict[str, Any]:
+    """A schema-1 task's fields as that run trained (see :func:`upgrade_run_config`)."""
     if task.get("action_base") is None:  # Recorded before action bases: the default pose.
         task["action_base"] = "default"
     if "feedback_root_cost" not in task:
@@ -307,7 +333,14 @@ def _settings_from(data: dict[str, Any]) -> TrainSettings:
         task["reward_weights"] = {"anchor_pos": 0.5, **(task.get("reward_weights") or {})}
     task.setdefault("feedback_delay", 0)  # Recorded before the delay-aware LQR: none.
     task.setdefault("dr_replay", 0.0)  # Recorded before the replay of failed draws: none.
-    data["task"] = TaskSettings(**task)
+    return task
+
+
+def _settings_from(data: dict[str, Any]) -> TrainSettings:
+    """Training settings from config.yaml's ``settings`` (upgraded, :func:`upgrade_run_config`):
+    the nested configs from their mappings, PPO's resolved as :func:`resolved_settings`
+    records it."""
+    data["task"] = TaskSettings(**(data.get("task") or {}))
     if data.get("ppo") is not None:
         ppo = dict(data["ppo"])
         for key in ("actor_hidden_dims", "critic_hidden_dims", "rma_encoder_hidden_dims",
@@ -328,7 +361,7 @@ def write_run_config(run: Path, settings: TrainSettings, task: TrackingConfig, p
     (:func:`recorded_motion`)."""
     s = resolved_settings(settings)
     data = yaml_ready(asdict(s))
-    blob: dict[str, Any] = {"settings": data}
+    blob: dict[str, Any] = {"schema": RUN_SCHEMA, "settings": data}
     if s.motion.is_relative_to(run.resolve()):
         data["motion"] = s.motion.relative_to(run.resolve()).as_posix()
         blob["motion_in_run"] = True
@@ -410,7 +443,7 @@ def run_config(run: Path) -> tuple[dict[str, Any], TrainSettings]:
     if not path.is_file():
         raise InputError(f"{run}: not a humimic run folder (no config.yaml)")
     try:
-        config = yaml.safe_load(path.read_text())
+        config = upgrade_run_config(yaml.safe_load(path.read_text()), path)
         data = dict(config["settings"])
         start = _started_in(run, Path(data["out"]))
         data["out"] = Path(data["out"])
