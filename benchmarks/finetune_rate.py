@@ -17,7 +17,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from humimic.configs.runs import EvalSettings, TrainSettings
+from humimic.configs.jobs import EvalSettings
+from humimic.configs.runs import TrainSettings
 from humimic.tracking.evaluate import run_evaluation
 from humimic.tracking.runs import run_config
 from humimic.tracking.train import train

@@ -65,7 +65,7 @@ def _standing(seeds: list[int]) -> list[dict]:
 
 
 def _deployment(run: Path, episodes: int, seed: int) -> dict:
-    from humimic.configs.runs import EvalSettings
+    from humimic.configs.jobs import EvalSettings
     from humimic.real2sim.robotlog import join_logs
     from humimic.sim.physics import Physics, write_physics
     from humimic.tracking.evaluate import run_evaluation

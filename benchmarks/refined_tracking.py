@@ -22,7 +22,8 @@ import platform
 import time
 from pathlib import Path
 
-from humimic.configs.runs import EvalSettings, TrainSettings
+from humimic.configs.jobs import EvalSettings
+from humimic.configs.runs import TrainSettings
 from humimic.motion import load_motion
 from humimic.tracking.evaluate import evaluate
 from humimic.tracking.train import train

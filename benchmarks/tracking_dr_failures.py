@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from humimic.configs.runs import EvalSettings
+from humimic.configs.jobs import EvalSettings
 from humimic.errors import HumimicError
 
 

@@ -21,7 +21,8 @@ from pathlib import Path
 
 import torch
 
-from humimic.configs.runs import EvalSettings, TrainSettings
+from humimic.configs.jobs import EvalSettings
+from humimic.configs.runs import TrainSettings
 from humimic.tracking.evaluate import evaluate
 from humimic.tracking.train import train
 

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from humimic.cli.main import main as humimic
-from humimic.configs.runs import EvalSettings
+from humimic.configs.jobs import EvalSettings
 from humimic.tracking.evaluate import evaluate
 
 _KEYS = ("success_rate", "mean_steps", "mpjpe_global_mm", "joint_error_rad")

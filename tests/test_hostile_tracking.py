@@ -22,11 +22,9 @@ import torch
 import tyro
 
 from humimic.cli.main import main
+from humimic.configs.jobs import EvalSettings, ExportSettings, LoopSettings
 from humimic.configs.runs import (
     DistillSettings,
-    EvalSettings,
-    ExportSettings,
-    LoopSettings,
     TrainSettings,
 )
 from humimic.errors import InputError

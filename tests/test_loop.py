@@ -179,7 +179,7 @@ def test_loop_checks_the_policy_and_its_output_before_deploying(
 def test_a_gantry_session_records_the_real_robot(tmp_path: Path) -> None:
     """``--sysid-log gantry``: the real robot's effects and floor, hanging in a gantry, as
     ``humimic sysid simulate`` would log them with those effects injected."""
-    from humimic.configs.runs import LoopSettings
+    from humimic.configs.jobs import LoopSettings
     from humimic.pipeline.loop import gantry_session
     from humimic.real2sim import LogSettings, read_robot_log, simulate_log
     from humimic.sim.effects import parse_injection

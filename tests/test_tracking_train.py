@@ -458,7 +458,7 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     assert r["open_loop"]["joint_error_rad"] < 0.5
 
     # Per episode, beside the metrics: the DR draw it ran under and whether it failed.
-    from humimic.configs.runs import EvalSettings
+    from humimic.configs.jobs import EvalSettings
     from humimic.tracking.evaluate import run_evaluation
 
     ev = run_evaluation(EvalSettings(run=out, episodes=6, dr="default"), open_loop=False)

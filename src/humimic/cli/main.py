@@ -12,12 +12,9 @@ import tyro
 
 from humimic.cli import fetch, retarget, robots, sysid, track, view
 from humimic.cli.flags import validate_command
+from humimic.configs.jobs import EvalSettings, ExportSettings, ImitateSettings, LoopSettings
 from humimic.configs.runs import (
     DistillSettings,
-    EvalSettings,
-    ExportSettings,
-    ImitateSettings,
-    LoopSettings,
     TrainSettings,
 )
 from humimic.errors import HumimicError, InputError

@@ -5,12 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from humimic.configs.jobs import EvalSettings, ExportSettings, ImitateSettings, LoopSettings
 from humimic.configs.runs import (
     DistillSettings,
-    EvalSettings,
-    ExportSettings,
-    ImitateSettings,
-    LoopSettings,
     TrainSettings,
 )
 

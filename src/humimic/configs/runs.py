@@ -1,6 +1,7 @@
-"""Settings of tracking runs (``humimic train``, ``distill``, ``eval``, ``export``, ``loop``),
-of the task a run changes and of PPO: light to import. Each has ``validate()``, which the
-command calls before any work."""
+"""Settings of tracking runs (``humimic train``, ``distill``), of the task a run changes and of
+PPO: light to import. Each has ``validate()``, which the command calls before any work. The
+commands that use a trained run have theirs in :mod:`humimic.configs.jobs`, the bounds and
+checks they share are :mod:`humimic.configs.limits`."""
 
 from __future__ import annotations
 
@@ -12,119 +13,28 @@ from typing import Annotated, Literal
 import tyro
 
 from humimic.configs.choices import ActionBaseName, DrChoice, PhysicsChoice, RobotName
+from humimic.configs.limits import (
+    CPU_NUM_ENVS,
+    DEFAULT_ITERATIONS,
+    GPU_NUM_ENVS,
+    MAX_EPOCHS,
+    MAX_HIDDEN,
+    MAX_HISTORY,
+    MAX_NUM_ENVS,
+    MAX_SEED,
+    MAX_STEPS_PER_ENV,
+    MAX_WEIGHT,
+    TIMED_ITERATIONS,
+    at_least,
+    at_most,
+    check_device,
+    check_minutes,
+    check_reals,
+    check_seed,
+    default_num_envs,
+    flag_name,
+)
 from humimic.errors import InputError
-
-MAX_SEED = 2**32 - 1
-"""The largest ``--seed`` (numpy's and torch's generators take any seed up to it)."""
-
-
-MAX_NUM_ENVS = 65_536
-"""The most parallel environments (``--num-envs``, ``--episodes``) one process simulates:
-their states are allocated at once, and more than this exhausts a machine's memory."""
-
-GPU_NUM_ENVS = 4096
-"""``--num-envs`` by default on a GPU (BeyondMimic's)."""
-
-CPU_NUM_ENVS = 128
-"""``--num-envs`` by default on the CPU: enough samples per PPO iteration at the ~6k env steps/s
-of a 2-core machine that an iteration takes about a second (BENCHMARKS.md, issue 25)."""
-
-
-def default_num_envs(device: str) -> int:
-    """The default number of parallel envs on ``device`` (:data:`GPU_NUM_ENVS` on a GPU,
-    :data:`CPU_NUM_ENVS` on the CPU)."""
-    return CPU_NUM_ENVS if device.split(":")[0] == "cpu" else GPU_NUM_ENVS
-
-
-DEFAULT_ITERATIONS = 1000
-"""``--max-iterations`` by default without ``--max-minutes``."""
-
-TIMED_ITERATIONS = 10**9
-"""``--max-iterations`` by default with ``--max-minutes``: the time decides."""
-
-MAX_STEPS_PER_ENV = 1000
-"""The longest ``--num-steps-per-env`` (the PPO rollout buffer holds every env's steps)."""
-
-MAX_HISTORY = 100
-"""The longest ``--task.history-length`` (every env keeps that many observations)."""
-
-MAX_HIDDEN = 8192
-"""The widest hidden layer of ``--ppo.actor-hidden-dims`` and ``--ppo.critic-hidden-dims``."""
-
-MAX_EPOCHS = 1000
-"""The most ``--ppo.num-learning-epochs`` and ``--ppo.num-mini-batches``."""
-
-MAX_WEIGHT = 1e6
-"""The largest ``--task.reward-weights`` magnitude."""
-
-
-def _flag(name: str) -> str:
-    return "--" + name.replace("_", "-")
-
-
-def _at_least(s: object, names: tuple[str, ...], minimum: int = 1) -> None:
-    """Each named integer field of ``s`` that is set must be ``>= minimum`` (names the flag)."""
-    for name in names:
-        v = getattr(s, name)
-        if v is not None and v < minimum:
-            raise InputError(f"{_flag(name)} {v}: must be at least {minimum}")
-
-
-def _at_most(s: object, limits: dict[str, int]) -> None:
-    """Each named integer field of ``s`` that is set must be ``<=`` its limit (names the flag)."""
-    for name, limit in limits.items():
-        v = getattr(s, name)
-        if v is not None and v > limit:
-            raise InputError(f"{_flag(name)} {v}: must be at most {limit}")
-
-
-def _check_seed(seed: int) -> None:
-    if not 0 <= seed <= MAX_SEED:
-        raise InputError(f"--seed {seed}: must be in 0 to {MAX_SEED}")
-
-
-def _check_minutes(minutes: float | None) -> None:
-    if minutes is not None and not minutes > 0:  # NaN fails too.
-        raise InputError(f"--max-minutes {minutes}: must be a positive number of minutes")
-
-
-def _check_reals(s: object, prefix: str, names: tuple[str, ...], *, positive: bool) -> None:
-    """Each named field of ``s`` that is set must be a finite number > 0 (``positive``) or
-    >= 0; :class:`InputError` names the flag ``--<prefix>.<field>``."""
-    for name in names:
-        v = getattr(s, name)
-        if v is None:
-            continue
-        ok = math.isfinite(v) and (v > 0 if positive else v >= 0)
-        if not ok:
-            what = "a positive number" if positive else "a number >= 0"
-            raise InputError(f"--{prefix}.{name.replace('_', '-')} {v}: must be {what}")
-
-
-def check_device(device: str, flag: str = "--device") -> None:
-    """Fail before any work when ``device`` is not a torch device this machine has.
-
-    Accepts ``cpu`` and ``cuda`` (``cuda:N``: an existing GPU). Raises :class:`InputError`
-    naming ``flag``.
-    """
-    import torch
-
-    try:
-        d = torch.device(device)
-    except (RuntimeError, TypeError, ValueError):
-        raise InputError(
-            f"{flag} {device!r}: not a torch device (expected cpu, cuda or cuda:N)"
-        ) from None
-    if d.type == "cpu":
-        return
-    if d.type != "cuda":
-        raise InputError(f"{flag} {device}: humimic runs on cpu or cuda, not {d.type}")
-    if not torch.cuda.is_available():
-        raise InputError(f"{flag} {device}: CUDA is not available on this machine")
-    count = torch.cuda.device_count()
-    if d.index is not None and d.index >= count:
-        raise InputError(f"{flag} {device}: this machine has {count} CUDA device(s)")
-
 
 _TASKS = tyro.conf.arg(help_behavior_hint="(default: the robot's task's)")
 
@@ -175,7 +85,7 @@ class TaskSettings:
 
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the flag."""
-        _check_reals(
+        check_reals(
             self, "task", ("episode_length_s", "action_scale", "feedback_root_cost"), positive=True
         )
         if self.dr_replay is not None and not (
@@ -296,8 +206,8 @@ class PpoConfig:
     def validate(self) -> None:
         """Check the values; :class:`InputError` names the flag (``--ppo.<field>``)."""
         positive = ("init_std", "learning_rate", "desired_kl", "clip_param", "max_grad_norm")
-        _check_reals(self, "ppo", positive, positive=True)
-        _check_reals(
+        check_reals(self, "ppo", positive, positive=True)
+        check_reals(
             self, "ppo", ("entropy_coef", "value_loss_coef", "actor_output_gain"), positive=False
         )
         for name in ("gamma", "lam"):
@@ -310,7 +220,7 @@ class PpoConfig:
         for name in ("num_learning_epochs", "num_mini_batches"):
             v = getattr(self, name)
             if not 1 <= v <= MAX_EPOCHS:
-                raise InputError(f"--ppo.{_flag(name)[2:]} {v}: must be in 1 to {MAX_EPOCHS}")
+                raise InputError(f"--ppo.{flag_name(name)[2:]} {v}: must be in 1 to {MAX_EPOCHS}")
         if not 1 <= self.rma_latent_dim <= MAX_HIDDEN:
             raise InputError(
                 f"--ppo.rma-latent-dim {self.rma_latent_dim}: must be in 1 to {MAX_HIDDEN}"
@@ -319,7 +229,7 @@ class PpoConfig:
             dims = getattr(self, name)
             if not dims or not all(1 <= d <= MAX_HIDDEN for d in dims):
                 raise InputError(
-                    f"--ppo.{_flag(name)[2:]} {' '.join(map(str, dims)) or '(none)'}: one or "
+                    f"--ppo.{flag_name(name)[2:]} {' '.join(map(str, dims)) or '(none)'}: one or "
                     f"more layer sizes, each 1 to {MAX_HIDDEN}"
                 )
 
@@ -394,10 +304,10 @@ class TrainSettings:
 
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
-        _at_least(self, ("num_envs", "max_iterations", "checkpoint_every", "num_steps_per_env"))
-        _at_most(self, {"num_envs": MAX_NUM_ENVS, "num_steps_per_env": MAX_STEPS_PER_ENV})
-        _check_minutes(self.max_minutes)
-        _check_seed(self.seed)
+        at_least(self, ("num_envs", "max_iterations", "checkpoint_every", "num_steps_per_env"))
+        at_most(self, {"num_envs": MAX_NUM_ENVS, "num_steps_per_env": MAX_STEPS_PER_ENV})
+        check_minutes(self.max_minutes)
+        check_seed(self.seed)
         self.task.validate()
         self.ppo.validate()
         check_device(self.device)
@@ -458,175 +368,11 @@ class DistillSettings:
 
     def validate(self) -> None:
         """Check the numbers and the device; :class:`InputError` names the flag."""
-        _at_least(self, ("num_envs", "max_iterations", "checkpoint_every"))
-        _at_most(self, {"num_envs": MAX_NUM_ENVS})
-        _check_minutes(self.max_minutes)
-        _check_seed(self.seed)
+        at_least(self, ("num_envs", "max_iterations", "checkpoint_every"))
+        at_most(self, {"num_envs": MAX_NUM_ENVS})
+        check_minutes(self.max_minutes)
+        check_seed(self.seed)
         check_device(self.device)
-
-
-@dataclass(frozen=True, kw_only=True)
-class EvalSettings:
-    """Evaluate a run's policy closed-loop against the open-loop replay of its reference:
-    success rate, MPJPE and joint errors; optionally JSON metrics and an MCAP of the first
-    episode."""
-
-    run: Annotated[Path, tyro.conf.Positional]
-    """Run folder of ``humimic train`` or ``humimic distill``."""
-    episodes: int = 16
-    """Episodes to run (each plays the whole clip from its first frame)."""
-    motion: Path | None = None
-    """Evaluate on this clip (a motion file of the run's robot) instead of the run's."""
-    dr: DrChoice = "none"
-    """Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file."""
-    physics: PhysicsChoice | None = None
-    """Evaluate on a fixed robot: a physics file or a shipped one (``backpack``,
-    ``worn_knees``; docs/tracking.md, "Physics files"), e.g. a "real" robot training never saw.
-    DR (``--dr``) acts on top of it."""
-    out: Path | None = None
-    """Write the metrics as JSON here."""
-    mcap: Path | None = None
-    """Write the first episode (policy and open loop) with the reference as MCAP here, for
-    ``humimic view MCAP`` and Foxglove (default: ``--out`` with the suffix ``.mcap`` when
-    ``--out`` is given, else nothing)."""
-    checkpoint: Path | None = None
-    """A checkpoint file (default: the run's newest)."""
-    num_envs: int | None = None
-    """Envs run in parallel, at least ``--episodes`` (default: ``--episodes``)."""
-    device: str = "cpu"
-    """Torch device of the policy (``cpu``, ``cuda`` or ``cuda:N``)."""
-    seed: int = 1
-    """Seed of the evaluation's randomness."""
-    start_noise: bool = False
-    """Start each episode from the training's reset noise about the first frame (root pose
-    and velocity, joint positions) instead of exactly on it: how much the policy depends on
-    starting where the clip does."""
-
-    def validate(self) -> None:
-        """Check the numbers and the device; :class:`InputError` names the flag."""
-        _at_least(self, ("episodes", "num_envs"))
-        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
-        if self.num_envs is not None and self.num_envs < self.episodes:
-            raise InputError(
-                f"--num-envs {self.num_envs}: evaluate at least as many envs as --episodes "
-                f"({self.episodes})"
-            )
-        _check_seed(self.seed)
-        check_device(self.device)
-
-
-@dataclass(frozen=True, kw_only=True)
-class LoopSettings:
-    """Deploy a policy on a "real" robot (a physics file that no training step reads),
-    diagnose the gap with sysid on a log of that robot, fine-tune in the corrected
-    model, redeploy, report before and after (docs/tracking.md, "The loop")."""
-
-    run: Path
-    """The policy's run folder (``humimic train``; not a teacher or a student)."""
-    real: PhysicsChoice
-    """The "real" robot: a physics file or a shipped one (``backpack``, ``worn_knees``)."""
-    out: Path
-    """The loop's folder (new or empty)."""
-    motion: Path | None = None
-    """The clip to deploy and fine-tune on (default: the run's)."""
-    episodes: int = 16
-    """Episodes per deployment."""
-    iterations: int = 100
-    """Fine-tuning PPO iterations."""
-    num_envs: int | None = None
-    """Fine-tuning envs (default: as many as the run trained with)."""
-    learning_rate: float = 3e-5
-    """Fine-tuning learning rate, on a fixed schedule: a policy that has converged moves away
-    from its optimum at a training run's rate (1e-3, adaptive) on the loop's batches
-    (BENCHMARKS.md, issue 26)."""
-    sysid_log: Literal["deployment", "gantry"] = "deployment"
-    """What sysid diagnoses: the policy's deployment on the real robot (episodes of the clip,
-    logged with IMU and motion capture) or a gantry session (hanging, multi-sine targets)."""
-    sysid_duration: float = 40.0
-    """Seconds of the sysid log (5 to 3600; a deployment log: whole episodes, up to 64)."""
-    control: bool = False
-    """Also fine-tune in the nominal model for the same iterations, and deploy that."""
-    device: str = "cpu"
-    """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
-    seed: int = 0
-    """Seed of everything."""
-    max_minutes: float | None = None
-    """Time budget of each fine-tuning run."""
-    quiet: bool = False
-    """No progress bars."""
-
-    def validate(self) -> None:
-        """Check the numbers and the device; :class:`InputError` names the flag."""
-        _at_least(self, ("episodes", "iterations", "num_envs"))
-        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
-        if not 5.0 <= self.sysid_duration <= 3600.0:  # NaN fails too.
-            raise InputError(f"--sysid-duration {self.sysid_duration}: choose 5 to 3600 s")
-        if not 0.0 < self.learning_rate <= 0.1:  # NaN fails too.
-            raise InputError(f"--learning-rate {self.learning_rate}: choose a rate in (0, 0.1]")
-        _check_minutes(self.max_minutes)
-        _check_seed(self.seed)
-        check_device(self.device)
-
-
-@dataclass(frozen=True, kw_only=True)
-class ImitateSettings:
-    """The whole job on one clip: retarget it, train a tracking policy (refining the motion
-    first where the recipe needs it), evaluate it on nominal, randomized and unseen physics,
-    export it to ONNX, and write ``OUT/report.md``."""
-
-    clip: Annotated[Path, tyro.conf.Positional]
-    """The human clip (``.bvh``, ``.npy``, ``.npz`` joint positions), or a robot motion
-    (``.npz`` from ``humimic retarget``) to skip retargeting."""
-    robot: RobotName = "g1"
-    """Registry name."""
-    out: Path
-    """The job's folder (new or empty): motion.npz, run/, eval_*.json, policy.onnx, the
-    plots, report.md."""
-    minutes: float = 30.0
-    """Wall-time budget of training, refining included (the evaluations come after)."""
-    episodes: int = 32
-    """Evaluation episodes per physics."""
-    num_envs: int | None = None
-    """Training envs (default: 128 on the CPU, 4096 on a GPU)."""
-    device: str = "cpu"
-    """Torch device (``cpu``, ``cuda`` or ``cuda:N``)."""
-    seed: int = 0
-    """Seed of training (evaluations use seed 1, as ``humimic eval``)."""
-    screenshot: bool = True
-    """Take a screenshot of the rollout in the viewer (needs Chromium; the report says so
-    when it is missing)."""
-    quiet: bool = False
-    """No progress bars."""
-
-    def validate(self) -> None:
-        """Check the numbers and the device; :class:`InputError` names the flag."""
-        if not (math.isfinite(self.minutes) and self.minutes > 0):
-            raise InputError(f"--minutes {self.minutes}: must be a positive number of minutes")
-        _at_least(self, ("episodes", "num_envs"))
-        _at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
-        _check_seed(self.seed)
-        check_device(self.device)
-
-
-@dataclass(frozen=True, kw_only=True)
-class ExportSettings:
-    """Export a run's deterministic policy as one self-contained ONNX file for deployment."""
-
-    run: Annotated[Path, tyro.conf.Positional]
-    """Run folder of ``humimic train`` or ``humimic distill`` (not a teacher)."""
-    format: Literal["onnx"] = "onnx"
-    """``onnx``: the deterministic policy (observation normalization included), input ``obs``
-    (the actor's observation groups), output ``actions``."""
-    out: Path | None = None
-    """Output file, ending in ``.onnx`` (default: ``RUN/policy.onnx``)."""
-    checkpoint: Path | None = None
-    """A checkpoint file (default: the run's newest)."""
-
-    def validate(self) -> None:
-        """Check the output's name; :class:`InputError` names the flag."""
-        out = self.out or self.run / "policy.onnx"
-        if out.suffix != ".onnx":
-            raise InputError(f"--out {out}: an ONNX file must end in .onnx")
 
 
 __all__ = [
@@ -637,11 +383,8 @@ __all__ = [
     "MAX_NUM_ENVS",
     "MAX_SEED",
     "MAX_STEPS_PER_ENV",
+    "TIMED_ITERATIONS",
     "DistillSettings",
-    "EvalSettings",
-    "ExportSettings",
-    "ImitateSettings",
-    "LoopSettings",
     "PpoConfig",
     "TaskSettings",
     "TrainSettings",

@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from humimic.configs.runs import EvalSettings, ExportSettings, ImitateSettings, TrainSettings
+from humimic.configs.jobs import EvalSettings, ExportSettings, ImitateSettings
+from humimic.configs.runs import TrainSettings
 from humimic.errors import InputError, MissingDependencyError, OutputPathError
 from humimic.io import atomic_write_text, json_ready
 

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from humimic.configs.runs import EvalSettings, LoopSettings, TrainSettings
+from humimic.configs.jobs import EvalSettings, LoopSettings
+from humimic.configs.runs import TrainSettings
 from humimic.errors import InputError, OutputPathError
 from humimic.io import atomic_write_text, check_writable, json_ready
 

@@ -41,7 +41,7 @@ def evaluation_curve(
         written, from progress.csv), ``success_rate``, ``mean_steps``, ``mpjpe_global_mm``,
         ``mpjpe_root_mm``.
     """
-    from humimic.configs.runs import EvalSettings
+    from humimic.configs.jobs import EvalSettings
     from humimic.tracking.evaluate import run_evaluation
     from humimic.tracking.runs import checkpoint_files
 

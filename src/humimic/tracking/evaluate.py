@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from humimic.configs.runs import EvalSettings
+from humimic.configs.jobs import EvalSettings
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
 from humimic.sim.randomization import param_layout

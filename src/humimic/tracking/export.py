@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from humimic.configs.runs import ExportSettings
+from humimic.configs.jobs import ExportSettings
 from humimic.errors import InputError
 from humimic.io import atomic_write, check_not_input, check_writable
 
