@@ -230,8 +230,8 @@ def _our_metrics_of_peer(
     The human's contacts are ours (``contacts`` and the feet's ``planted``, from our run on
     the same frames), so both results are scored on the same contacts."""
     from humimic.retarget.interaction import contact_bodies
-    from humimic.retarget.kinematic import ik_model
     from humimic.retarget.metrics import evaluate_scene
+    from humimic.retarget.robot_model import ik_model
 
     with np.load(result) as z:
         qpos = z["qpos"]

@@ -289,7 +289,7 @@ def test_the_scene_in_the_robot_model_is_the_scene_as_given(robot: str) -> None:
     scene's boxes had inherited it (points, so no robot of that kind ever met its scene)."""
     import mujoco
 
-    from humimic.retarget.kinematic import ik_model, scene_geoms
+    from humimic.retarget.robot_model import ik_model, scene_geoms
     from humimic.robots import get_robot
     from humimic.robots.maps import get_map
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from humimic.configs.retarget import InteractionConfig, RetargetConfig
@@ -23,8 +24,9 @@ from humimic.retarget.interaction import (
     feet_planted,
 )
 from humimic.retarget.kinematic import KEYPOINT_SITE_PREFIX, KinematicRetargeter
-from humimic.retarget.metrics import evaluate, evaluate_scene
+from humimic.retarget.metrics import QualityReport, evaluate, evaluate_scene
 from humimic.retarget.scene import scene_arrays
+from humimic.retarget.targets import Targets
 from humimic.robots.collision import self_collision_pairs
 from humimic.robots.maps import RetargetMap, get_map, load_map_file
 from humimic.robots.registry import get_robot
@@ -131,36 +133,10 @@ class Retargeter:
             tg.fps,
             self.robot.name,
             extras={"human_contacts": tg.contacts, "keypoint_targets": tg.scaled, **extras},
-            info={
-                "source": str(Path(clip.source).resolve())
-                if Path(clip.source).exists()
-                else clip.source,
-                "skeleton": clip.skeleton,
-                "source_fps": clip.fps,
-                "start_frame": int(clip.meta.get("start_frame", 0)),
-                "human_yaw": tg.yaw,
-                "human_origin": [float(x) for x in tg.origin],
-                "human_ground": tg.human_ground,
-                "human_scale": tg.scale,
-                "human_z_offset": z_offset,  # The scene's placement: the clip's floor on ours.
-                "keypoints": list(self.map.keypoints),
-            },
+            info=self._motion_info(clip, tg, z_offset),
         )
         seconds = time.perf_counter() - t0
-        quality, per_frame = evaluate(
-            model,
-            qpos,
-            tg.fps,
-            keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
-            keypoint_targets=tg.scaled,
-            foot_bodies=[f.body for f in self.map.feet.values()],
-            # The pairs of the model measured (the interaction method's has the scene and the
-            # sole corners, which renumber the robot's geoms after them).
-            self_collision=self_collision_pairs(model, self.robot.root_body),
-            floor_geom=self.robot.floor_geom,
-            human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
-            human_foot_contact=np.asarray(tg.contacts.any(axis=2)),
-        )
+        quality, per_frame = self._evaluate(model, qpos, tg)
         T = motion.num_frames
         report: dict[str, Any] = {
             "input": clip.source,
@@ -189,6 +165,44 @@ class Retargeter:
         extras = {**(motion.extras or {}), **{f"metric_{k}": v for k, v in per_frame.items()}}
         motion = dataclasses.replace(motion, extras=extras)
         return RetargetOutput(motion=motion, report=report)
+
+    def _motion_info(self, clip: HumanClip, tg: Targets, z_offset: float) -> dict[str, Any]:
+        """The motion file's ``info``: the clip's source and how it was mapped onto the robot
+        (heading, origin, ground, scale, the scene's height offset, the key points)."""
+        return {
+            "source": str(Path(clip.source).resolve())
+            if Path(clip.source).exists()
+            else clip.source,
+            "skeleton": clip.skeleton,
+            "source_fps": clip.fps,
+            "start_frame": int(clip.meta.get("start_frame", 0)),
+            "human_yaw": tg.yaw,
+            "human_origin": [float(x) for x in tg.origin],
+            "human_ground": tg.human_ground,
+            "human_scale": tg.scale,
+            "human_z_offset": z_offset,  # The scene's placement: the clip's floor on ours.
+            "keypoints": list(self.map.keypoints),
+        }
+
+    def _evaluate(
+        self, model: mujoco.MjModel, qpos: np.ndarray, tg: Targets
+    ) -> tuple[QualityReport, dict[str, np.ndarray]]:
+        """The quality metrics of ``qpos`` on ``model`` against the targets
+        (:func:`~humimic.retarget.metrics.evaluate`): the report and the per-frame arrays."""
+        return evaluate(
+            model,
+            qpos,
+            tg.fps,
+            keypoint_sites=[KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints],
+            keypoint_targets=tg.scaled,
+            foot_bodies=[f.body for f in self.map.feet.values()],
+            # The pairs of the model measured (the interaction method's has the scene and the
+            # sole corners, which renumber the robot's geoms after them).
+            self_collision=self_collision_pairs(model, self.robot.root_body),
+            floor_geom=self.robot.floor_geom,
+            human_contact=np.asarray(tg.contacts.any(axis=(1, 2))),
+            human_foot_contact=np.asarray(tg.contacts.any(axis=2)),
+        )
 
     def _scene_report(
         self, ires: InteractionResult

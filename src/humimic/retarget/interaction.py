@@ -21,18 +21,15 @@ from humimic.datasets.clip import HumanClip
 from humimic.datasets.scene import Scene
 from humimic.errors import RetargetError
 from humimic.retarget.contacts import step_speed
-from humimic.retarget.interaction_mesh import build_mesh
-from humimic.retarget.kinematic import (
+from humimic.retarget.interaction_pass import InteractionPass, set_scene_pose
+from humimic.retarget.kinematic import KinematicResult, KinematicRetargeter, _Frame
+from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
+from humimic.retarget.robot_model import (
     KEYPOINT_SITE_PREFIX,
-    SCENE_BODY_PREFIX,
-    KinematicResult,
-    KinematicRetargeter,
-    _Frame,
     robot_collision_geoms,
     scene_geoms,
     sole_corner_geoms,
 )
-from humimic.retarget.limits import PointTravelLimit, SelfCollisionLimit
 from humimic.retarget.scene import human_contacts, scene_floor
 from humimic.retarget.targets import RobotGeometry, Targets, hold_still_points
 from humimic.retarget.tasks import InteractionMeshTask, KeypointsTask, SceneContactTask
@@ -78,12 +75,6 @@ class InteractionResult:
     scene_floor: dict[str, Any]
     retried_frames: int = 0
 
-
-REPAIR_DEPTH = 1e-3
-"""A frame ends with repair steps while a robot geom is deeper than this in an object [m]."""
-
-ADVANCE_HALVINGS = 5
-"""Bisection steps of a frame's warm start that would enter the scene (to 1/32 of it)."""
 
 HAND_CONTACT_RADIUS = 0.05
 """Contact radius of key points that are not foot points, at human scale [m] (a joint centre
@@ -138,29 +129,6 @@ def body_geoms(model: mujoco.MjModel, bodies: list[list[str]]) -> list[list[int]
         ids = {model.body(b).id for b in names}
         out.append([g for g in range(model.ngeom) if model.geom_bodyid[g] in ids])
     return out
-
-
-def _attached(touch: SceneContactTask, conf: mink.Configuration, distance: float) -> np.ndarray:
-    """Which of ``touch``'s contacts are within ``distance`` of their surfaces. Shape: (P,)."""
-    return touch.compute_error(conf) + touch.gap <= distance
-
-
-def _deepest(model: mujoco.MjModel, data: mujoco.MjData, pairs: list[tuple[int, int]]) -> float:
-    """The smallest signed distance among ``pairs`` of geoms, capped at 1 cm [m]."""
-    fromto = np.zeros(6)
-    return min(
-        (mujoco.mj_geomDistance(model, data, g1, g2, 0.01, fromto) for g1, g2 in pairs),
-        default=0.01,
-    )
-
-
-def set_scene_pose(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, t: int) -> None:
-    """Move the scene's mocap bodies to frame ``t``."""
-    for obj in scene.objects:
-        mocap = int(model.body(SCENE_BODY_PREFIX + obj.name).mocapid[0])
-        p = obj.poses[min(t, obj.poses.shape[0] - 1)]
-        data.mocap_pos[mocap] = p[:3]
-        data.mocap_quat[mocap] = p[3:]
 
 
 TOE_DEPTH = 0.01
@@ -275,8 +243,7 @@ class InteractionMeshRetargeter:
         scene_r, placement = self.scene_placement(clip, scene, tg)
         kin = KinematicRetargeter(self.robot, self.map, self.cfg,
                                   menagerie_root=self.menagerie_root, scene=scene_r)  # fmt: skip
-        model, conf = kin.model, kin.configuration
-        set_scene_pose(model, conf.data, scene_r, 0)
+        set_scene_pose(kin.model, kin.configuration.data, scene_r, 0)
         names = list(self.map.keypoints)
         foot_idx = np.array([[names.index(k) for k in pair] for pair in self._foot_keys])
         if icfg.still_speed > 0:  # Toe targets still where the human's toes are.
@@ -284,21 +251,50 @@ class InteractionMeshRetargeter:
                                    speed=icfg.still_speed, radius=self.cfg.plant_radius,
                                    weight_scale=self.cfg.contact_weight_scale)  # fmt: skip
         kres = kin.run(clip, progress=progress, targets=tg)
-        T = tg.positions.shape[0]
-
-        robot_geoms, obj_geoms = robot_collision_geoms(model), scene_geoms(model)
-        if not robot_geoms or not obj_geoms:
-            raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
-        floor = model.geom(self.robot.floor_geom).id
-        scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
-        scene_pairs += [(c, o) for c in sole_corner_geoms(model) for o in obj_geoms]
-        scene_limit = SelfCollisionLimit(
-            model,
-            np.array(scene_pairs, dtype=int),
-            np.full(len(scene_pairs), icfg.penetration_margin),
-            gain=icfg.collision_gain,
-            collision_detection_distance=icfg.collision_detection,
+        solver, spacings = self._interaction_pass(clip, kin, kres, tg, scene_r, foot_idx)
+        t0 = time.perf_counter()
+        solver.run(progress)
+        return InteractionResult(
+            qpos=solver.out,
+            kinematic=kres,
+            scene=scene_r,
+            model=kin.model,
+            solve_seconds=time.perf_counter() - t0,
+            iterations=solver.iters,
+            relaxed_iterations=solver.frame.relaxed,
+            yielded_iterations=solver.frame.yielded,
+            retried_frames=solver.retried,
+            mesh_scene_points=solver.n_scene,
+            scene_spacings=spacings,
+            human_contacts=solver.contacts,
+            scene_floor=placement,
         )
+
+    def _interaction_pass(
+        self,
+        clip: HumanClip,
+        kin: KinematicRetargeter,
+        kres: KinematicResult,
+        tg: Targets,
+        scene_r: Scene,
+        foot_idx: np.ndarray,
+    ) -> tuple[InteractionPass, list[float]]:
+        """The interaction stage of :meth:`run`, set up after its kinematic pass: the tasks
+        and limits on ``kin``'s model (with the scene), the human's contacts with the scene
+        and the planted and still foot points; and each object's sampling spacing.
+
+        Args:
+            clip: The clip (for its name in errors).
+            kin: The retargeter of the model with the scene.
+            kres: Its kinematic result, the warm start.
+            tg: The targets (still toes held).
+            scene_r: The scene in the robot's frame.
+            foot_idx: Key-point index of each foot's ankle and toe. Shape: (F, 2).
+        """
+        icfg = self.icfg
+        model = kin.model
+        T = tg.positions.shape[0]
+        robot_geoms, obj_geoms, scene_pairs, scene_limit = self._scene_limit(clip, model)
         sites = [KEYPOINT_SITE_PREFIX + n for n in self.map.keypoints]
         mesh_task = InteractionMeshTask(model, sites, cost=icfg.mesh_weight)
         stick = KeypointsTask(model, [sites[i] for i in foot_idx.ravel()])
@@ -325,227 +321,46 @@ class InteractionMeshRetargeter:
             (contacts[:, feet_flat] >= 0) & (speed < self.cfg.contact_speed)
         )
         toe_speed = step_speed(tg.human[:, foot_idx[:, 1], :2], tg.fps)
-        still = toe_speed[:, toe_feet] < icfg.still_speed  # (T, toe points)
-        cap = icfg.still_travel * icfg.still_speed / tg.fps
-        smooth = mink.PostureTask(model, cost=icfg.smooth_weight)
-        touch = SceneContactTask(
-            model, body_geoms(model, contact_bodies(self.map)),
-            cost=icfg.contact_weight,
+        solver = InteractionPass(
+            kin=kin, cfg=self.cfg, icfg=icfg, targets=tg, warm_start=kres.qpos, scene=scene_r,
+            samples=samples, contacts=contacts, firm=firm, planted=planted,
+            still=toe_speed[:, toe_feet] < icfg.still_speed,  # (T, toe points)
+            cap=icfg.still_travel * icfg.still_speed / tg.fps,
+            feet_flat=feet_flat, toe_feet=toe_feet, obj_geoms=obj_geoms,
+            scene_pairs=scene_pairs, foot_pairs=foot_pairs, limits=limits, travel=travel,
+            mesh_task=mesh_task, stick=stick, stick_foot=stick_foot,
+            smooth=mink.PostureTask(model, cost=icfg.smooth_weight),
+            touch=SceneContactTask(model, body_geoms(model, contact_bodies(self.map)),
+                                   cost=icfg.contact_weight),
+            frame=_Frame(source=clip.source),
         )  # fmt: skip
+        return solver, spacings
 
-        prev = mujoco.MjData(model)  # The previous output frame, for its foot sites.
-        warm = mujoco.MjData(model)  # The frame's kinematic warm start.
-        vel = np.zeros(model.nv)
-        out = np.zeros((T, model.nq))
-        iters = np.zeros(T, dtype=int)
-        n_scene = np.zeros(T, dtype=int)
-        frame = _Frame(source=clip.source)
-        step = (
-            kin.speed_limits * self.cfg.velocity_limit_scale / tg.fps
-            if self.cfg.velocity_limit_scale > 0
-            else None
-        )
+    def _scene_limit(
+        self, clip: HumanClip, model: mujoco.MjModel
+    ) -> tuple[list[int], list[int], list[tuple[int, int]], SelfCollisionLimit]:
+        """The robot's collision geoms, the scene's geoms, the pairs kept apart (every robot
+        geom against every object and the floor, every sole corner against every object),
+        and the limit that keeps them apart.
 
-        def solve(frame: _Frame) -> np.ndarray:
-            """One QP; where the limits conflict, the toes' travel limit yields first."""
-            return kin._solve(frame, limits, yielding=travel)
-
-        def solve_frame(tasks: list[mink.Task], guarded: bool) -> int:
-            """The frame's QPs, repair and reattachment from the configuration as it is;
-            ``guarded``: each step halved while it takes a self-collision pair deeper
-            (:meth:`KinematicRetargeter._step`). Returns the QPs solved."""
-            n = 0
-            frame.tasks = tasks
-            touch.gap = 0.0
-            for _ in range(icfg.iterations):
-                dq = solve(frame)
-                kin._step(dq, guarded=guarded)
-                n += 1
-                if float(np.abs(dq).max()) < icfg.tol:
-                    break
-            # Repair: the limits are linearized, so the last step can end inside an object;
-            # step again without the pull onto surfaces while it does. Every robot-scene pair
-            # is checked: a step can carry a geom into an object it was farther from than the
-            # limit's detection distance (a foot 20 mm inside a box, seq_1 of the climbing
-            # clips, went unseen by a check of the pairs that were near before the step). The
-            # same while a self-collision pair is inside its repair line
-            # (SelfCollisionLimit.repair_slack), as in the kinematic pass.
-            frame.tasks = [task for task in tasks if task is not touch]
-            for _ in range(self.cfg.repair_iters):
-                if (_deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH
-                        and kin._self_check()[0] >= 0.0):  # fmt: skip
-                    break
-                kin._step(solve(frame), guarded=guarded)
-                n += 1
-            # Reattach: the repair may have moved a touching body off its surface. Step again
-            # with the pull aiming contact_gap off the surface (at zero gap it fights the
-            # linearized limit), keeping a step only if it reattaches more contacts than it
-            # loses and nothing ends inside the scene or deeper in a pair.
-            if touch in tasks and icfg.reattach_iterations > 0:
-                frame.tasks, touch.gap = tasks, icfg.contact_gap
-                attached = _attached(touch, conf, icfg.contact_distance)
-                for _ in range(icfg.reattach_iterations):
-                    if attached.all():
-                        break
-                    before = conf.q.copy()
-                    conf.integrate_inplace(solve(frame), 1.0)
-                    n += 1
-                    now = _attached(touch, conf, icfg.contact_distance)
-                    deep = (_deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH
-                            or kin._self_check()[0] < 0.0)  # fmt: skip
-                    if deep or now.sum() <= attached.sum():
-                        conf.update(before)
-                        break
-                    attached = now
-            return n
-
-        retried = 0
-        t0 = time.perf_counter()
-        for t in range(T):
-            set_scene_pose(model, conf.data, scene_r, t)
-            # Start from the previous output moved as the warm start moves (within the joint
-            # ranges), not from the warm start: the kinematic method ignores the scene, and a
-            # warm start inside a box on most frames once failed to pull out within a frame's
-            # QPs.
-            warm.qpos[:] = kres.qpos[t]
-            warm.mocap_pos[:], warm.mocap_quat[:] = conf.data.mocap_pos, conf.data.mocap_quat
-            mujoco.mj_kinematics(model, warm)
-            if t > 0:
-                mujoco.mj_differentiatePos(model, vel, 1.0, kres.qpos[t - 1], kres.qpos[t])
-                conf.update(self._advance(model, conf, out[t - 1], vel, scene_pairs, kin))
-            else:
-                conf.update(kres.qpos[0])
-            pts = self._scene_points(scene_r, samples, tg.scaled[t], t)
-            n_scene[t] = len(pts)
-            mesh_task.set_mesh(build_mesh(tg.scaled[t], pts, weighting=icfg.weighting))
-            kin._set_targets(tg, t)
-            kin._set_stage_costs(tg, t, 2)
-            # Weak anchors, except for planted foot points: they keep the kinematic weight.
-            costs = tg.position_weights[t] * icfg.keypoint_scale
-            costs[feet_flat] = np.where(planted[t], tg.position_weights[t, feet_flat],
-                                        costs[feet_flat])  # fmt: skip
-            kin.keypoints.set_costs(costs)
-            tasks = [mesh_task, kin.keypoints, kin.orientations, kin.posture]
-            touching = np.flatnonzero(contacts[t] >= 0)
-            touch.gap = 0.0
-            if touching.size and icfg.contact_weight > 0:
-                touch.set_contacts(
-                    [(int(k), obj_geoms[contacts[t, k]]) for k in touching], firm[t, touching]
-                )
-                tasks.append(touch)
-            travel.set(travel.anchors, np.full(len(toe_feet), np.inf))
-            if t > 0:
-                smooth.set_target(out[t - 1])
-                tasks.append(smooth)
-                held = planted[t] & planted[t - 1]  # (4,) per foot point
-                if held.any() or still[t].any():
-                    prev.qpos[:] = out[t - 1]
-                    prev.mocap_pos[:] = conf.data.mocap_pos
-                    prev.mocap_quat[:] = conf.data.mocap_quat
-                    mujoco.mj_kinematics(model, prev)
-                if still[t].any():
-                    # Only where the warm start's toe is near: a limit far from it would drag
-                    # the whole body after a foot the targets have moved on.
-                    anchors = travel.positions(prev)
-                    moved = travel.positions(warm)[:, :2] - anchors[:, :2]
-                    near = np.linalg.norm(moved, axis=1) < icfg.still_reach
-                    travel.set(anchors, np.where(still[t] & near, cap, np.inf))
-                if held.any():
-                    # Planted points stay where they were horizontally, at the warm start's
-                    # height, held more loosely (stick_height_scale): holding the previous
-                    # height kept a foot that landed high floating through its stance. The
-                    # warm start knows the floor, not the scene: a foot it sinks into an
-                    # object keeps its previous height.
-                    sunk = np.array([_deepest(model, warm, p) < -REPAIR_DEPTH for p in foot_pairs])
-                    stick.targets = prev.site_xpos[stick.site_ids].copy()
-                    stick.targets[:, 2] = np.where(sunk[stick_foot], stick.targets[:, 2],
-                                                   warm.site_xpos[stick.site_ids, 2])  # fmt: skip
-                    cost = np.zeros((held.size, 3))
-                    cost[held] = icfg.stick_weight * np.array([1.0, 1.0, icfg.stick_height_scale])
-                    stick.cost = cost.ravel()
-                    tasks.append(stick)
-            frame.t, frame.tasks = t, tasks
-            frame.q_prev = None if (t == 0 or step is None) else out[t - 1, 7:]
-            frame.step = step
-
-            start = conf.q.copy()
-            n = solve_frame(tasks, guarded=False)
-            depth = kin._self_check()[1]
-            if depth > 0.0:
-                # A self-collision the report would count, as in the kinematic pass
-                # (KinematicRetargeter.run): once more from the frame's start with guarded
-                # steps, the less deep kept.
-                first = conf.q.copy()
-                conf.update(start)
-                n += solve_frame(tasks, guarded=True)
-                retried += 1
-                if kin._self_check()[1] > depth:
-                    conf.update(first)
-            q = conf.q.copy()
-            q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
-            out[t] = q
-            iters[t] = n
-            if progress is not None:
-                progress(1)
-        return InteractionResult(
-            qpos=out,
-            kinematic=kres,
-            scene=scene_r,
-            model=model,
-            solve_seconds=time.perf_counter() - t0,
-            iterations=iters,
-            relaxed_iterations=frame.relaxed,
-            yielded_iterations=frame.yielded,
-            retried_frames=retried,
-            mesh_scene_points=n_scene,
-            scene_spacings=spacings,
-            human_contacts=contacts,
-            scene_floor=placement,
-        )
-
-    @staticmethod
-    def _advance(
-        model: mujoco.MjModel,
-        conf: mink.Configuration,
-        prev: np.ndarray,
-        vel: np.ndarray,
-        scene_pairs: list[tuple[int, int]],
-        kin: KinematicRetargeter,
-    ) -> np.ndarray:
-        """``prev`` moved by ``vel`` (the warm start's motion), or by the largest share of it
-        (halved up to :data:`ADVANCE_HALVINGS` times) that puts no robot geom more than
-        :data:`REPAIR_DEPTH` into the scene or the floor, where ``prev`` had none there.
-
-        The warm start ignores the scene: moved all the way, a landing foot ends inside a
-        step, nearer its bottom than its top, and the QPs' linearized limits then push it
-        down, into the floor's limit: every QP relaxed and the foot stayed 6.9 mm in a 6 cm
-        pad for the rest of the walk.
+        Raises:
+            RetargetError: The model has no robot collision geoms or no scene geoms.
         """
-
-        def moved(share: float) -> np.ndarray:
-            q = prev.copy()
-            mujoco.mj_integratePos(model, q, vel, share)
-            q[7:] = np.clip(q[7:], kin._range_lo, kin._range_hi)
-            return q
-
-        q = moved(1.0)
-        conf.update(q)
-        if _deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH:
-            return q
-        conf.update(prev)
-        if _deepest(model, conf.data, scene_pairs) < -REPAIR_DEPTH:
-            return q  # Already inside: the repair steps deal with it.
-        lo, best = 0.0, prev
-        hi = 1.0
-        for _ in range(ADVANCE_HALVINGS):
-            mid = 0.5 * (lo + hi)
-            cand = moved(mid)
-            conf.update(cand)
-            if _deepest(model, conf.data, scene_pairs) >= -REPAIR_DEPTH:
-                lo, best = mid, cand
-            else:
-                hi = mid
-        return best
+        icfg = self.icfg
+        robot_geoms, obj_geoms = robot_collision_geoms(model), scene_geoms(model)
+        if not robot_geoms or not obj_geoms:
+            raise RetargetError(f"{clip.source}: no robot collision geoms or no scene geoms")
+        floor = model.geom(self.robot.floor_geom).id
+        scene_pairs = [(g, o) for g in robot_geoms for o in [*obj_geoms, floor]]
+        scene_pairs += [(c, o) for c in sole_corner_geoms(model) for o in obj_geoms]
+        scene_limit = SelfCollisionLimit(
+            model,
+            np.array(scene_pairs, dtype=int),
+            np.full(len(scene_pairs), icfg.penetration_margin),
+            gain=icfg.collision_gain,
+            collision_detection_distance=icfg.collision_detection,
+        )
+        return robot_geoms, obj_geoms, scene_pairs, scene_limit
 
     def _toe_travel(
         self, model: mujoco.MjModel, foot_points: tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -561,22 +376,6 @@ class InteractionMeshRetargeter:
             feet += [k] * front.size
         at = np.concatenate(chosen)
         return np.array(feet), PointTravelLimit(model, ids[at], pts[at])
-
-    def _scene_points(
-        self, scene: Scene, samples: list[np.ndarray], keypoints: np.ndarray, t: int
-    ) -> np.ndarray:
-        """The scene points of frame ``t`` within ``scene_radius`` of a key point, nearest
-        first, at most ``max_scene_points``. Shape: (S, 3)."""
-        icfg = self.icfg
-        world = []
-        for obj, local in zip(scene.objects, samples, strict=True):
-            rot, pos = obj.pose(t)
-            world.append(local @ rot.T + pos)
-        pts = np.concatenate(world) if world else np.zeros((0, 3))
-        d = np.sqrt(((pts[:, None, :] - keypoints[None]) ** 2).sum(-1)).min(axis=1)
-        near = np.flatnonzero(d < icfg.scene_radius)
-        near = near[np.argsort(d[near])[: icfg.max_scene_points]]
-        return pts[near]
 
 
 __all__ = [

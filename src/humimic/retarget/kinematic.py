@@ -22,7 +22,7 @@ import numpy as np
 from humimic.configs.retarget import RetargetConfig
 from humimic.datasets.clip import HumanClip
 from humimic.datasets.scene import Scene
-from humimic.errors import InputError, MapError, RetargetError
+from humimic.errors import MapError, RetargetError
 from humimic.retarget.limits import (
     CONTACT_HEIGHT,
     FloorLimit,
@@ -31,126 +31,20 @@ from humimic.retarget.limits import (
     contact_point_heights,
     foot_contact_points,
 )
+from humimic.retarget.robot_model import KEYPOINT_SITE_PREFIX, ik_model
+
+# Defined here before; still importable from here.
+from humimic.retarget.robot_model import SCENE_BODY_PREFIX as SCENE_BODY_PREFIX
+from humimic.retarget.robot_model import SOLE_CORNER_PREFIX as SOLE_CORNER_PREFIX
+from humimic.retarget.robot_model import SOLE_CORNER_RADIUS as SOLE_CORNER_RADIUS
+from humimic.retarget.robot_model import robot_collision_geoms as robot_collision_geoms
+from humimic.retarget.robot_model import scene_geoms as scene_geoms
+from humimic.retarget.robot_model import sole_corner_geoms as sole_corner_geoms
 from humimic.retarget.targets import RobotGeometry, Targets, build_targets
 from humimic.retarget.tasks import KeypointsTask, OrientationsTask, PostureTask
 from humimic.robots.collision import self_collision_floors, self_collision_pairs
 from humimic.robots.maps import RetargetMap
-from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
-
-KEYPOINT_SITE_PREFIX = "humimic_kp_"
-
-
-SCENE_BODY_PREFIX = "humimic_scene_"
-
-
-def ik_model(
-    robot: RobotConfig,
-    m: RetargetMap,
-    *,
-    menagerie_root: str | Path | None = None,
-    scene: Scene | None = None,
-) -> tuple[mujoco.MjModel, dict[str, float]]:
-    """The nominal model plus one site per key point (sites change no physics), and the
-    scene's objects, each a mesh geom on a mocap body ``humimic_scene_<name>`` (moved per
-    frame with ``data.mocap_pos``/``mocap_quat``; posed at its first frame).
-
-    Returns:
-        The model and each actuated joint's speed limit [rad/s].
-    """
-    spec, acts = nominal_spec(robot, menagerie_root=menagerie_root)
-    for name, kp in m.keypoints.items():
-        body = spec.body(kp.body)
-        if body is None:
-            raise MapError(
-                f"{m.source}: keypoints.{name}.body: robot {robot.name} has no body {kp.body!r}"
-            )
-        body.add_site(name=KEYPOINT_SITE_PREFIX + name, pos=list(kp.offset), group=5)
-    for obj in scene.objects if scene is not None else ():
-        mesh_name = SCENE_BODY_PREFIX + obj.name
-        # Unscaled whatever the robot's default mesh class says: the OP3's scales its meshes
-        # by 0.001 (millimetres), which shrank every box of the scene to a point.
-        spec.add_mesh(name=mesh_name, uservert=obj.vertices.ravel().tolist(),
-                      userface=obj.faces.ravel().tolist(), scale=[1.0, 1.0, 1.0])  # fmt: skip
-        body = spec.worldbody.add_body(name=mesh_name, mocap=True, pos=obj.poses[0, :3].tolist(),
-                                       quat=obj.poses[0, 3:].tolist())  # fmt: skip
-        body.add_geom(name=mesh_name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name,
-                      contype=1, conaffinity=1, group=2, rgba=[0.55, 0.6, 0.7, 0.6])  # fmt: skip
-    try:
-        model = spec.compile()
-        if scene is not None and _add_sole_corners(spec, model, [f.body for f in m.feet.values()]):
-            model = spec.compile()
-    except ValueError as e:
-        where = f"{scene.source}: " if scene is not None and scene.source else ""
-        detail = " ".join(str(e).split())
-        raise InputError(f"{where}the scene cannot be added to the robot model: {detail}") from None
-    return model, {j: a.velocity_limit for j, a in acts.items()}
-
-
-SOLE_CORNER_PREFIX = "humimic_corner_"
-SOLE_CORNER_RADIUS = 1e-3
-"""Radius [m] of the spheres at a box foot's corners (their surfaces at the corners)."""
-
-
-def _add_sole_corners(spec: mujoco.MjSpec, model: mujoco.MjModel, feet: list[str]) -> bool:
-    """Tiny spheres at the sole corners of the feet's collision boxes (the four lowest in the
-    rest pose), without contact bits or mass: the scene limit keeps them out of the objects
-    too. One box against a box-shaped
-    object gives one pair of witness points, which does not hold the foot's turn about them:
-    the T1's box feet ended up to 72 mm inside the climbing clips' boxes. Returns whether any
-    were added (:func:`sole_corner_geoms` finds them)."""
-    added = False
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)  # The rest pose, qpos0.
-    for name in feet:
-        b = model.body(name).id
-        for g in range(model.ngeom):
-            if (model.geom_bodyid[g] != b or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX
-                    or (model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0)):  # fmt: skip
-                continue
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[g])
-            inner = np.maximum(model.geom_size[g] - SOLE_CORNER_RADIUS, 0.0)
-            corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)
-            local = model.geom_pos[g] + (corners * inner) @ rot.reshape(3, 3).T
-            world_z = (data.geom_xpos[g] + (corners * inner) @ data.geom_xmat[g].reshape(3, 3).T)[
-                :, 2
-            ]
-            # The sole: the box's four corners lowest in the rest pose.
-            for i in np.argsort(world_z, kind="stable")[:4]:
-                spec.body(name).add_geom(
-                    name=f"{SOLE_CORNER_PREFIX}{g}_{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                    size=[SOLE_CORNER_RADIUS, 0, 0], pos=local[i].tolist(),
-                    contype=0, conaffinity=0, group=5, density=0.0, mass=0.0,
-                )  # fmt: skip
-                added = True
-    return added
-
-
-def sole_corner_geoms(model: mujoco.MjModel) -> list[int]:
-    """Geom ids of :func:`_add_sole_corners`'s spheres in a model of :func:`ik_model`."""
-    return [g for g in range(model.ngeom) if model.geom(g).name.startswith(SOLE_CORNER_PREFIX)]
-
-
-def scene_geoms(model: mujoco.MjModel) -> list[int]:
-    """Geom ids of the scene's objects in a model of :func:`ik_model`."""
-    return [
-        g
-        for g in range(model.ngeom)
-        if (name := model.geom(g).name) and name.startswith(SCENE_BODY_PREFIX)
-    ]
-
-
-def robot_collision_geoms(model: mujoco.MjModel) -> list[int]:
-    """Geom ids of the robot's collision geoms (not the floor's, not the scene's)."""
-    return [
-        g
-        for g in range(model.ngeom)
-        if model.geom_bodyid[g] != 0
-        and (model.geom_contype[g] != 0 or model.geom_conaffinity[g] != 0)
-        and not model.geom(g).name.startswith(SCENE_BODY_PREFIX)
-    ]
-
 
 PLANTED_SLACK = 0.02
 """A held foot point may end a frame this fraction of its travel radius beyond it before the
@@ -264,15 +158,7 @@ class KinematicRetargeter:
         self.cfg = cfg
         self.model, speed = ik_model(robot, m, menagerie_root=menagerie_root, scene=scene)
         model = self.model
-        m.validate(None, {model.body(b).name for b in range(model.nbody)})
-        for side, foot in m.feet.items():
-            if foot.body not in robot.feet.values():
-                raise MapError(
-                    f"{m.source}: feet.{side}.body: {foot.body!r} is not a foot of {robot.name} "
-                    f"({', '.join(robot.feet.values())})"
-                )
-        if model.nq - 7 != model.nv - 6 or model.njnt - 1 != model.nv - 6:
-            raise RetargetError(f"{robot.name}: expected one free joint and hinge/slide joints")
+        self._check_model()
         self.configuration = mink.Configuration(model)
         self.keypoints = KeypointsTask(model, [KEYPOINT_SITE_PREFIX + n for n in m.keypoints])
         self.orientations = OrientationsTask(
@@ -290,6 +176,36 @@ class KinematicRetargeter:
         self._range_hi = np.where(limited, model.jnt_range[1:, 1], np.inf)
         joint_names = [model.joint(j).name for j in range(1, model.njnt)]
         self.speed_limits = np.array([speed.get(j, np.inf) for j in joint_names])
+        self._build_limits()
+        self.geometry = self._measure_geometry()
+
+    def _check_model(self) -> None:
+        """Check that the map fits the model (its bodies, the robot's feet) and that the model
+        is one the IK can drive: one free joint, then hinge or slide joints only.
+
+        Raises:
+            MapError: The map names a body the model lacks, or a foot that is not the robot's.
+            RetargetError: Other joints than one free joint and hinge/slide joints.
+        """
+        robot, m, model = self.robot, self.map, self.model
+        m.validate(None, {model.body(b).name for b in range(model.nbody)})
+        for side, foot in m.feet.items():
+            if foot.body not in robot.feet.values():
+                raise MapError(
+                    f"{m.source}: feet.{side}.body: {foot.body!r} is not a foot of {robot.name} "
+                    f"({', '.join(robot.feet.values())})"
+                )
+        if model.nq - 7 != model.nv - 6 or model.njnt - 1 != model.nv - 6:
+            raise RetargetError(f"{robot.name}: expected one free joint and hinge/slide joints")
+
+    def _build_limits(self) -> None:
+        """The feet's contact points and the hard limits the config asks for (floor, planted
+        feet, self-collision), in :attr:`limits`, and the first stage's subset of them.
+
+        Raises:
+            MapError: The foot bodies have no geoms to stand on.
+        """
+        model, m, cfg = self.model, self.map, self.cfg
         foot_bodies = [f.body for f in m.feet.values()]
         try:
             self.foot_points = foot_contact_points(model, foot_bodies)
@@ -314,7 +230,7 @@ class KinematicRetargeter:
         # One set of pairs, all of them: what the IK keeps apart is what the report
         # measures. Each pair's floor: the margin, less for one mechanism's links, and never
         # more than its distance at rest (self_collision_floors).
-        self.self_collision_pairs = self_collision_pairs(model, robot.root_body)
+        self.self_collision_pairs = self_collision_pairs(model, self.robot.root_body)
         self.self_collision: SelfCollisionLimit | None = None
         self._checked: tuple[np.ndarray, float, float] | None = None  # _self_check's last.
         if cfg.self_collision:
@@ -330,7 +246,6 @@ class KinematicRetargeter:
         # The orientation-led first stage skips the (costly) self-collision rows: the position
         # stage that follows always enforces them, pushing apart any pair stage 1 brought close.
         self._stage1_limits = [lim for lim in self.limits if lim is not self.self_collision]
-        self.geometry = self._measure_geometry()
 
     def _measure_geometry(self) -> RobotGeometry:
         """The robot in its zero pose, soles on the floor (for the target construction)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -146,84 +147,22 @@ def evaluate(
         (T,) [m], ``self_penetration`` (T,) [m], ``lowest_foot`` (T,) [m], ``foot_touching``
         (T, N) for the N foot contact points.
     """
-    data = mujoco.MjData(model)
-    T = qpos.shape[0]
     site_ids = np.array([model.site(s).id for s in keypoint_sites], dtype=int)
-    ids, pts, rad = foot_contact_points(model, foot_bodies)
-    from humimic.retarget.kinematic import robot_collision_geoms
+    feet = foot_contact_points(model, foot_bodies)
+    from humimic.retarget.robot_model import robot_collision_geoms
 
     floor = model.geom(floor_geom).id
     robot_geoms = robot_collision_geoms(model)  # Not the floor's, not a scene's.
-    pairs = np.asarray(self_collision, dtype=int).reshape(-1, 2)
-    pair_a, pair_b = pairs[:, 0], pairs[:, 1]
-    # Each pair's overlap in the rest poses [m], >= 0: depth is measured beyond it.
-    at_rest = -rest_distances(model, pairs, 0.0) if len(pairs) else np.zeros(0)
-    worst_pair, worst_depth = "", 0.0
-    fromto = np.zeros(6)
-
-    knees = knee_joints(model, foot_bodies)
-    root = _root_body(model) or 0
-    knee_cos = np.ones((T, len(knees)))
-    knee0 = np.zeros((len(knees), 3))
-    if knees:
-        data.qpos[:] = model.qpos0
-        mujoco.mj_kinematics(model, data)
-        knee0 = _knee_axes(model, data, knees, root)
-
-    kp_err = np.zeros((T, len(site_ids)))
-    foot_xy = np.zeros((T, len(ids), 2))
-    foot_bottom = np.zeros((T, len(ids)))
-    ground_pen = np.zeros(T)
-    self_pen = np.zeros(T)
-    for t in range(T):
-        data.qpos[:] = qpos[t]
-        mujoco.mj_kinematics(model, data)
-        kp_err[t] = np.linalg.norm(data.site_xpos[site_ids] - keypoint_targets[t], axis=-1)
-        if knees:
-            knee_cos[t] = np.einsum("kj,kj->k", _knee_axes(model, data, knees, root), knee0)
-        world, bottom = contact_point_heights(data, ids, pts, rad)
-        foot_xy[t] = world[:, :2]
-        foot_bottom[t] = bottom
-        pen = 0.0
-        for g in robot_geoms:
-            if data.geom_xpos[g, 2] - model.geom_rbound[g] > 0.0:
-                continue  # Its bounding sphere is above the floor.
-            d = mujoco.mj_geomDistance(model, data, floor, g, 0.01, fromto)
-            pen = max(pen, -d)
-        ground_pen[t] = pen
-        if len(pairs):
-            diff = data.geom_xpos[pair_a] - data.geom_xpos[pair_b]
-            near = (
-                np.einsum("ij,ij->i", diff, diff)
-                <= (model.geom_rbound[pair_a] + model.geom_rbound[pair_b]) ** 2
-            )
-            worst = 0.0
-            for a, b, rest in zip(pair_a[near], pair_b[near], at_rest[near], strict=True):
-                d = mujoco.mj_geomDistance(model, data, int(a), int(b), 0.01, fromto)
-                worst = max(worst, -d - rest)
-                if -d - rest > worst_depth:
-                    worst_depth = -d - rest
-                    worst_pair = " | ".join(model.body(model.geom_bodyid[g]).name for g in (a, b))
-            self_pen[t] = worst
+    selfpen = _SelfPenetration(model, self_collision)
+    knees = _KneeTurns(model, foot_bodies, qpos.shape[0])
+    kp_err, foot_xy, foot_bottom, ground_pen, self_pen = _measure_frames(
+        model, qpos, site_ids, keypoint_targets, feet, floor, robot_geoms, selfpen, knees
+    )
 
     touching = foot_bottom < CONTACT_HEIGHT
-    both = touching[1:] & touching[:-1]
-    speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
-    skating = float(speed[both].mean()) if both.any() else None  # No foot ever rests.
-    planted_skating = None
-    if human_foot_contact is not None:
-        foot_of = np.array([[model.body(b).id for b in foot_bodies].index(int(i)) for i in ids])
-        human = np.asarray(human_foot_contact, dtype=bool)[:, foot_of]  # (T, N)
-        planted = both & human[1:] & human[:-1]
-        planted_skating = float(speed[planted].mean()) if planted.any() else None
-
-    joints = qpos[:, 7:]
-    limited = model.jnt_limited[1:].astype(bool)  # A joint without a range has no limit.
-    lo = np.where(limited, model.jnt_range[1:, 0], -np.inf)
-    hi = np.where(limited, model.jnt_range[1:, 1], np.inf)
-    violations = int(np.sum((joints < lo - 1e-6) | (joints > hi + 1e-6)))
-    jerk = np.diff(joints, n=3, axis=0) * fps**3 if T > 3 else np.zeros((1, joints.shape[1]))
-
+    skating, planted_skating = _foot_skating(
+        model, touching, foot_xy, fps, feet[0], foot_bodies, human_foot_contact
+    )
     report = QualityReport(
         keypoint_error_mm_mean=float(kp_err.mean() * 1e3),
         keypoint_error_mm_p95=float(np.percentile(kp_err, 95) * 1e3),
@@ -237,21 +176,13 @@ def evaluate(
             if human_contact is not None and human_contact.any()
             else float("nan")
         ),
-        joint_limit_violations=violations,
-        self_collision_pairs=len(pairs),
+        self_collision_pairs=len(selfpen.pairs),
         self_collision_frames=int(np.sum(self_pen > 1e-3)),
         max_self_penetration_mm=float(self_pen.max() * 1e3),
-        worst_self_collision=worst_pair,
-        mean_joint_jerk=float(np.abs(jerk).mean()),
-        self_collision_rest_overlaps=int(np.sum(at_rest > 0.0)),
-        turned_knee_frames=(
-            int(np.sum((knee_cos < np.cos(np.radians(KNEE_TURN_DEG))).any(axis=1)))
-            if knees
-            else None
-        ),
-        worst_knee_turn_deg=(
-            float(np.degrees(np.arccos(np.clip(knee_cos.min(), -1.0, 1.0)))) if knees else None
-        ),
+        worst_self_collision=selfpen.worst_pair,
+        self_collision_rest_overlaps=int(np.sum(selfpen.at_rest > 0.0)),
+        **_joint_metrics(model, qpos, fps),
+        **knees.metrics(),
     )
     frames = {
         "keypoint_error": kp_err.mean(axis=1),
@@ -261,6 +192,170 @@ def evaluate(
         "foot_touching": touching,
     }
     return report, frames
+
+
+class _SelfPenetration:
+    """The self-collision pairs' penetration beyond each pair's overlap at rest, frame by
+    frame, and the deepest pair over all the frames measured.
+
+    Attributes:
+        pairs: Geom-id pairs. Shape: (P, 2).
+        at_rest: Each pair's overlap in the model's rest poses [m], >= 0. Shape: (P,).
+        worst_pair: The bodies of the deepest pair so far, ``"a | b"`` (empty: none).
+        worst_depth: Its depth beyond its overlap at rest [m] (0: none).
+    """
+
+    def __init__(self, model: mujoco.MjModel, self_collision: np.ndarray) -> None:
+        self.model = model
+        self.pairs = np.asarray(self_collision, dtype=int).reshape(-1, 2)
+        # Each pair's overlap in the rest poses [m], >= 0: depth is measured beyond it.
+        self.at_rest = -rest_distances(model, self.pairs, 0.0) if len(self.pairs) else np.zeros(0)
+        self.worst_pair, self.worst_depth = "", 0.0
+        self._fromto = np.zeros(6)
+
+    def measure(self, data: mujoco.MjData) -> float:
+        """The deepest penetration beyond rest among the pairs whose bounding spheres meet,
+        at ``data``'s kinematics (0 if none) [m]; updates the deepest pair."""
+        model, fromto = self.model, self._fromto
+        pair_a, pair_b = self.pairs[:, 0], self.pairs[:, 1]
+        diff = data.geom_xpos[pair_a] - data.geom_xpos[pair_b]
+        near = (
+            np.einsum("ij,ij->i", diff, diff)
+            <= (model.geom_rbound[pair_a] + model.geom_rbound[pair_b]) ** 2
+        )
+        worst = 0.0
+        for a, b, rest in zip(pair_a[near], pair_b[near], self.at_rest[near], strict=True):
+            d = mujoco.mj_geomDistance(model, data, int(a), int(b), 0.01, fromto)
+            worst = max(worst, -d - rest)
+            if -d - rest > self.worst_depth:
+                self.worst_depth = -d - rest
+                self.worst_pair = " | ".join(model.body(model.geom_bodyid[g]).name for g in (a, b))
+        return worst
+
+
+def _ground_penetration(
+    model: mujoco.MjModel, data: mujoco.MjData, floor: int, robot_geoms: list[int]
+) -> float:
+    """The deepest penetration of a robot geom into the floor at ``data``'s kinematics (0 if
+    none) [m]; geoms whose bounding sphere is above the floor are skipped."""
+    fromto = np.zeros(6)
+    pen = 0.0
+    for g in robot_geoms:
+        if data.geom_xpos[g, 2] - model.geom_rbound[g] > 0.0:
+            continue  # Its bounding sphere is above the floor.
+        d = mujoco.mj_geomDistance(model, data, floor, g, 0.01, fromto)
+        pen = max(pen, -d)
+    return pen
+
+
+def _foot_skating(
+    model: mujoco.MjModel, touching: np.ndarray, foot_xy: np.ndarray, fps: float,
+    ids: np.ndarray, foot_bodies: list[str], human_foot_contact: np.ndarray | None,
+) -> tuple[float | None, float | None]:  # fmt: skip
+    """Mean horizontal speed [m/s] of the foot contact points touching the ground in two
+    consecutive frames, and the same over the frames where the human's foot is down in both
+    too (None: no such frames, or no per-foot human contacts)."""
+    both = touching[1:] & touching[:-1]
+    speed = np.linalg.norm(np.diff(foot_xy, axis=0), axis=-1) * fps
+    skating = float(speed[both].mean()) if both.any() else None  # No foot ever rests.
+    planted_skating = None
+    if human_foot_contact is not None:
+        foot_of = np.array([[model.body(b).id for b in foot_bodies].index(int(i)) for i in ids])
+        human = np.asarray(human_foot_contact, dtype=bool)[:, foot_of]  # (T, N)
+        planted = both & human[1:] & human[:-1]
+        planted_skating = float(speed[planted].mean()) if planted.any() else None
+    return skating, planted_skating
+
+
+def _joint_metrics(model: mujoco.MjModel, qpos: np.ndarray, fps: float) -> dict[str, Any]:
+    """The report's ``joint_limit_violations`` and ``mean_joint_jerk``."""
+    T = qpos.shape[0]
+    joints = qpos[:, 7:]
+    limited = model.jnt_limited[1:].astype(bool)  # A joint without a range has no limit.
+    lo = np.where(limited, model.jnt_range[1:, 0], -np.inf)
+    hi = np.where(limited, model.jnt_range[1:, 1], np.inf)
+    violations = int(np.sum((joints < lo - 1e-6) | (joints > hi + 1e-6)))
+    jerk = np.diff(joints, n=3, axis=0) * fps**3 if T > 3 else np.zeros((1, joints.shape[1]))
+    return {"joint_limit_violations": violations, "mean_joint_jerk": float(np.abs(jerk).mean())}
+
+
+class _KneeTurns:
+    """How far each knee's axis turns from its zero-pose direction in the root's frame, frame
+    by frame (:func:`knee_joints`; nothing measured for a model without knees).
+
+    Attributes:
+        knees: The knee joints.
+        cos: Each frame's cosine of each knee's turn. Shape: (T, knees).
+    """
+
+    def __init__(self, model: mujoco.MjModel, foot_bodies: list[str], frames: int) -> None:
+        self.model = model
+        self.knees = knee_joints(model, foot_bodies)
+        self.root = _root_body(model) or 0
+        self.cos = np.ones((frames, len(self.knees)))
+        self.rest = np.zeros((len(self.knees), 3))
+        if self.knees:
+            data = mujoco.MjData(model)
+            data.qpos[:] = model.qpos0
+            mujoco.mj_kinematics(model, data)
+            self.rest = _knee_axes(model, data, self.knees, self.root)
+
+    def measure(self, data: mujoco.MjData, t: int) -> None:
+        """Frame ``t``'s cosines, at ``data``'s kinematics."""
+        if self.knees:
+            axes = _knee_axes(self.model, data, self.knees, self.root)
+            self.cos[t] = np.einsum("kj,kj->k", axes, self.rest)
+
+    def metrics(self) -> dict[str, Any]:
+        """The report's ``turned_knee_frames`` and ``worst_knee_turn_deg`` (None: no knees)."""
+        knee_cos, has_knees = self.cos, bool(self.knees)
+        return {
+            "turned_knee_frames": (
+                int(np.sum((knee_cos < np.cos(np.radians(KNEE_TURN_DEG))).any(axis=1)))
+                if has_knees
+                else None
+            ),
+            "worst_knee_turn_deg": (
+                float(np.degrees(np.arccos(np.clip(knee_cos.min(), -1.0, 1.0))))
+                if has_knees
+                else None
+            ),
+        }
+
+
+def _measure_frames(
+    model: mujoco.MjModel, qpos: np.ndarray, site_ids: np.ndarray, keypoint_targets: np.ndarray,
+    feet: tuple[np.ndarray, np.ndarray, np.ndarray], floor: int, robot_geoms: list[int],
+    selfpen: _SelfPenetration, knees: _KneeTurns,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Pose the model in every frame of ``qpos`` and measure it (the knees' turns into
+    ``knees``, the deepest self-collision pair into ``selfpen``).
+
+    Returns:
+        Key-point errors (T, K) [m], the foot contact points' horizontal positions (T, N, 2)
+        and heights of their lowest points (T, N) [m], the ground penetration (T,) and the
+        self-penetration (T,) [m].
+    """
+    data = mujoco.MjData(model)
+    T = qpos.shape[0]
+    ids, pts, rad = feet
+    kp_err = np.zeros((T, len(site_ids)))
+    foot_xy = np.zeros((T, len(ids), 2))
+    foot_bottom = np.zeros((T, len(ids)))
+    ground_pen = np.zeros(T)
+    self_pen = np.zeros(T)
+    for t in range(T):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_kinematics(model, data)
+        kp_err[t] = np.linalg.norm(data.site_xpos[site_ids] - keypoint_targets[t], axis=-1)
+        knees.measure(data, t)
+        world, bottom = contact_point_heights(data, ids, pts, rad)
+        foot_xy[t] = world[:, :2]
+        foot_bottom[t] = bottom
+        ground_pen[t] = _ground_penetration(model, data, floor, robot_geoms)
+        if len(selfpen.pairs):
+            self_pen[t] = selfpen.measure(data)
+    return kp_err, foot_xy, foot_bottom, ground_pen, self_pen
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -312,7 +407,7 @@ def evaluate_scene(
 ) -> tuple[SceneReport, dict[str, np.ndarray]]:
     """Measure a motion against its scene (a :class:`~humimic.datasets.scene.Scene` in the
     robot's frame, whose objects are the mocap bodies of ``model``, see
-    :func:`~humimic.retarget.kinematic.ik_model`).
+    :func:`~humimic.retarget.robot_model.ik_model`).
 
     Args:
         model: Robot model with the scene.
@@ -333,8 +428,7 @@ def evaluate_scene(
         ``contact_preserved`` (T, K) (1 preserved, 0 lost, -1 no human contact).
     """
     from humimic.retarget.interaction import body_geoms, set_scene_pose
-    from humimic.retarget.interaction_mesh import point_triangle_distance
-    from humimic.retarget.kinematic import robot_collision_geoms, scene_geoms
+    from humimic.retarget.robot_model import robot_collision_geoms, scene_geoms
 
     data = mujoco.MjData(model)
     T, K = human_contacts.shape
@@ -342,7 +436,6 @@ def evaluate_scene(
     objs = scene_geoms(model)
     geoms_of = body_geoms(model, keypoint_bodies)
     ids, pts, rad = foot_contact_points(model, foot_bodies)
-    fromto = np.zeros(6)
     pen = np.zeros(T)
     preserved = np.full((T, K), -1, dtype=np.int8)
     foot_xy = np.zeros((T, len(ids), 2))
@@ -354,30 +447,13 @@ def evaluate_scene(
         set_scene_pose(model, data, scene, t)
         mujoco.mj_kinematics(model, data)
         tris = [o.world_vertices(t)[o.faces] for o in scene.objects]
-        worst = 0.0
-        for o in objs:
-            near = np.linalg.norm(data.geom_xpos[robot] - data.geom_xpos[o], axis=1) <= (
-                model.geom_rbound[robot] + model.geom_rbound[o] + reach
-            )
-            for g in np.asarray(robot)[near]:
-                worst = max(worst, -mujoco.mj_geomDistance(model, data, int(g), o, reach, fromto))
-        pen[t] = worst
-        # Whether the robot's body touches the object its human key point touches.
-        for k in np.flatnonzero(human_contacts[t] >= 0):
-            o = objs[human_contacts[t, k]]
-            d_r = min(
-                (mujoco.mj_geomDistance(model, data, g, o, reach, fromto) for g in geoms_of[k]),
-                default=np.inf,
-            )
-            preserved[t, k] = int(d_r <= contact_distance)
+        pen[t] = _scene_penetration(model, data, robot, objs, reach)
+        preserved[t] = _contacts_preserved(
+            model, data, human_contacts[t], objs, geoms_of, reach, contact_distance
+        )
         world, bottom = contact_point_heights(data, ids, pts, rad)
         foot_xy[t] = world[:, :2]
-        low = world - np.array([0.0, 0.0, 1.0]) * rad[:, None]
-        d_scene = (
-            np.min([point_triangle_distance(low, tri).min(axis=1) for tri in tris], axis=0)
-            if tris
-            else np.full(len(ids), np.inf)
-        )
+        d_scene = _surface_distance(world, rad, tris)
         resting[t] = (bottom < CONTACT_HEIGHT) | (d_scene < CONTACT_HEIGHT)
         gap[t] = np.minimum(bottom, d_scene)
     both = resting[1:] & resting[:-1]
@@ -397,3 +473,52 @@ def evaluate_scene(
         floating_planted_feet=int(np.sum(planted_gap > CONTACT_HEIGHT)),
     )
     return report, {"scene_penetration": pen, "contact_preserved": preserved}
+
+
+def _scene_penetration(
+    model: mujoco.MjModel, data: mujoco.MjData, robot: list[int], objs: list[int], reach: float
+) -> float:
+    """The deepest penetration of a robot geom into a scene object at ``data``'s kinematics (0
+    if none) [m]; only pairs whose bounding spheres come within ``reach`` are queried."""
+    fromto = np.zeros(6)
+    worst = 0.0
+    for o in objs:
+        near = np.linalg.norm(data.geom_xpos[robot] - data.geom_xpos[o], axis=1) <= (
+            model.geom_rbound[robot] + model.geom_rbound[o] + reach
+        )
+        for g in np.asarray(robot)[near]:
+            worst = max(worst, -mujoco.mj_geomDistance(model, data, int(g), o, reach, fromto))
+    return worst
+
+
+def _contacts_preserved(
+    model: mujoco.MjModel, data: mujoco.MjData, contacts: np.ndarray, objs: list[int],
+    geoms_of: list[list[int]], reach: float, contact_distance: float,
+) -> np.ndarray:  # fmt: skip
+    """Whether the robot's body touches the object its human key point touches (``contacts``:
+    the object per key point, -1 for none), at ``data``'s kinematics: 1 preserved, 0 lost, -1
+    no human contact. Shape: (K,)."""
+    fromto = np.zeros(6)
+    out = np.full(len(contacts), -1, dtype=np.int8)
+    for k in np.flatnonzero(contacts >= 0):
+        o = objs[contacts[k]]
+        d_r = min(
+            (mujoco.mj_geomDistance(model, data, g, o, reach, fromto) for g in geoms_of[k]),
+            default=np.inf,
+        )
+        out[k] = int(d_r <= contact_distance)
+    return out
+
+
+def _surface_distance(world: np.ndarray, rad: np.ndarray, tris: list[np.ndarray]) -> np.ndarray:
+    """Each foot contact point's lowest point (its centre ``world`` (N, 3) less its radius
+    ``rad`` (N,)) to the nearest of the objects' triangles ``tris`` (inf without objects).
+    Shape: (N,)."""
+    from humimic.retarget.interaction_mesh import point_triangle_distance
+
+    low = world - np.array([0.0, 0.0, 1.0]) * rad[:, None]
+    return (
+        np.min([point_triangle_distance(low, tri).min(axis=1) for tri in tris], axis=0)
+        if tris
+        else np.full(len(world), np.inf)
+    )

@@ -123,137 +123,33 @@ def build_targets(
     kps = list(m.keypoints.values())
     human = np.stack([clip.position(kp.human) for kp in kps], axis=1)  # (T, K, 3)
     T = human.shape[0]
-
-    # Heading and origin from the first frame.
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frames_h = _derived_frames(human, m, names)  # (T, F, 3, 3)
-    bad = np.flatnonzero(~np.isfinite(frames_h).all(axis=(1, 2, 3)))
-    if bad.size:
-        raise MotionDataError(
-            f"{clip.source}: key points coincide or are aligned (no left-right or up direction) "
-            f"in {bad.size} frame(s), first at t = {bad[0] / clip.fps:.2f} s: a capture dropout? "
-            f"(frames used: {', '.join(f'{n}: {fr.left} {fr.up}' for n, fr in m.frames.items())})"
-        )
-    root = idx[m.root]
-    if m.frames:
-        fwd = frames_h[0, 0, :, 0]
-        yaw0 = float(np.arctan2(fwd[1], fwd[0]))
-    else:
-        yaw0 = 0.0
-    rot = axis_angle_matrix("z", np.asarray(-yaw0))
-    origin = human[0, root].copy()
-    origin[2] = 0.0
-    human = (human - origin) @ rot.T
-    frames_h = np.einsum("ij,tfjk->tfik", rot, frames_h)
-
-    # Ground: the lowest foot point, robustly over the clip.
-    foot_pts = [idx[f.ankle] for f in m.feet.values()] + [idx[f.toe] for f in m.feet.values()]
-    if foot_pts:
-        lowest = human[:, foot_pts, 2].min(axis=1)
-        ground = float(np.percentile(lowest, 1.0))
-    else:
-        ground = float(np.percentile(human[:, :, 2].min(axis=1), 1.0))
-
-    # Bone lengths: robot from its zero pose, human as medians over the clip.
-    def bone(p: np.ndarray, a: int, b: int) -> np.ndarray:
-        return np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
-
-    leg_h, leg_r = [], []
-    for foot in m.feet.values():
-        knee = m.keypoints[foot.ankle].parent
-        hip = m.keypoints[knee].parent if knee else None
-        if knee and hip:
-            a, k, h = idx[foot.ankle], idx[knee], idx[hip]
-            leg_h.append(np.median(bone(human, a, k)) + np.median(bone(human, k, h)))
-            leg_r.append(bone(robot.keypoints, a, k) + bone(robot.keypoints, k, h))
-    if cfg.scale is not None:
-        scale = float(cfg.scale)
-    else:
-        scale = float(np.mean(leg_r) / np.mean(leg_h)) if leg_h else 1.0
-
-    # Robot-frame offsets measured in the zero pose.
-    frame_names = list(m.frames)
-    frames_r = _derived_frames(robot.keypoints, m, names)  # (F, 3, 3)
-    body_offsets = np.einsum("fji,fjk->fik", frames_r, robot.frame_body_rot)  # R_fr^T R_body
-
-    pos = np.zeros_like(human)
-    pos[:, root, :2] = scale * human[:, root, :2]
-    pos[:, root, 2] = scale * (human[:, root, 2] - ground)
-    for k, kp in enumerate(m.keypoints.values()):
-        if kp.parent is None:
-            continue
-        par = idx[kp.parent]
-        if kp.frame is not None:
-            f = frame_names.index(kp.frame)
-            local = frames_r[f].T @ (robot.keypoints[k] - robot.keypoints[par])
-            pos[:, k] = pos[:, par] + frames_h[:, f] @ local
-        else:
-            length = bone(robot.keypoints, k, par)
-            pos[:, k] = pos[:, par] + length * _unit(human[:, k] - human[:, par])
-    frame_rots = np.einsum("tfij,fjk->tfik", frames_h, body_offsets)
+    human, frames_h, yaw0, origin = _align_heading(clip, m, human, names)
+    ground = _human_ground(human, m, idx)
+    scale = _leg_scale(human, m, idx, robot, cfg)
+    pos, frame_rots = _hang_keypoints(human, frames_h, m, names, robot, scale, ground)
 
     # Contacts on the human, per foot point (ankle, toe); a point's planted height is the 2nd
     # percentile of its height over the clip.
     sides = list(m.feet.values())
     foot_keys = np.array([[idx[f.ankle], idx[f.toe]] for f in sides])  # (2, 2)
     planted_h = np.percentile(human[:, foot_keys, 2], 2.0, axis=0)  # (2, 2)
-    contacts = np.zeros((T, len(sides), 2), dtype=bool)
-    for s_ in range(len(sides)):
-        for j in range(2):
-            key = foot_keys[s_, j]
-            contacts[:, s_, j] = detect_contacts(
-                human[:, key, 2] - planted_h[s_, j],
-                human[:, key, :2],
-                clip.fps,
-                max_height=cfg.contact_height,
-                max_speed=cfg.contact_speed,
-                min_frames=cfg.contact_min_frames,
-            )
-
-    # Vertical calibration: planted toes at the robot's standing toe height.
-    toe_idx = [idx[f.toe] for f in sides]
-    dz = 0.0
-    if toe_idx:
-        toe_z = pos[:, toe_idx, 2]
-        planted = contacts[:, :, 1]
-        ref = np.median(toe_z[planted]) if planted.any() else np.percentile(toe_z.min(axis=1), 1)
-        dz = float(robot.keypoints[toe_idx, 2].mean() - ref)
-        pos[:, :, 2] += dz
+    contacts = _detect_foot_contacts(human, foot_keys, planted_h, clip.fps, cfg)
+    _calibrate_toes(pos, contacts, [idx[f.toe] for f in sides], robot)
     # Foot heights follow the human's clearance over the ground, scaled: a heel that skims the
     # floor at 3 cm on the human skims it at 3 cm x scale on the robot, whatever the leg
     # proportions make of the chain.
     above = human[:, foot_keys, 2] - planted_h  # (T, 2, 2)
     pos[:, foot_keys, 2] = robot.keypoints[foot_keys, 2] + scale * above
+    heading = frames_h[:, 0, :, 0] if m.frames else None
+    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg, heading)
     # Soles keep the human's clearance: where the target foot pose (ankle position, foot
     # orientation) would put a contact point lower than the human foot's scaled clearance,
     # the foot's targets are lifted (a heel-down swing foot must not skim the floor).
     clearance = scale * np.maximum(above.min(axis=2), 0.0)  # (T, 2)
-    heading = frames_h[:, 0, :, 0] if m.frames else None
-    foot_rots, foot_weights = _foot_rotations(human, m, idx, contacts, robot, cfg, heading)
-    for s_ in range(len(sides)):
-        a, t_ = foot_keys[s_]
-        pts = robot.foot_points[s_]
-        lowest = (
-            pos[:, a, 2][:, None]
-            + np.einsum("tj,nj->tn", foot_rots[:, s_, 2, :], pts[:, :3])
-            - pts[:, 3]
-        ).min(axis=1)
-        lift = np.maximum(clearance[:, s_] - lowest, 0.0)
-        pos[:, a, 2] += lift
-        pos[:, t_, 2] += lift
+    _lift_soles(pos, foot_keys, foot_rots, clearance, robot)
     scaled = pos.copy()
-
-    # Planted points keep one position (the mean over the plant) at standing height; a plant
-    # ends where the human point drifts further than plant_radius.
     weights = np.tile(np.array([kp.weight for kp in kps]), (T, 1))
-    for s_ in range(len(sides)):
-        for j, key in enumerate(foot_keys[s_]):
-            for start, stop in plant_segments(
-                contacts[:, s_, j], pos[:, key, :2], cfg.plant_radius
-            ):
-                pos[start:stop, key, :2] = pos[start:stop, key, :2].mean(axis=0)
-                pos[start:stop, key, 2] = robot.keypoints[key, 2]
-                weights[start:stop, key] *= cfg.contact_weight_scale
+    _plant_points(pos, weights, contacts, foot_keys, robot, cfg)
 
     return Targets(
         positions=pos,
@@ -272,6 +168,180 @@ def build_targets(
         origin=origin,
         z_offset=scale * (ground - (cfg.floor_height or 0.0)),
     )
+
+
+def _align_heading(
+    clip: HumanClip, m: RetargetMap, human: np.ndarray, names: list[str]
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The human's key points (T, K, 3) and derived frames (T, F, 3, 3) turned about z so that
+    the first frame's pelvis faces +x and moved so that it stands above the origin; the yaw
+    taken off [rad] and the point moved to the origin.
+
+    Raises:
+        MotionDataError: A frame's derived frame is undefined (its key points coincide or
+            are aligned).
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frames_h = _derived_frames(human, m, names)  # (T, F, 3, 3)
+    bad = np.flatnonzero(~np.isfinite(frames_h).all(axis=(1, 2, 3)))
+    if bad.size:
+        raise MotionDataError(
+            f"{clip.source}: key points coincide or are aligned (no left-right or up direction) "
+            f"in {bad.size} frame(s), first at t = {bad[0] / clip.fps:.2f} s: a capture dropout? "
+            f"(frames used: {', '.join(f'{n}: {fr.left} {fr.up}' for n, fr in m.frames.items())})"
+        )
+    root = names.index(m.root)
+    if m.frames:
+        fwd = frames_h[0, 0, :, 0]
+        yaw0 = float(np.arctan2(fwd[1], fwd[0]))
+    else:
+        yaw0 = 0.0
+    rot = axis_angle_matrix("z", np.asarray(-yaw0))
+    origin = human[0, root].copy()
+    origin[2] = 0.0
+    human = (human - origin) @ rot.T
+    frames_h = np.einsum("ij,tfjk->tfik", rot, frames_h)
+    return human, frames_h, yaw0, origin
+
+
+def _human_ground(human: np.ndarray, m: RetargetMap, idx: dict[str, int]) -> float:
+    """The human's ground height: the lowest foot point (any point without feet), robustly
+    over the clip (its 1st percentile) [m]."""
+    foot_pts = [idx[f.ankle] for f in m.feet.values()] + [idx[f.toe] for f in m.feet.values()]
+    if foot_pts:
+        lowest = human[:, foot_pts, 2].min(axis=1)
+        return float(np.percentile(lowest, 1.0))
+    return float(np.percentile(human[:, :, 2].min(axis=1), 1.0))
+
+
+def _bone(p: np.ndarray, a: int, b: int) -> np.ndarray:
+    """The distance of key points ``a`` and ``b`` in ``p`` (..., K, 3). Shape: (...)."""
+    return np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
+
+
+def _leg_scale(
+    human: np.ndarray, m: RetargetMap, idx: dict[str, int], robot: RobotGeometry,
+    cfg: RetargetConfig,
+) -> float:  # fmt: skip
+    """The root's scale robot/human: ``cfg.scale``, or the ratio of the legs' mean lengths
+    (ankle-knee-hip; the robot's from its zero pose, the human's bones as medians over the
+    clip), or 1 without legs."""
+    leg_h, leg_r = [], []
+    for foot in m.feet.values():
+        knee = m.keypoints[foot.ankle].parent
+        hip = m.keypoints[knee].parent if knee else None
+        if knee and hip:
+            a, k, h = idx[foot.ankle], idx[knee], idx[hip]
+            leg_h.append(np.median(_bone(human, a, k)) + np.median(_bone(human, k, h)))
+            leg_r.append(_bone(robot.keypoints, a, k) + _bone(robot.keypoints, k, h))
+    if cfg.scale is not None:
+        return float(cfg.scale)
+    return float(np.mean(leg_r) / np.mean(leg_h)) if leg_h else 1.0
+
+
+def _hang_keypoints(
+    human: np.ndarray, frames_h: np.ndarray, m: RetargetMap, names: list[str],
+    robot: RobotGeometry, scale: float, ground: float,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Key-point targets before contact handling (T, K, 3), and the frames' body rotation
+    targets (T, F, 3, 3): the root scaled by ``scale`` over the ground, every other point
+    from its parent with the robot's bone length along the human bone, or at the robot's
+    offset turned by the human's derived frame for a point rigid on a body."""
+    idx = {n: i for i, n in enumerate(names)}
+    root = idx[m.root]
+    # Robot-frame offsets measured in the zero pose.
+    frame_names = list(m.frames)
+    frames_r = _derived_frames(robot.keypoints, m, names)  # (F, 3, 3)
+    body_offsets = np.einsum("fji,fjk->fik", frames_r, robot.frame_body_rot)  # R_fr^T R_body
+
+    pos = np.zeros_like(human)
+    pos[:, root, :2] = scale * human[:, root, :2]
+    pos[:, root, 2] = scale * (human[:, root, 2] - ground)
+    for k, kp in enumerate(m.keypoints.values()):
+        if kp.parent is None:
+            continue
+        par = idx[kp.parent]
+        if kp.frame is not None:
+            f = frame_names.index(kp.frame)
+            local = frames_r[f].T @ (robot.keypoints[k] - robot.keypoints[par])
+            pos[:, k] = pos[:, par] + frames_h[:, f] @ local
+        else:
+            length = _bone(robot.keypoints, k, par)
+            pos[:, k] = pos[:, par] + length * _unit(human[:, k] - human[:, par])
+    frame_rots = np.einsum("tfij,fjk->tfik", frames_h, body_offsets)
+    return pos, frame_rots
+
+
+def _detect_foot_contacts(
+    human: np.ndarray, foot_keys: np.ndarray, planted_h: np.ndarray, fps: float,
+    cfg: RetargetConfig,
+) -> np.ndarray:  # fmt: skip
+    """The human's floor contacts per foot and point (ankle, toe), from each point's height
+    over its planted height ``planted_h`` (F, 2) and its horizontal speed. Shape: (T, F, 2)."""
+    contacts = np.zeros((human.shape[0], len(foot_keys), 2), dtype=bool)
+    for s_ in range(len(foot_keys)):
+        for j in range(2):
+            key = foot_keys[s_, j]
+            contacts[:, s_, j] = detect_contacts(
+                human[:, key, 2] - planted_h[s_, j],
+                human[:, key, :2],
+                fps,
+                max_height=cfg.contact_height,
+                max_speed=cfg.contact_speed,
+                min_frames=cfg.contact_min_frames,
+            )
+    return contacts
+
+
+def _calibrate_toes(
+    pos: np.ndarray, contacts: np.ndarray, toe_idx: list[int], robot: RobotGeometry
+) -> None:
+    """Vertical calibration, in place: ``pos`` (T, K, 3) moved up or down so that the planted
+    toes (the lowest toes' 1st percentile without plants) stand at the robot's standing toe
+    height."""
+    if toe_idx:
+        toe_z = pos[:, toe_idx, 2]
+        planted = contacts[:, :, 1]
+        ref = np.median(toe_z[planted]) if planted.any() else np.percentile(toe_z.min(axis=1), 1)
+        dz = float(robot.keypoints[toe_idx, 2].mean() - ref)
+        pos[:, :, 2] += dz
+
+
+def _lift_soles(
+    pos: np.ndarray, foot_keys: np.ndarray, foot_rots: np.ndarray, clearance: np.ndarray,
+    robot: RobotGeometry,
+) -> None:  # fmt: skip
+    """Lift each foot's ankle and toe targets in ``pos`` (in place) where the foot's contact
+    points, at the target ankle position and foot orientation ``foot_rots`` (T, F, 3, 3),
+    would be lower than the human foot's scaled ``clearance`` (T, F)."""
+    for s_ in range(len(foot_keys)):
+        a, t_ = foot_keys[s_]
+        pts = robot.foot_points[s_]
+        lowest = (
+            pos[:, a, 2][:, None]
+            + np.einsum("tj,nj->tn", foot_rots[:, s_, 2, :], pts[:, :3])
+            - pts[:, 3]
+        ).min(axis=1)
+        lift = np.maximum(clearance[:, s_] - lowest, 0.0)
+        pos[:, a, 2] += lift
+        pos[:, t_, 2] += lift
+
+
+def _plant_points(
+    pos: np.ndarray, weights: np.ndarray, contacts: np.ndarray, foot_keys: np.ndarray,
+    robot: RobotGeometry, cfg: RetargetConfig,
+) -> None:  # fmt: skip
+    """Planted foot points, in place: each keeps one position (the mean over the plant) at
+    the robot's standing height, its weight times ``contact_weight_scale``; a plant ends where
+    the human point drifts further than ``plant_radius``."""
+    for s_ in range(len(foot_keys)):
+        for j, key in enumerate(foot_keys[s_]):
+            for start, stop in plant_segments(
+                contacts[:, s_, j], pos[:, key, :2], cfg.plant_radius
+            ):
+                pos[start:stop, key, :2] = pos[start:stop, key, :2].mean(axis=0)
+                pos[start:stop, key, 2] = robot.keypoints[key, 2]
+                weights[start:stop, key] *= cfg.contact_weight_scale
 
 
 def hold_still_points(
