@@ -205,10 +205,6 @@ def read_yaml(
         InputError: The file is missing, unreadable, not valid YAML, nested too deeply, recursive
             or too large once its aliases are expanded (the message names the file).
     """
-    import re
-
-    import yaml
-
     p = check_input_file(path, "a YAML file")
     try:
         text = p.read_text(encoding="utf-8-sig")
@@ -216,22 +212,44 @@ def read_yaml(
         raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
     except UnicodeDecodeError as e:
         raise InputError(f"{p}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    too_deep = InputError(
+    data = _parse_yaml(p, text, max_depth)
+    _check_yaml_tree(p, data, max_depth, max_values)
+    return data
+
+
+def _too_deep(p: Path, max_depth: int) -> InputError:
+    """The refusal of a YAML file nested deeper than ``max_depth``."""
+    return InputError(
         f"{p}: nested too deeply (more than {max_depth} levels of mappings and lists)"
     )
-    # PyYAML's scanner takes time quadratic in the depth of [ ] and { } nesting (minutes for a
-    # small hostile file), so that depth is bounded before parsing. Brackets inside quoted
-    # text count too: a false refusal needs more than max_depth unclosed ones.
+
+
+def _parse_yaml(p: Path, text: str, max_depth: int) -> Any:
+    """``text`` parsed by :func:`_unique_key_loader` (a ``SafeLoader``: no Python objects),
+    its ``[ ]`` and ``{ }`` nesting bounded by ``max_depth`` first.
+
+    PyYAML's scanner takes time quadratic in the depth of that nesting (minutes for a small
+    hostile file), and its parser recurses once per level of any nesting.
+
+    Raises:
+        InputError: Nested too deeply, or not valid YAML (PyYAML's message on one line).
+    """
+    import re
+
+    import yaml
+
+    # Brackets inside quoted text count too: a false refusal needs more than max_depth
+    # unclosed ones.
     flow = deepest = 0
     for m in re.finditer(r"[\[\]{}]", text):
         flow = flow + 1 if m.group() in "[{" else max(flow - 1, 0)
         deepest = max(deepest, flow)
     if deepest > max_depth:
-        raise too_deep
+        raise _too_deep(p, max_depth)
     try:
-        data = yaml.load(text, Loader=_unique_key_loader())  # A SafeLoader: no Python objects.
+        return yaml.load(text, Loader=_unique_key_loader())  # A SafeLoader: no Python objects.
     except RecursionError:
-        raise too_deep from None
+        raise _too_deep(p, max_depth) from None
     except yaml.YAMLError as e:
         detail = " ".join(str(e).split())  # One line: PyYAML's messages span several.
         raise InputError(f"{p}: invalid YAML ({detail})") from None
@@ -239,8 +257,15 @@ def read_yaml(
         # PyYAML's constructors let these through for values such as 2001-13-01 or !!int abc.
         raise InputError(f"{p}: invalid YAML value ({e})") from None
 
-    # Walk the tree without recursion. A node is a container object, shared when an alias
-    # names it, so the depth and expanded size of each are memoized by id.
+
+def _check_yaml_tree(p: Path, data: Any, max_depth: int, max_values: int) -> None:
+    """Refuse a parsed YAML tree nested deeper than ``max_depth``, holding an alias that
+    contains itself, or expanding (each alias a copy of what it names) to more than
+    ``max_values`` values.
+
+    The tree is walked without recursion. A node is a container object, shared when an alias
+    names it, so the depth and expanded size of each are memoized by id.
+    """
     containers = (dict, list, tuple, set, frozenset)
 
     def children(node: Any) -> list[Any]:
@@ -261,7 +286,7 @@ def read_yaml(
             size[key] = 1 + scalars + sum(size[id(c)] for c in kids)
             on_path.discard(key)
             if depth[key] > max_depth:
-                raise too_deep
+                raise _too_deep(p, max_depth)
             if size[key] > max_values:
                 raise InputError(
                     f"{p}: too large once its aliases are expanded (more than {max_values} values)"
@@ -274,4 +299,3 @@ def read_yaml(
         on_path.add(key)
         stack.append((node, True))
         stack.extend((c, False) for c in children(node) if id(c) not in depth)
-    return data

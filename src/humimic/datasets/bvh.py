@@ -13,17 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.units import auto_units
+from humimic.datasets.units import metres_per_unit as metres_per_unit
+from humimic.datasets.units import rest_leg_length as rest_leg_length
 from humimic.errors import BvhParseError, InputError
 from humimic.transforms import Y_UP_TO_Z_UP, euler_to_matrix, matrix_to_quat
-
-UNIT_FACTORS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254}
-"""Metres per file unit for the named units, in the order ``units="auto"`` tries them."""
-
-AUTO_HEIGHT_RANGE_M: tuple[float, float] = (1.0, 2.3)
-"""A rest-pose height (metres) in this range accepts a named unit under ``units="auto"``."""
-
-AUTO_LEG_LENGTH_M = 0.9
-"""Leg length (metres) the skeleton is scaled to when no named unit gives a plausible height."""
 
 MAX_JOINT_DEPTH = 200
 """Most levels of ``JOINT`` blocks below the root (real skeletons nest 10 to 30): the parser
@@ -51,38 +45,6 @@ class _Joint:
 class _Token:
     text: str
     line: int
-
-
-def metres_per_unit(units: str | float, where: object = None) -> float:
-    """Metres per file unit for a unit name or an explicit positive factor.
-
-    Args:
-        units: A key of :data:`UNIT_FACTORS` or a positive finite number (metres per file unit).
-        where: The file the units are for; its path prefixes the error message.
-
-    Returns:
-        The factor.
-
-    Raises:
-        InputError: Unknown unit name or a factor that is not a positive finite number.
-    """
-    prefix = "" if where is None else f"{where}: "
-    if isinstance(units, str):
-        if units not in UNIT_FACTORS:
-            raise InputError(
-                f"{prefix}unknown units {units!r}; expected one of {', '.join(UNIT_FACTORS)} or a "
-                "positive number of metres per file unit"
-            )
-        return UNIT_FACTORS[units]
-    try:
-        factor = float(units)
-    except (TypeError, ValueError, OverflowError):
-        factor = math.nan
-    if not math.isfinite(factor) or factor <= 0:
-        raise InputError(
-            f"{prefix}units must be a positive number of metres per file unit, got {units!r}"
-        )
-    return factor
 
 
 def load_bvh(
@@ -113,7 +75,7 @@ def load_bvh(
         units: ``"m"``, ``"cm"``, ``"mm"``, ``"inch"``, a number of metres per file unit, or
             ``"auto"``: the first named unit (in that order) that makes the rest-pose height
             (all channels zero) between 1.0 and 2.3 m; if none does, the skeleton is scaled so
-            that its leg (see :func:`rest_leg_length`) is 0.9 m. ``clip.meta["units"]`` says
+            that its leg (see :func:`humimic.datasets.units.rest_leg_length`) is 0.9 m. ``clip.meta["units"]`` says
             what was done and ``clip.meta["metres_per_unit"]`` holds the factor.
         up: The file's up axis, ``"y"`` (the usual BVH convention) or ``"z"``.
         skeleton: Skeleton convention name; by default ``"cmu"`` when the joints include
@@ -138,16 +100,7 @@ def load_bvh(
 
     up_matrix = Y_UP_TO_Z_UP if up == "y" else np.eye(3)
     parents = tuple(j.parent for j in joints)
-
-    rest = _rest_positions(joints) @ up_matrix.T  # (J, 3), file units, z up.
-    if not np.isfinite(rest).all():  # Each OFFSET is finite; their sums can overflow.
-        raise BvhParseError(p, None, "the joint OFFSETs add up to a rest pose too large for floats")
-    rest_height = float(rest[:, 2].max() - rest[:, 2].min())
-    if factor is None:
-        factor, how = _auto_units(p, rest, parents, rest_height)
-    else:
-        how = f"given: {units}" if isinstance(units, str) else f"given: {factor:g} m per unit"
-
+    factor, how, rest_height = _scale(p, joints, up_matrix, units, factor)
     rot_w, pos_w = _forward_kinematics(joints, data)
     pos_w = np.einsum("ij,tkj->tki", up_matrix * factor, pos_w)
     rot_w = np.einsum("ij,tkjl->tkil", up_matrix, rot_w)
@@ -174,49 +127,30 @@ def load_bvh(
     )
 
 
-def rest_leg_length(rest: np.ndarray, parents: tuple[int, ...]) -> float:
-    """Leg length of a rest pose: the height of the root above the lowest joint below it.
+def _scale(
+    p: Path,
+    joints: list[_Joint],
+    up_matrix: np.ndarray,
+    units: str | float,
+    factor: float | None,
+) -> tuple[float, str, float]:
+    """Metres per file unit, from the rest pose when ``units="auto"`` (``factor`` None), with
+    how it was found (for ``clip.meta["units"]``) and the rest-pose height in file units.
 
-    Walks from each lowest joint (ties within 1e-6 of the range) up to the root and sums the
-    vertical (z) extent of each bone on the way, keeping the longest such path. For a leg that
-    hangs straight down this is the sum of its bone lengths; horizontal bones (a foot pointing
-    forward, an ``End Site`` past the toes) add nothing, so they do not shrink the scale.
-
-    Args:
-        rest: Rest-pose joint positions, z up. Shape: (J, 3).
-        parents: Parent index per joint, -1 for roots. Shape: (J,).
-
-    Returns:
-        The leg length in the units of ``rest``.
+    Raises:
+        BvhParseError: The OFFSETs add up to a rest pose beyond floats.
+        InputError: ``units="auto"`` and a rest pose with no height.
     """
-    z = rest[:, 2]
-    tol = 1e-6 * max(float(z.max() - z.min()), 1e-12)
-    best = 0.0
-    for j in np.flatnonzero(z <= z.min() + tol):
-        length, k = 0.0, int(j)
-        while parents[k] >= 0:
-            length += abs(float(z[k] - z[parents[k]]))
-            k = parents[k]
-        best = max(best, length)
-    return best
-
-
-def _auto_units(
-    path: Path, rest: np.ndarray, parents: tuple[int, ...], rest_height: float
-) -> tuple[float, str]:
-    lo, hi = AUTO_HEIGHT_RANGE_M
-    for name, f in UNIT_FACTORS.items():
-        if lo <= rest_height * f <= hi:
-            return f, f"auto: {name} (rest-pose height {rest_height * f:.3f} m)"
-    leg = rest_leg_length(rest, parents)
-    # A leg of 1e-320 units is as unusable as none: 0.9 / leg overflows to inf.
-    if leg <= 0 or not math.isfinite(AUTO_LEG_LENGTH_M / leg):
-        raise InputError(
-            f"{path}: units='auto' cannot size this skeleton (its rest pose has no height); "
-            "pass units= explicitly"
-        )
-    f = AUTO_LEG_LENGTH_M / leg
-    return f, f"auto: leg scaled to {AUTO_LEG_LENGTH_M} m ({f:.4f} m per unit)"
+    parents = tuple(j.parent for j in joints)
+    rest = _rest_positions(joints) @ up_matrix.T  # (J, 3), file units, z up.
+    if not np.isfinite(rest).all():  # Each OFFSET is finite; their sums can overflow.
+        raise BvhParseError(p, None, "the joint OFFSETs add up to a rest pose too large for floats")
+    rest_height = float(rest[:, 2].max() - rest[:, 2].min())
+    if factor is None:
+        factor, how = auto_units(p, rest, parents, rest_height)
+    else:
+        how = f"given: {units}" if isinstance(units, str) else f"given: {factor:g} m per unit"
+    return factor, how, rest_height
 
 
 def _read_lines(path: Path) -> list[str]:
@@ -449,57 +383,9 @@ def _parse_motion(
     Returns:
         Frame time (s) and channel values (T, C).
     """
-    n = motion_line  # 0-based index of the line after MOTION.
-
-    def header(label: str, pattern: str) -> tuple[str, int]:
-        nonlocal n
-        while n < len(lines) and not lines[n].strip():
-            n += 1
-        if n >= len(lines):
-            raise BvhParseError(path, len(lines), f"unexpected end of file: expected '{label}'")
-        m = re.fullmatch(pattern, lines[n].strip(), flags=re.IGNORECASE)
-        if m is None:
-            raise BvhParseError(
-                path, n + 1, f"expected '{label} <number>', found {lines[n].strip()!r}"
-            )
-        n += 1
-        return m.group(1), n
-
-    frames_text, frames_line = header("Frames:", r"Frames\s*:\s*(\S+)")
-    try:
-        frames = int(frames_text)
-    except ValueError:
-        raise BvhParseError(
-            path, frames_line, f"expected a whole number of frames, found {frames_text!r}"
-        ) from None
-    if frames <= 0:
-        raise BvhParseError(path, frames_line, f"zero frames (Frames: {frames}); nothing to load")
-    time_text, time_line = header("Frame Time:", r"Frame\s+Time\s*:\s*(\S+)")
-    try:
-        frame_time = float(time_text)
-    except ValueError:
-        raise BvhParseError(
-            path, time_line, f"expected a frame time in seconds, found {time_text!r}"
-        ) from None
-    if not math.isfinite(frame_time) or frame_time <= 0:
-        raise BvhParseError(
-            path, time_line, f"frame time must be a positive number of seconds, got {time_text}"
-        )
-
-    data_lines: list[int] = []  # 0-based indices of non-empty lines.
-    for k in range(n, len(lines)):
-        if lines[k].strip():
-            data_lines.append(k)
-            if len(data_lines) == frames:
-                break
-    if len(data_lines) < frames:
-        end = data_lines[-1] + 1 if data_lines else time_line
-        raise BvhParseError(
-            path,
-            end,
-            f"truncated file: data ends at line {end} after {len(data_lines)} frames, but "
-            f"'Frames:' (line {frames_line}) says {frames}",
-        )
+    frames, frames_line = _frame_count(path, lines, motion_line)
+    frame_time, time_line = _frame_time(path, lines, frames_line)
+    data_lines = _data_lines(path, lines, time_line, frames, frames_line)
     rows = [lines[k].split() for k in data_lines]
     for k, row in zip(data_lines, rows, strict=True):
         if len(row) != num_channels:
@@ -519,6 +405,97 @@ def _parse_motion(
         )
     if num_channels == 0:
         return frame_time, np.zeros((frames, 0))
+    return frame_time, _frame_values(path, data_lines, rows)
+
+
+def _header_line(path: Path, lines: list[str], n: int, label: str, pattern: str) -> tuple[str, int]:
+    """The value of a MOTION header line (``label``, matched by ``pattern``): the first
+    non-empty line from 0-based index ``n`` on.
+
+    Returns:
+        The value's text and the 1-based line it is on (also the 0-based index after it).
+    """
+    while n < len(lines) and not lines[n].strip():
+        n += 1
+    if n >= len(lines):
+        raise BvhParseError(path, len(lines), f"unexpected end of file: expected '{label}'")
+    m = re.fullmatch(pattern, lines[n].strip(), flags=re.IGNORECASE)
+    if m is None:
+        raise BvhParseError(path, n + 1, f"expected '{label} <number>', found {lines[n].strip()!r}")
+    return m.group(1), n + 1
+
+
+def _frame_count(path: Path, lines: list[str], n: int) -> tuple[int, int]:
+    """``Frames:``, a positive whole number, from 0-based line index ``n`` on.
+
+    Returns:
+        The count and its 1-based line (the 0-based index of the line after it).
+    """
+    frames_text, frames_line = _header_line(path, lines, n, "Frames:", r"Frames\s*:\s*(\S+)")
+    try:
+        frames = int(frames_text)
+    except ValueError:
+        raise BvhParseError(
+            path, frames_line, f"expected a whole number of frames, found {frames_text!r}"
+        ) from None
+    if frames <= 0:
+        raise BvhParseError(path, frames_line, f"zero frames (Frames: {frames}); nothing to load")
+    return frames, frames_line
+
+
+def _frame_time(path: Path, lines: list[str], n: int) -> tuple[float, int]:
+    """``Frame Time:``, a positive finite number of seconds, from 0-based line index ``n`` on.
+
+    Returns:
+        The frame time and its 1-based line (the 0-based index of the line after it).
+    """
+    time_text, time_line = _header_line(path, lines, n, "Frame Time:", r"Frame\s+Time\s*:\s*(\S+)")
+    try:
+        frame_time = float(time_text)
+    except ValueError:
+        raise BvhParseError(
+            path, time_line, f"expected a frame time in seconds, found {time_text!r}"
+        ) from None
+    if not math.isfinite(frame_time) or frame_time <= 0:
+        raise BvhParseError(
+            path, time_line, f"frame time must be a positive number of seconds, got {time_text}"
+        )
+    return frame_time, time_line
+
+
+def _data_lines(
+    path: Path, lines: list[str], time_line: int, frames: int, frames_line: int
+) -> list[int]:
+    """The 0-based indices of the first ``frames`` non-empty lines after ``Frame Time:``
+    (1-based line ``time_line``, so 0-based index ``time_line`` is the next line).
+
+    Raises:
+        BvhParseError: Fewer lines than ``Frames:`` says (a truncated file: names where the
+            data ends).
+    """
+    data_lines: list[int] = []
+    for k in range(time_line, len(lines)):
+        if lines[k].strip():
+            data_lines.append(k)
+            if len(data_lines) == frames:
+                break
+    if len(data_lines) < frames:
+        end = data_lines[-1] + 1 if data_lines else time_line
+        raise BvhParseError(
+            path,
+            end,
+            f"truncated file: data ends at line {end} after {len(data_lines)} frames, but "
+            f"'Frames:' (line {frames_line}) says {frames}",
+        )
+    return data_lines
+
+
+def _frame_values(path: Path, data_lines: list[int], rows: list[list[str]]) -> np.ndarray:
+    """The frame lines' words as numbers (T, C), each finite.
+
+    Raises:
+        BvhParseError: A word that is not a number, or NaN or inf: names the line and column.
+    """
     try:
         data = np.array(rows, dtype=np.float64)
     except ValueError:
@@ -539,7 +516,7 @@ def _parse_motion(
             data_lines[t] + 1,
             f"expected finite numbers, found {rows[t][col]!r} in column {col + 1} (frame {t})",
         )
-    return frame_time, data
+    return data
 
 
 def _rest_positions(joints: list[_Joint]) -> np.ndarray:

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from humimic.datasets.bvh import _auto_units, metres_per_unit
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.units import auto_units, metres_per_unit
 from humimic.errors import InputError
 from humimic.transforms import Y_UP_TO_Z_UP, quat_to_matrix
 
@@ -68,7 +68,7 @@ def load_fbx(
 
     Args:
         path: The ``.fbx`` file.
-        units: ``"auto"`` (see :func:`humimic.datasets.bvh.load_bvh`), a unit name (``m``,
+        units: ``"auto"`` (see :func:`humimic.datasets.units.auto_units`), a unit name (``m``,
             ``cm``, ``mm``, ``inch``) or metres per file unit, applied after the nodes' own
             scales.
         up: ``"auto"`` (from the rest pose, see :func:`detect_up`), ``"y"`` or ``"z"``.
@@ -88,6 +88,58 @@ def load_fbx(
     if up not in ("auto", "y", "z"):
         raise InputError(f"{p}: unknown up axis {up!r}; expected 'auto', 'y' or 'z'")
     factor = None if units == "auto" else metres_per_unit(units, p)
+    scene, bake_anim = _read_scene(p)
+    nodes = list(scene.nodes)
+    index = {int(n.typed_id): i for i, n in enumerate(nodes)}
+    parent = [index[int(n.parent.typed_id)] if n.parent is not None else -1 for n in nodes]
+    joints = [i for i, n in enumerate(nodes) if n.bone is not None]
+    if not joints:
+        raise InputError(f"{p}: no skeleton: the file has no joint nodes (LimbNode or Root)")
+    joints = _largest_skeleton(joints, parent)
+    joint_parents = _joint_parents(joints, parent)
+
+    stack = _pick_take(p, scene, take)
+    times, fps = _frame_times(p, stack)
+    baked = bake_anim(scene, stack.anim, resample_rate=fps, key_reduction_enabled=False)
+    animated = {index[int(b.typed_id)]: b for b in baked.modified_nodes}
+    pos, rest = _joint_tracks(p, nodes, parent, joints, animated, times)
+
+    turn, how_up = _up_turn(p, up, rest, joint_parents)
+    pos = pos @ turn.T
+    rest = rest @ turn.T
+    rest_height = float(rest[:, 2].max() - rest[:, 2].min())
+    if factor is None:
+        factor, how_units = auto_units(p, rest, joint_parents, rest_height)
+    else:
+        how_units = f"given: {units}" if isinstance(units, str) else f"given: {factor:g} m/unit"
+    meta = {
+        "units": how_units,
+        "metres_per_unit": f"{factor:.6g}",
+        "rest_height_m": f"{rest_height * factor:.4f}",
+        "up": how_up,
+        "fps": f"{fps:.6g} (from {FPS_DEFAULT_NOTE})",
+        "take": str(stack.name),
+        "takes": ", ".join(str(s.name) for s in scene.anim_stacks),
+        "joints": str(len(joints)),
+    }
+    return HumanClip(
+        names=tuple(str(nodes[i].name) for i in joints),
+        parents=joint_parents,
+        positions_w=pos * factor,
+        fps=fps,
+        source=str(p),
+        skeleton=skeleton or "fbx",
+        meta=meta,
+    )
+
+
+def _read_scene(p: Path) -> tuple[Any, Any]:
+    """The file's scene read by pufbx, and pufbx's baking function (for the take's keys).
+
+    Raises:
+        InputError: No such file, pufbx missing (says what to install), or a file pufbx
+            cannot read (its message on one line).
+    """
     if not p.is_file():
         raise InputError(f"{p}: no such file")
     mod = _import_pufbx()
@@ -102,22 +154,27 @@ def load_fbx(
     except Exception as e:  # pufbx raises UFBXError; a path it cannot encode, others.
         detail = " ".join(str(e).split()) or type(e).__name__
         raise InputError(f"{p}: not a readable FBX file ({detail})") from None
+    return scene, bake_anim
 
-    nodes = list(scene.nodes)
-    index = {int(n.typed_id): i for i, n in enumerate(nodes)}
-    parent = [index[int(n.parent.typed_id)] if n.parent is not None else -1 for n in nodes]
-    joints = [i for i, n in enumerate(nodes) if n.bone is not None]
-    if not joints:
-        raise InputError(f"{p}: no skeleton: the file has no joint nodes (LimbNode or Root)")
-    joints = _largest_skeleton(joints, parent)
-    names = tuple(str(nodes[i].name) for i in joints)
-    joint_parents = _joint_parents(joints, parent)
 
-    stack = _pick_take(p, scene, take)
-    times, fps = _frame_times(p, stack)
-    baked = bake_anim(scene, stack.anim, resample_rate=fps, key_reduction_enabled=False)
+def _joint_tracks(
+    p: Path,
+    nodes: list[Any],
+    parent: list[int],
+    joints: list[int],
+    animated: dict[int, Any],
+    times: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The joints' world positions at ``times`` and in the rest pose, in the file's units and
+    axes: every node a joint depends on composed from the scene root, its baked keys where
+    it is animated, else its static transform. The rest pose is checked against ufbx's own
+    world transforms first (:func:`_check_rest`), so a file this reader would compose wrongly
+    is refused rather than read.
+
+    Returns:
+        Positions, shape (T, J, 3); the rest pose, shape (J, 3).
+    """
     local = _static_locals(nodes)  # (N, 3, 4) affine, file units
-    animated = {index[int(b.typed_id)]: b for b in baked.modified_nodes}
     chain = _ancestors_of(joints, parent)  # every node a joint's world pose depends on
     _check_inheritance(p, nodes, chain, animated)
     world_rest = _compose(local[None], parent, chain)[0]
@@ -129,42 +186,18 @@ def load_fbx(
         if i in chain:
             frames[:, i] = _baked_affine(b, times)
     world = _compose(frames, parent, chain)
-    pos = world[:, joints][..., 3]  # (T, J, 3), file units and axes
+    return world[:, joints][..., 3], world_rest[joints, :, 3]
 
-    rest = world_rest[joints, :, 3]
-    how_up = up
+
+def _up_turn(
+    p: Path, up: str, rest: np.ndarray, joint_parents: tuple[int, ...]
+) -> tuple[np.ndarray, str]:
+    """The rotation taking the file's up axis to +z, and how the axis was found (for
+    ``clip.meta["up"]``): ``up`` as given, or from the rest pose (:func:`detect_up`)."""
     if up == "auto":
         axis = detect_up(p, rest, joint_parents)
-        how_up = f"auto: {axis}"
-    else:
-        axis = "+" + up
-    turn = _turn_to_z_up(axis)
-    pos = pos @ turn.T
-    rest = rest @ turn.T
-    rest_height = float(rest[:, 2].max() - rest[:, 2].min())
-    if factor is None:
-        factor, how_units = _auto_units(p, rest, joint_parents, rest_height)
-    else:
-        how_units = f"given: {units}" if isinstance(units, str) else f"given: {factor:g} m/unit"
-    meta = {
-        "units": how_units,
-        "metres_per_unit": f"{factor:.6g}",
-        "rest_height_m": f"{rest_height * factor:.4f}",
-        "up": how_up,
-        "fps": f"{fps:.6g} (from {FPS_DEFAULT_NOTE})",
-        "take": str(stack.name),
-        "takes": ", ".join(str(s.name) for s in scene.anim_stacks),
-        "joints": str(len(joints)),
-    }
-    return HumanClip(
-        names=names,
-        parents=joint_parents,
-        positions_w=pos * factor,
-        fps=fps,
-        source=str(p),
-        skeleton=skeleton or "fbx",
-        meta=meta,
-    )
+        return _turn_to_z_up(axis), f"auto: {axis}"
+    return _turn_to_z_up("+" + up), up
 
 
 def _largest_skeleton(joints: list[int], parent: list[int]) -> list[int]:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from humimic.datasets.bvh import metres_per_unit
 from humimic.datasets.clip import HumanClip
+from humimic.datasets.units import metres_per_unit
 from humimic.errors import InputError, MotionDataError
 from humimic.npyio import read_npy_file, read_npz_members
 from humimic.transforms import Y_UP_TO_Z_UP
@@ -132,14 +132,7 @@ def load_positions(
             joint), names that do not match the joints or repeat.
     """
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if p.is_dir():
-        raise InputError(f"{p}: is a folder, expected a .npy or .npz file")
-    if p.suffix.lower() not in _SUFFIXES:
-        raise InputError(f"{p}: unknown file type {p.suffix!r}; expected one of {_SUFFIXES}")
-    if up not in ("y", "z"):
-        raise InputError(f"{p}: unknown up axis {up!r}; expected 'y' or 'z'")
+    _check_request(p, up)
     factor = metres_per_unit(units, p)
 
     file_names: Sequence[str] | None = None
@@ -151,29 +144,8 @@ def load_positions(
         positions = read_npy_file(p, max_bytes=MAX_ARRAY_BYTES, kinds="iuf", error=MotionDataError)
     positions = _check_array(p, positions)
     num_joints = positions.shape[1]
-
-    names = joint_names if joint_names is not None else file_names
-    if names is None:
-        if num_joints != len(HOLOSOMA_JOINTS):
-            raise InputError(
-                f"{p}: {num_joints} joints; pass joint_names (only {len(HOLOSOMA_JOINTS)}-joint "
-                "holosoma arrays are named automatically)"
-            )
-        names = HOLOSOMA_JOINTS
-    names = tuple(str(n) for n in names)
-    if len(names) != num_joints:
-        raise MotionDataError(f"{p}: {len(names)} joint names for {num_joints} joints in the array")
-    duplicates = sorted(n for n, count in Counter(names).items() if count > 1)
-    if duplicates:
-        raise MotionDataError(f"{p}: duplicate joint names: {', '.join(duplicates)}")
-
-    bad = ~np.isfinite(positions)
-    if bad.any():
-        t, j, _ = np.argwhere(bad)[0]
-        count = int(bad.any(axis=(1, 2)).sum())
-        raise MotionDataError(
-            f"{p}: NaN or inf at frame {t}, joint {j} ({names[j]}); {count} bad frames in all"
-        )
+    names = _joint_names(p, joint_names if joint_names is not None else file_names, num_joints)
+    _check_finite(p, positions, names)
 
     is_holosoma = names == HOLOSOMA_JOINTS
     if parents is None:
@@ -197,6 +169,50 @@ def load_positions(
         skeleton=skeleton,
         meta={"units": str(units), "metres_per_unit": f"{factor:.6g}", "up": up},
     )
+
+
+def _check_request(p: Path, up: str) -> None:
+    """The path is an existing ``.npy`` or ``.npz`` file and ``up`` a known axis: refused
+    before anything is read."""
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder, expected a .npy or .npz file")
+    if p.suffix.lower() not in _SUFFIXES:
+        raise InputError(f"{p}: unknown file type {p.suffix!r}; expected one of {_SUFFIXES}")
+    if up not in ("y", "z"):
+        raise InputError(f"{p}: unknown up axis {up!r}; expected 'y' or 'z'")
+
+
+def _joint_names(p: Path, names: Sequence[str] | None, num_joints: int) -> tuple[str, ...]:
+    """The joints' names: those given (by the caller or the file), else
+    :data:`HOLOSOMA_JOINTS` for a 53-joint array; one per joint, none repeated."""
+    if names is None:
+        if num_joints != len(HOLOSOMA_JOINTS):
+            raise InputError(
+                f"{p}: {num_joints} joints; pass joint_names (only {len(HOLOSOMA_JOINTS)}-joint "
+                "holosoma arrays are named automatically)"
+            )
+        names = HOLOSOMA_JOINTS
+    out = tuple(str(n) for n in names)
+    if len(out) != num_joints:
+        raise MotionDataError(f"{p}: {len(out)} joint names for {num_joints} joints in the array")
+    duplicates = sorted(n for n, count in Counter(out).items() if count > 1)
+    if duplicates:
+        raise MotionDataError(f"{p}: duplicate joint names: {', '.join(duplicates)}")
+    return out
+
+
+def _check_finite(p: Path, positions: np.ndarray, names: tuple[str, ...]) -> None:
+    """No NaN or inf: the message names the first bad frame and joint, and counts the bad
+    frames (one glitch or a broken recording)."""
+    bad = ~np.isfinite(positions)
+    if bad.any():
+        t, j, _ = np.argwhere(bad)[0]
+        count = int(bad.any(axis=(1, 2)).sum())
+        raise MotionDataError(
+            f"{p}: NaN or inf at frame {t}, joint {j} ({names[j]}); {count} bad frames in all"
+        )
 
 
 def _clip_arrays(p: Path) -> tuple[np.ndarray, list[str] | None, float | None, list[int] | None]:

@@ -418,69 +418,87 @@ def _parse_scene(p: Path, raw: Any) -> Scene:
         raise InputError(f"{p}: fps: expected a positive number (at most 10000), got {fps!r}")
     objects: list[SceneObject] = []
     for k, it in enumerate(items):
-        where = f"{p}: objects[{k}]"
-        if not isinstance(it, dict):
-            raise InputError(f"{where}: expected a mapping")
-        unknown = set(it) - {"name", "box", "mesh", "scale", "pos", "quat", "trajectory"}
-        if unknown:
-            raise InputError(f"{where}: unknown keys {sorted(map(str, unknown))}")
-        name = it.get("name", f"object{k}")
-        if not isinstance(name, str) or not name.strip():
-            raise InputError(f"{where}.name: expected a non-empty string, got {name!r}")
-        where = f"{p}: objects[{k}] ({name})"
-        if any(o.name == name for o in objects):
-            raise InputError(f"{where}.name: {name!r} repeats")
-        if ("box" in it) == ("mesh" in it):
-            raise InputError(f"{where}: give exactly one of box (extents) or mesh (file)")
-        if "box" in it:
-            size = _vector(where + ".box", it["box"], 3)
-            if (size <= 0).any() or (size > MAX_EXTENT).any():
-                raise InputError(
-                    f"{where}.box: extents must be positive and at most {MAX_EXTENT:g} m, got "
-                    f"{size.tolist()}"
-                )
-            v, f = box_mesh(size)
-        else:
-            if not isinstance(it["mesh"], str):
-                raise InputError(f"{where}.mesh: expected a file name, got {it['mesh']!r}")
-            try:
-                v, f = read_mesh(p.parent / it["mesh"])
-            except InputError as e:
-                raise InputError(f"{where}.mesh: {e}") from None
-        scale = it.get("scale", 1.0)
-        if not _positive(scale, 1e6):
-            raise InputError(f"{where}.scale: expected a positive number, got {scale!r}")
-        v = v * float(scale)
-        _check_object(where, v, f)
-        if "trajectory" in it:
-            if fps is None:
-                raise InputError(f"{where}.trajectory: the scene needs fps for trajectories")
-            if not isinstance(it["trajectory"], str):
-                raise InputError(
-                    f"{where}.trajectory: expected a file name, got {it['trajectory']!r}"
-                )
-            poses = _read_trajectory(where, p.parent / it["trajectory"])
-        else:
-            pos = _vector(where + ".pos", it.get("pos", [0, 0, 0]), 3)
-            quat = _vector(where + ".quat", it.get("quat", [1, 0, 0, 0]), 4)
-            poses = np.concatenate([pos, quat])[None]
-        if not np.isfinite(poses).all():
-            raise InputError(f"{where}: poses hold NaN or inf")
-        far = np.linalg.norm(poses[:, :3], axis=1)
-        if far.max() > MAX_POSITION:
-            raise InputError(
-                f"{where}: a pose is {far.max():.4g} m from the origin, at most "
-                f"{MAX_POSITION:g} m (frame {int(np.argmax(far))})"
-            )
-        norms = np.linalg.norm(poses[:, 3:], axis=1)
-        if (norms < 1e-9).any():
-            raise InputError(
-                f"{where}: a quaternion is zero (frame {int(np.argmax(norms < 1e-9))})"
-            )
-        poses[:, 3:] /= norms[:, None]
-        objects.append(SceneObject(name=name, vertices=v, faces=f, poses=poses))
+        objects.append(_parse_object(p, k, it, objects, fps))
     _check_scene(p, objects)
     return Scene(objects=tuple(objects), fps=None if fps is None else float(fps), source=str(p))
+
+
+def _parse_object(p: Path, k: int, it: Any, objects: list[SceneObject], fps: Any) -> SceneObject:
+    """Object ``k`` of a scene file: its name (unique among ``objects``, those before it), its
+    mesh (a box or a mesh file, scaled and checked) and its poses.
+
+    Raises:
+        InputError: A bad field, naming the file, the object and the field.
+    """
+    where = f"{p}: objects[{k}]"
+    if not isinstance(it, dict):
+        raise InputError(f"{where}: expected a mapping")
+    unknown = set(it) - {"name", "box", "mesh", "scale", "pos", "quat", "trajectory"}
+    if unknown:
+        raise InputError(f"{where}: unknown keys {sorted(map(str, unknown))}")
+    name = it.get("name", f"object{k}")
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{where}.name: expected a non-empty string, got {name!r}")
+    where = f"{p}: objects[{k}] ({name})"
+    if any(o.name == name for o in objects):
+        raise InputError(f"{where}.name: {name!r} repeats")
+    v, f = _object_mesh(p, where, it)
+    scale = it.get("scale", 1.0)
+    if not _positive(scale, 1e6):
+        raise InputError(f"{where}.scale: expected a positive number, got {scale!r}")
+    v = v * float(scale)
+    _check_object(where, v, f)
+    return SceneObject(name=name, vertices=v, faces=f, poses=_object_poses(p, where, it, fps))
+
+
+def _object_mesh(p: Path, where: str, it: dict) -> tuple[np.ndarray, np.ndarray]:
+    """An object's vertices and faces, unscaled: a ``box`` of the given extents, or a ``mesh``
+    file relative to the scene file ``p`` (exactly one of the two)."""
+    if ("box" in it) == ("mesh" in it):
+        raise InputError(f"{where}: give exactly one of box (extents) or mesh (file)")
+    if "box" in it:
+        size = _vector(where + ".box", it["box"], 3)
+        if (size <= 0).any() or (size > MAX_EXTENT).any():
+            raise InputError(
+                f"{where}.box: extents must be positive and at most {MAX_EXTENT:g} m, got "
+                f"{size.tolist()}"
+            )
+        return box_mesh(size)
+    if not isinstance(it["mesh"], str):
+        raise InputError(f"{where}.mesh: expected a file name, got {it['mesh']!r}")
+    try:
+        return read_mesh(p.parent / it["mesh"])
+    except InputError as e:
+        raise InputError(f"{where}.mesh: {e}") from None
+
+
+def _object_poses(p: Path, where: str, it: dict, fps: Any) -> np.ndarray:
+    """An object's poses (1 or T, 7), quaternions normalized: its ``trajectory`` file (the
+    scene needs ``fps`` then), else its one ``pos`` and ``quat``; each finite, within
+    :data:`MAX_POSITION` of the origin, no quaternion zero."""
+    if "trajectory" in it:
+        if fps is None:
+            raise InputError(f"{where}.trajectory: the scene needs fps for trajectories")
+        if not isinstance(it["trajectory"], str):
+            raise InputError(f"{where}.trajectory: expected a file name, got {it['trajectory']!r}")
+        poses = _read_trajectory(where, p.parent / it["trajectory"])
+    else:
+        pos = _vector(where + ".pos", it.get("pos", [0, 0, 0]), 3)
+        quat = _vector(where + ".quat", it.get("quat", [1, 0, 0, 0]), 4)
+        poses = np.concatenate([pos, quat])[None]
+    if not np.isfinite(poses).all():
+        raise InputError(f"{where}: poses hold NaN or inf")
+    far = np.linalg.norm(poses[:, :3], axis=1)
+    if far.max() > MAX_POSITION:
+        raise InputError(
+            f"{where}: a pose is {far.max():.4g} m from the origin, at most "
+            f"{MAX_POSITION:g} m (frame {int(np.argmax(far))})"
+        )
+    norms = np.linalg.norm(poses[:, 3:], axis=1)
+    if (norms < 1e-9).any():
+        raise InputError(f"{where}: a quaternion is zero (frame {int(np.argmax(norms < 1e-9))})")
+    poses[:, 3:] /= norms[:, None]
+    return poses
 
 
 def _read_trajectory(where: str, tp: Path) -> np.ndarray:

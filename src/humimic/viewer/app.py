@@ -356,6 +356,8 @@ class Viewer:
             raise
 
     def _build_scene(self, server: Any, frame: int) -> None:
+        """Everything the page shows, at ``frame``: camera, ground, the robot, the rollout and
+        key-point targets where given, the human and the scene, then the panel."""
         server.scene.set_up_direction("+z")
         pelvis = self.track.body_pos[frame, 0]
         server.initial_camera.look_at = pelvis
@@ -393,6 +395,14 @@ class Viewer:
             )
         # The human and its scene move aside together in "beside" mode.
         self._human_handles: list[Any] = []
+        self._add_human(server)
+        self._add_scene(server)
+        self._build_gui(server)
+        self.set_frame(frame)
+
+    def _add_human(self, server: Any) -> None:
+        """The human skeleton (bones and joints) at frame 0, if there is one: its handles join
+        ``_human_handles``, which "beside" mode moves aside."""
         self._human_bones = self._human_joints = None
         if self.human is not None:
             segs = skeleton_segments(self.human[:1], self.human_parents)[0]
@@ -407,6 +417,11 @@ class Viewer:
                 point_shape="circle",
             )
             self._human_handles += [self._human_bones, self._human_joints]
+
+    def _add_scene(self, server: Any) -> None:
+        """Each scene object twice: with the human (at its scale, moved aside with it) and at
+        the robot's scale where the retargeted motion uses it (posed per frame from the
+        motion's ``scene_poses`` when it has them, else static)."""
         info = self.motion.info or {}
         scale = float(info.get("human_scale", 1.0))
         lift = np.array([0.0, 0.0, float(info.get("human_z_offset", 0.0))])
@@ -435,8 +450,6 @@ class Viewer:
                     f"/scene/{i}_{m.name}", m.vertices * scale + lift, m.faces,
                     color=(170, 150, 120), opacity=0.8,
                 )  # fmt: skip
-        self._build_gui(server)
-        self.set_frame(frame)
 
     def _build_gui(self, server: Any) -> None:
         import viser.uplot as uplot

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from humimic.formats.mcap.reader import read_mcap
+from humimic.formats.mcap.reader import McapLog, read_mcap
 from humimic.formats.mcap.schemas import McapFormatError, stamp, tf_message
 from humimic.formats.mcap.writer import McapWriter
 
@@ -210,68 +210,17 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Motion:
     extra_types = _json_field(p, "motion", meta, "extras", dict) if "extras" in meta else {}
     info = _json_field(p, "motion", meta, "info", dict) if "info" in meta else {}
 
-    def stack(topic: str, key: str) -> np.ndarray:
-        msgs = log.topic(topic)
-        try:
-            rows = [m[key] for _, m in msgs]
-        except KeyError:
-            raise McapFormatError(f"{p}: topic {topic}: field {key} missing") from None
-        return _numbers(p, f"topic {topic}: field {key}", rows)
-
-    qpos = stack("/reference/qpos", "qpos")
+    qpos = _topic_field(p, log, "/reference/qpos", "qpos")
     fields = {
-        "joint_pos": stack("/reference/joint_states", "position"),
-        "joint_vel": stack("/reference/joint_states", "velocity"),
-        "body_pos_w": stack("/reference/body_states", "position"),
-        "body_quat_w": stack("/reference/body_states", "orientation"),
-        "body_lin_vel_w": stack("/reference/body_states", "linear_velocity"),
-        "body_ang_vel_w": stack("/reference/body_states", "angular_velocity"),
+        "joint_pos": _topic_field(p, log, "/reference/joint_states", "position"),
+        "joint_vel": _topic_field(p, log, "/reference/joint_states", "velocity"),
+        "body_pos_w": _topic_field(p, log, "/reference/body_states", "position"),
+        "body_quat_w": _topic_field(p, log, "/reference/body_states", "orientation"),
+        "body_lin_vel_w": _topic_field(p, log, "/reference/body_states", "linear_velocity"),
+        "body_ang_vel_w": _topic_field(p, log, "/reference/body_states", "angular_velocity"),
     }
-    extras = {}
-    if extra_types:
-        msgs = log.topic("/reference/extras")
-        for k, spec in extra_types.items():
-            where = f"topic /reference/extras: field arrays.{k}"
-            ok = isinstance(spec, list) and len(spec) == 2 and isinstance(spec[0], str)
-            try:
-                dtype = np.dtype(spec[0]) if ok else None
-            except TypeError:
-                dtype = None
-            if dtype is None or dtype.kind not in _EXTRA_KINDS or dtype.itemsize == 0:
-                raise McapFormatError(
-                    f"{p}: metadata motion.extras.{k}: expected [dtype of numbers or booleans, "
-                    f"shape], got {spec!r}"
-                )
-            try:
-                rows = [m["arrays"][k] for _, m in msgs]
-            except (KeyError, TypeError):
-                raise McapFormatError(f"{p}: {where} missing") from None
-            extras[k] = _numbers(p, where, rows, dtype)
-            if list(extras[k].shape[1:]) != spec[1]:
-                raise McapFormatError(
-                    f"{p}: {where}: shape {list(extras[k].shape[1:])} per frame, the metadata "
-                    f"says {spec[1]!r}"
-                )
-    dynamics = None
-    if "dynamics" in log.metadata:
-        d = log.meta("dynamics")
-        dynamics = {
-            "physics_dt": np.array(_float_field(p, "dynamics", d, "physics_dt")),
-            "initial_state": _numbers(
-                p,
-                "metadata dynamics.initial_state",
-                _json_field(p, "dynamics", d, "initial_state", list),
-            ),
-        }
-        steps = log.topic("/dynamics/step")
-        for key in ("ctrl", "qpos", "qvel"):
-            try:
-                rows = [m["arrays"][key] for _, m in steps]
-            except (KeyError, TypeError):
-                raise McapFormatError(
-                    f"{p}: topic /dynamics/step: field arrays.{key} missing"
-                ) from None
-            dynamics[key] = _numbers(p, f"topic /dynamics/step: field arrays.{key}", rows)
+    extras = _read_extras(p, log, extra_types) if extra_types else {}
+    dynamics = _read_dynamics(p, log) if "dynamics" in log.metadata else None
     motion = Motion(
         robot=robot,
         fps=fps,
@@ -291,3 +240,68 @@ def read_motion_mcap(path: str | os.PathLike[str]) -> Motion:
     )
     validate_motion(motion, p, labels=_MOTION_LABELS)
     return motion
+
+
+def _topic_field(p: Path, log: McapLog, topic: str, key: str) -> np.ndarray:
+    """One field of every message of a topic, stacked: one row per frame."""
+    msgs = log.topic(topic)
+    try:
+        rows = [m[key] for _, m in msgs]
+    except KeyError:
+        raise McapFormatError(f"{p}: topic {topic}: field {key} missing") from None
+    return _numbers(p, f"topic {topic}: field {key}", rows)
+
+
+def _read_extras(p: Path, log: McapLog, extra_types: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The extras on ``/reference/extras``, each of the dtype and per-frame shape its entry of
+    the ``motion.extras`` metadata names (``[dtype, shape]``; numbers or booleans only, never
+    objects, which would be pickled)."""
+    extras = {}
+    msgs = log.topic("/reference/extras")
+    for k, spec in extra_types.items():
+        where = f"topic /reference/extras: field arrays.{k}"
+        ok = isinstance(spec, list) and len(spec) == 2 and isinstance(spec[0], str)
+        try:
+            dtype = np.dtype(spec[0]) if ok else None
+        except TypeError:
+            dtype = None
+        if dtype is None or dtype.kind not in _EXTRA_KINDS or dtype.itemsize == 0:
+            raise McapFormatError(
+                f"{p}: metadata motion.extras.{k}: expected [dtype of numbers or booleans, "
+                f"shape], got {spec!r}"
+            )
+        try:
+            rows = [m["arrays"][k] for _, m in msgs]
+        except (KeyError, TypeError):
+            raise McapFormatError(f"{p}: {where} missing") from None
+        extras[k] = _numbers(p, where, rows, dtype)
+        if list(extras[k].shape[1:]) != spec[1]:
+            raise McapFormatError(
+                f"{p}: {where}: shape {list(extras[k].shape[1:])} per frame, the metadata "
+                f"says {spec[1]!r}"
+            )
+    return extras
+
+
+def _read_dynamics(p: Path, log: McapLog) -> dict[str, np.ndarray]:
+    """The dynamic section: ``physics_dt`` and ``initial_state`` from the ``dynamics``
+    metadata, ``ctrl``, ``qpos`` and ``qvel`` from ``/dynamics/step`` (a message per step)."""
+    d = log.meta("dynamics")
+    dynamics = {
+        "physics_dt": np.array(_float_field(p, "dynamics", d, "physics_dt")),
+        "initial_state": _numbers(
+            p,
+            "metadata dynamics.initial_state",
+            _json_field(p, "dynamics", d, "initial_state", list),
+        ),
+    }
+    steps = log.topic("/dynamics/step")
+    for key in ("ctrl", "qpos", "qvel"):
+        try:
+            rows = [m["arrays"][key] for _, m in steps]
+        except (KeyError, TypeError):
+            raise McapFormatError(
+                f"{p}: topic /dynamics/step: field arrays.{key} missing"
+            ) from None
+        dynamics[key] = _numbers(p, f"topic /dynamics/step: field arrays.{key}", rows)
+    return dynamics
