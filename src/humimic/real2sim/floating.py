@@ -11,7 +11,8 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.robotlog import RobotLog
+from humimic.real2sim.robotlog import ImuLog, RobotLog
+from humimic.real2sim.smoother import smooth_track
 from humimic.sim.joints import JointMap
 from humimic.sim.models import MAX_STEP, PHYSICS_DT, REST_DEPTH, floor_colliders, lowest_point
 from humimic.transforms import quat_conj, quat_mul, quat_slerp, quat_to_matrix, quat_to_rotvec
@@ -25,17 +26,6 @@ SIGMA_CONTACT = 0.006
 impact: 0.5-13 mm, 10th-90th percentile, in simulated walking)."""
 SIGMA_STANCE = 0.3
 """How fast [m/s] the lowest collider may move (it rolls, sinks and slides)."""
-SIGMA_ACC = 0.5
-"""The accelerometer's noise [m/s^2] (white, per sample) the smoother assumes, sampling and
-orientation error included."""
-SIGMA_FREE = 10.0
-"""Without an accelerometer: the base's acceleration [m/s^2] as white noise per sample."""
-SIGMA_BIAS = 0.3
-"""The accelerometer's bias [m/s^2] before the log (world axes, slowly turning)."""
-BIAS_WALK = 0.02
-"""How fast the bias may wander [m/s^2 per sqrt(s)]."""
-_GATE = 4.0
-"""A stance velocity this many standard deviations from the prediction is not read (a slip)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -169,86 +159,6 @@ def rest_depth(model: mujoco.MjModel) -> float:
     return float(model.numeric_data[model.numeric_adr[i]]) if i >= 0 else 0.0
 
 
-def smooth_track(
-    t: np.ndarray,
-    acc: np.ndarray | None,
-    pos: np.ndarray,
-    sigma_pos: np.ndarray,
-    vel: np.ndarray,
-    sigma_vel: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """A point's position and velocity at every sample, from all samples (a Kalman filter and a
-    Rauch-Tung-Striebel smoother, each axis on its own; Rauch, Tung and Striebel 1965).
-
-    The state per axis is position, velocity and the accelerometer's bias; the accelerometer
-    drives the prediction (trapezoidal between samples) or, without one, the acceleration is
-    white noise (:data:`SIGMA_FREE`). Position measurements with an infinite ``sigma_pos`` are
-    not read; a velocity measurement more than :data:`_GATE` standard deviations from the
-    prediction is not read either.
-
-    Args:
-        t: Sample times [s], increasing, one unbroken stretch. Shape: (N,).
-        acc: The point's acceleration in the world [m/s^2] (gravity removed), or ``None``.
-            Shape: (N, 3).
-        pos: Measured positions [m]. Shape: (N, 3). sigma_pos: Their noise [m] (``inf``: not
-            measured). Shape: (N, 3).
-        vel: Measured velocities [m/s]. Shape: (N, 3). sigma_vel: Their noise [m/s].
-
-    Returns:
-        Position and velocity. Shape: (N, 3) each.
-    """
-    n = t.size
-    has_acc = acc is not None
-    u = acc if acc is not None else np.zeros((n, 3))
-    sig_a = np.full(3, SIGMA_ACC if has_acc else SIGMA_FREE)
-    x = np.zeros((3, 3))  # Axis, (position, velocity, bias).
-    first = np.isfinite(sigma_pos[0])
-    x[:, 0] = np.where(first, pos[0], 0.0)
-    x[:, 1] = vel[0]
-    big = 1e4
-    P = np.zeros((3, 3, 3))
-    P[:, 0, 0] = np.where(first, sigma_pos[0] ** 2, big)
-    P[:, 1, 1] = max(sigma_vel, 1.0) ** 2
-    P[:, 2, 2] = (SIGMA_BIAS if has_acc else 1e-6) ** 2
-    xp, Pp = np.zeros((n, 3, 3)), np.zeros((n, 3, 3, 3))  # Predicted (before reading k).
-    xf, Pf = np.zeros((n, 3, 3)), np.zeros((n, 3, 3, 3))  # Filtered.
-    Fs = np.zeros((n, 3, 3))
-    for k in range(n):
-        if k > 0:
-            dt = float(t[k] - t[k - 1])
-            a = 0.5 * (u[k - 1] + u[k])
-            F = np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]])
-            if not has_acc:
-                F[:, 2] = 0.0
-            F[2, 2] = 1.0
-            Fs[k] = F
-            x = x @ F.T
-            x[:, 0] += 0.5 * dt * dt * a
-            x[:, 1] += dt * a
-            g = np.array([0.5 * dt * dt, dt, 0.0])
-            Q = sig_a[:, None, None] ** 2 * np.outer(g, g)
-            Q[:, 2, 2] = (BIAS_WALK**2 * dt) if has_acc else 0.0
-            P = F @ P @ F.T + Q
-        xp[k], Pp[k] = x, P
-        for j, z, r in ((0, pos[k], sigma_pos[k] ** 2), (1, vel[k], np.full(3, sigma_vel**2))):
-            s = P[:, j, j] + r
-            innov = z - x[:, j]
-            use = np.isfinite(r)
-            if j == 1:
-                use &= innov**2 <= _GATE**2 * s
-            gain = np.where(use[:, None], P[:, :, j] / np.where(use, s, 1.0)[:, None], 0.0)
-            x = x + gain * np.where(use, innov, 0.0)[:, None]
-            P = P - gain[:, :, None] * P[:, j, None, :]
-        xf[k], Pf[k] = x, P
-    xs = xf.copy()
-    eye = 1e-12 * np.eye(3)
-    for k in range(n - 2, -1, -1):
-        F = Fs[k + 1]
-        C = np.linalg.solve(Pp[k + 1] + eye, (Pf[k] @ F.T).transpose(0, 2, 1)).transpose(0, 2, 1)
-        xs[k] = xf[k] + np.einsum("aij,aj->ai", C, xs[k + 1] - xp[k + 1])
-    return xs[:, :, 0], xs[:, :, 1]
-
-
 def estimate_base(
     model: mujoco.MjModel, log: RobotLog, idx: np.ndarray | None = None
 ) -> BaseEstimate:
@@ -277,6 +187,49 @@ def estimate_base(
         InputError: No IMU, an IMU site the model lacks or that is not on the root body, or
             a stream that does not cover the log's states (naming the log and the topic).
     """
+    fj, imu, sid = _checked_imu(model, log)
+    t = log.t
+    _span(log.where, "/imu", imu.t, t)
+    att = _attitude(model, log, imu, sid)
+    R_wb = quat_to_matrix(att.quat_wb)
+    r_w = R_wb @ model.site_pos[sid]  # Root origin to the IMU, world axes. Shape: (n, 3).
+    omega_w = np.einsum("nij,nj->ni", R_wb, att.omega_b)
+    lever_v = np.cross(omega_w, r_w)
+    z_stance, v_stance = _stance(model, log, fj, att)
+    pos = np.zeros((t.size, 3))
+    sigma = np.full((t.size, 3), np.inf)
+    if log.mocap is not None:
+        pos[:] = _interp(log.mocap.t, log.mocap.pos_w, t)
+        sigma[:] = SIGMA_MOCAP
+    else:
+        pos[:, 2] = z_stance
+        sigma[:, 2] = SIGMA_CONTACT
+    acc = None
+    if imu.acc_b is not None:
+        f_w = np.einsum("nij,nj->ni", quat_to_matrix(att.quat_ws), _interp(imu.t, imu.acc_b, t))
+        acc = f_w + model.opt.gravity
+    # The IMU site's track (root origin + lever arm), smoothed part by part of the log.
+    p_s, v_s = _smoothed_parts(log, acc, pos + r_w, sigma, v_stance + lever_v)
+    idx = np.arange(t.size) if idx is None else np.asarray(idx, dtype=np.int64)
+    qpos, qvel = np.zeros((idx.size, 7)), np.zeros((idx.size, 6))
+    qpos[:, :3] = (p_s - r_w)[idx]
+    qpos[:, 3:] = att.quat_wb[idx]
+    qvel[:, :3] = (v_s - lever_v)[idx]
+    qvel[:, 3:] = att.omega_b[idx]
+    world = log.mocap is not None
+    if not world:
+        qpos[:, :2] = 0.0
+    source = base_source(world, acc is not None) + _corrections_note(att, world)
+    return BaseEstimate(qpos=qpos, qvel=qvel, source=source, world=world)
+
+
+def _checked_imu(model: mujoco.MjModel, log: RobotLog) -> tuple[int, ImuLog, int]:
+    """The model's free joint, the log's IMU and the IMU's site in the model, checked.
+
+    Raises:
+        InputError: A fixed-base model, no IMU, or an IMU site the model lacks or that is
+            not on the root body.
+    """
     fj = free_joint(model)
     if fj is None:
         raise InputError("estimate_base needs a floating-base model")
@@ -298,8 +251,47 @@ def estimate_base(
             f"{where}: metadata robot.imu_site {imu.site!r} is not on the root body "
             f"{model.body(root).name!r}; only an IMU on the floating base is supported so far"
         )
+    return fj, imu, sid
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Attitude:
+    """The base's orientation and angular velocity at a log's state samples, from its IMU.
+
+    Attributes:
+        quat_ws, quat_wb: World from the IMU's site and from the root body (w x y z, heading
+            on motion capture's where the log has it). Shape: (n, 4).
+        omega_b: Angular velocity, root body axes. Shape: (n, 3).
+        heading: The turn onto motion capture's heading [rad] (zero without it). Shape: (n,).
+        floor, colliders: The floor and the robot geoms that collide with it.
+        mocap: Whether motion capture's orientation was the reference.
+        bias: The gyro's bias [rad/s, IMU axes], removed if ``biased``.
+        tilt: The IMU mount's tilt [rad, root axes], removed if ``tilted``.
+    """
+
+    quat_ws: np.ndarray
+    quat_wb: np.ndarray
+    omega_b: np.ndarray
+    heading: np.ndarray
+    floor: int
+    colliders: list[int]
+    mocap: bool
+    bias: np.ndarray
+    biased: bool
+    tilt: np.ndarray
+    tilted: bool
+
+
+def _attitude(model: mujoco.MjModel, log: RobotLog, imu: ImuLog, sid: int) -> _Attitude:
+    """The base's orientation and angular velocity from the IMU at site ``sid``: the site's
+    rotation in the root body undone, the heading turned onto motion capture's, the gyro's
+    bias and the mount's tilt removed where they show (see :func:`estimate_base`).
+
+    Raises:
+        InputError: Motion capture that does not cover the log's states, or a model with no
+            floor.
+    """
     t = log.t
-    _span(where, "/imu", imu.t, t)
     q_bs = model.site_quat[sid] / np.linalg.norm(model.site_quat[sid])  # Body from site.
     R_bs = quat_to_matrix(q_bs)
     omega_b = _interp(imu.t, imu.gyro_b, t) @ R_bs.T
@@ -313,13 +305,12 @@ def estimate_base(
     biased = bool(np.linalg.norm(bias) > max(GYRO_BIAS_NOTE, 5 * np.linalg.norm(bias_se)))
     if biased:
         omega_b = omega_b - bias @ R_bs.T
-    n = t.size
     quat_ws = _interp_quat(imu.t, imu.quat_w, t)
     quat_wb = quat_mul(quat_ws, quat_conj(np.broadcast_to(q_bs, quat_ws.shape)))
     heading = np.zeros(t.size)
     quat_mo = None
     if log.mocap is not None:
-        _span(where, "/base_pose", log.mocap.t, t)
+        _span(log.where, "/base_pose", log.mocap.t, t)
         quat_mo = _interp_quat(log.mocap.t, log.mocap.quat_w, t)
         heading = heading_offset(quat_wb, quat_mo, t)
         quat_ws, quat_wb = _turned(heading, quat_ws), _turned(heading, quat_wb)
@@ -340,12 +331,22 @@ def estimate_base(
             more = heading_offset(quat_wb, quat_mo, t)
             quat_ws, quat_wb = _turned(more, quat_ws), _turned(more, quat_wb)
             heading = heading + more
-    R_wb = quat_to_matrix(quat_wb)
-    r_w = R_wb @ model.site_pos[sid]  # Root origin to the IMU, world axes. Shape: (n, 3).
-    omega_w = np.einsum("nij,nj->ni", R_wb, omega_b)
-    lever_v = np.cross(omega_w, r_w)
-    # Stance: the lowest collider rests on the floor, as deep as the model's feet sink when
-    # it stands (its contacts are soft), and does not move.
+    return _Attitude(quat_ws=quat_ws, quat_wb=quat_wb, omega_b=omega_b, heading=heading,
+                     floor=f, colliders=colliders, mocap=quat_mo is not None, bias=bias,
+                     biased=biased, tilt=tilt, tilted=tilted)  # fmt: skip
+
+
+def _stance(
+    model: mujoco.MjModel, log: RobotLog, fj: int, att: _Attitude
+) -> tuple[np.ndarray, np.ndarray]:
+    """The stance foot at every state sample: the lowest collider rests on the floor, as deep
+    as the model's feet sink when it stands (its contacts are soft), and does not move.
+
+    Returns:
+        The root's height that puts it there [m] (n,), and the root's linear velocity (world)
+        that keeps it still [m/s] (n, 3), given the joints and the angular velocity.
+    """
+    n = log.t.size
     depth = rest_depth(model)
     jm = JointMap.of(model)
     qa, da = int(model.jnt_qposadr[fj]), int(model.jnt_dofadr[fj])
@@ -354,63 +355,60 @@ def estimate_base(
     z_stance, v_stance = np.zeros(n), np.zeros((n, 3))
     for k in range(n):
         data.qpos[:] = model.qpos0
-        data.qpos[qa : qa + 7] = 0.0, 0.0, 0.0, *quat_wb[k]
+        data.qpos[qa : qa + 7] = 0.0, 0.0, 0.0, *att.quat_wb[k]
         data.qpos[jm.qadr] = log.q[k]
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
-        best, point, body = lowest_point(model, data, f, colliders)
+        best, point, body = lowest_point(model, data, att.floor, att.colliders)
         z_stance[k] = -best - depth
         data.qvel[:] = 0.0
-        data.qvel[da + 3 : da + 6] = omega_b[k]
+        data.qvel[da + 3 : da + 6] = att.omega_b[k]
         data.qvel[jm.dadr] = log.qd[k]
         mujoco.mj_jac(model, data, jacp, None, point, body)
         v_stance[k] = -(jacp @ data.qvel)
-    pos = np.zeros((n, 3))
-    sigma = np.full((n, 3), np.inf)
-    if log.mocap is not None:
-        pos[:] = _interp(log.mocap.t, log.mocap.pos_w, t)
-        sigma[:] = SIGMA_MOCAP
-    else:
-        pos[:, 2] = z_stance
-        sigma[:, 2] = SIGMA_CONTACT
-    acc = None
-    if imu.acc_b is not None:
-        f_w = np.einsum("nij,nj->ni", quat_to_matrix(quat_ws), _interp(imu.t, imu.acc_b, t))
-        acc = f_w + model.opt.gravity
-    # The IMU site's track (root origin + lever arm), smoothed part by part of the log.
+    return z_stance, v_stance
+
+
+def _smoothed_parts(
+    log: RobotLog,
+    acc: np.ndarray | None,
+    pos: np.ndarray,
+    sigma: np.ndarray,
+    vel: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`smooth_track` of a point on its own over each unbroken part of the log (a gap
+    breaks the filter's prediction), with :data:`SIGMA_STANCE` on ``vel``. Shape: (n, 3) each."""
+    n = log.t.size
     p_s, v_s = np.zeros((n, 3)), np.zeros((n, 3))
     bounds = np.concatenate([[0], log.gaps() + 1, [n]])
     for a, b in itertools.pairwise(bounds):
         part = slice(int(a), int(b))
         p_s[part], v_s[part] = smooth_track(
-            t[part], None if acc is None else acc[part], pos[part] + r_w[part], sigma[part],
-            v_stance[part] + lever_v[part], SIGMA_STANCE)  # fmt: skip
-    idx = np.arange(n) if idx is None else np.asarray(idx, dtype=np.int64)
-    qpos, qvel = np.zeros((idx.size, 7)), np.zeros((idx.size, 6))
-    qpos[:, :3] = (p_s - r_w)[idx]
-    qpos[:, 3:] = quat_wb[idx]
-    qvel[:, :3] = (v_s - lever_v)[idx]
-    qvel[:, 3:] = omega_b[idx]
-    world = log.mocap is not None
-    if not world:
-        qpos[:, :2] = 0.0
-    source = base_source(world, acc is not None)
-    if biased:
-        source += (f"; the gyro's bias ({', '.join(f'{1e3 * b:+.1f}' for b in bias)} mrad/s, IMU "
-                   "axes) removed, measured against "
-                   + ("motion capture's orientation" if log.mocap is not None
+            log.t[part], None if acc is None else acc[part], pos[part], sigma[part], vel[part],
+            SIGMA_STANCE)  # fmt: skip
+    return p_s, v_s
+
+
+def _corrections_note(att: _Attitude, world: bool) -> str:
+    """What :class:`BaseEstimate` ``source`` adds for the corrections made to the IMU: the
+    gyro's bias, the mount's tilt and the heading's turn, where they were made."""
+    source = ""
+    if att.biased:
+        source += (f"; the gyro's bias ({', '.join(f'{1e3 * b:+.1f}' for b in att.bias)} mrad/s, "
+                   "IMU axes) removed, measured against "
+                   + ("motion capture's orientation" if world
                       else "the IMU's own orientation"))  # fmt: skip
-    if tilted:
-        source += (f"; the IMU's mount tilt ({', '.join(f'{np.degrees(v):+.2f}' for v in tilt[:2])}"
+    if att.tilted:
+        source += (f"; the IMU's mount tilt ({', '.join(f'{np.degrees(v):+.2f}' for v in att.tilt[:2])}"
                    " deg about the root's x and y) removed, measured against "
-                   + ("motion capture's orientation" if quat_mo is not None
+                   + ("motion capture's orientation" if att.mocap
                       else "the stance soles"))  # fmt: skip
-    turn, drift = float(np.mean(heading)), float(np.ptp(heading))
+    turn, drift = float(np.mean(att.heading)), float(np.ptp(att.heading))
     if abs(turn) > HEADING_NOTE or drift > HEADING_NOTE:
         source += f"; the IMU's heading turned {np.degrees(turn):+.1f} deg onto motion capture's"
         if drift > HEADING_NOTE:
             source += f", following its drift ({np.degrees(drift):.1f} deg over the log)"
-    return BaseEstimate(qpos=qpos, qvel=qvel, source=source, world=world)
+    return source
 
 
 GYRO_BIAS_NOTE = 0.002

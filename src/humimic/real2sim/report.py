@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.io import atomic_write, atomic_write_text, check_not_input, check_writable, json_ready
+from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
 from humimic.real2sim.diagnose import (
     CLAIM,
     FIT_END,
@@ -31,6 +31,7 @@ from humimic.real2sim.diagnose import (
 )
 from humimic.real2sim.fitting import backlash_models, fit_predictors, noise_floor
 from humimic.real2sim.floating import prediction_step
+from humimic.real2sim.report_plots import write_plots
 from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
@@ -174,8 +175,6 @@ def run_diagnosis(
         InputError: A log the diagnosis cannot use, a bad ``horizon`` or an output that
             cannot be written, before anything is written (``out_dir`` is not even created).
     """
-    from humimic.robots import export_nominal
-
     t0 = time.perf_counter()
     if residual_net not in ("auto", "always", "never"):
         raise InputError(f"--residual-net {residual_net!r}: choose auto, always or never")
@@ -191,15 +190,7 @@ def run_diagnosis(
     held = Predictor(model, log, horizon=horizon, span=(FIT_END, 1.0))
     fit_predictors(model, log, horizon, held.track)
     out = out_dir
-    if out.is_dir() and any(out.iterdir()) and not (out / "report.json").is_file():
-        raise InputError(
-            f"--out-dir {out}: holds other files and no earlier diagnosis (no report.json); "
-            "choose a new or empty folder"
-        )
-    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
-        check_not_input(out / name, {"the log": log_path}, "--out-dir")
-    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
-        check_writable(out / name)
+    _check_out_dir(out, log_path)
     nominal = Correction.of(model)
     unsearched = ("backlash",) if floating else ("contact_softness", "contact_friction")
     before = held.error(nominal)
@@ -212,10 +203,7 @@ def run_diagnosis(
     corrected = diagnosis.correction or nominal
     after = held.error(corrected)
     # The second estimate of each claimed payload, before anything is written.
-    effects = [_effect_entry(f) for f in diagnosis.findings]
-    for f, entry in zip(diagnosis.findings, effects, strict=True):
-        if f.effect == "payload_mass" and f.confidence >= CLAIM and not floating:
-            entry["regression"] = payload_regression(robot, log, f.target)
+    effects = _effect_entries(robot, log, diagnosis)
     names = log.joint_names
     noise = noise_floor(held, nominal, before.residual)
     share, standout = _unexplained(before, after, noise)
@@ -225,24 +213,9 @@ def run_diagnosis(
 
     net_entry, net_error = None, None
     if not floating and (residual_net == "always" or (residual_net == "auto" and unexplained)):
-        from humimic.real2sim.actuator_net import fit_residual_net
-
-        net, info = fit_residual_net(corrected, log, (0.0, FIT_END))
-        net_error = held.report(held.run_with_torque(corrected, net.torque, net.config.history))
-        net.save(out / "residual_net.pt")
-        net_entry = {
-            "path": str(out / "residual_net.pt"),
-            "error_after": net_error.as_report(names),
-            "improves": bool(net_error.kstep_rmse_rad < after.kstep_rmse_rad),
-            "training": info,
-            "inputs": f"per joint: the last {net.config.history} position errors, velocities "
-            "and positions at the state rate",
-        }
-    injections = [
-        Injection(effect=f.effect, targets=f.acts_on, value=f.value) for f in diagnosis.claimed
-    ]
-    export_nominal(robot, out / "model.xml", edit=lambda spec: apply_to_spec(spec, injections))
-    plots = _plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
+        net_entry, net_error = _fit_residual_net(corrected, log, held, after, out)
+    _export_model(robot, diagnosis, out / "model.xml")
+    plots = write_plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
     report = {
         "robot": robot.name,
         "log": str(log_path),
@@ -271,6 +244,70 @@ def run_diagnosis(
     return report
 
 
+def _check_out_dir(out: Path, log_path: Path) -> None:
+    """Refuse an output folder that holds other files and no earlier diagnosis, or outputs
+    that would overwrite the log or cannot be written.
+
+    Raises:
+        InputError: Naming the folder or the output.
+    """
+    if out.is_dir() and any(out.iterdir()) and not (out / "report.json").is_file():
+        raise InputError(
+            f"--out-dir {out}: holds other files and no earlier diagnosis (no report.json); "
+            "choose a new or empty folder"
+        )
+    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+        check_not_input(out / name, {"the log": log_path}, "--out-dir")
+    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+        check_writable(out / name)
+
+
+def _effect_entries(robot: RobotConfig, log: RobotLog, diagnosis: Diagnosis) -> list[dict]:
+    """The report's entry of each finding, a claimed payload's with its second estimate by
+    the torque regressor (:func:`payload_regression`; gantry logs only)."""
+    floating = log.base == "floating"
+    effects = [_effect_entry(f) for f in diagnosis.findings]
+    for f, entry in zip(diagnosis.findings, effects, strict=True):
+        if f.effect == "payload_mass" and f.confidence >= CLAIM and not floating:
+            entry["regression"] = payload_regression(robot, log, f.target)
+    return effects
+
+
+def _fit_residual_net(
+    corrected: Correction, log: RobotLog, held: Predictor, after: KStepError, out: Path
+) -> tuple[dict, KStepError]:
+    """Train the residual actuator network on the fit part of the log, save it into ``out``
+    and score it on the held-out windows of ``held``.
+
+    Returns:
+        The report's ``residual_model`` entry and the held-out error with the network.
+    """
+    from humimic.real2sim.actuator_net import fit_residual_net
+
+    net, info = fit_residual_net(corrected, log, (0.0, FIT_END))
+    net_error = held.report(held.run_with_torque(corrected, net.torque, net.config.history))
+    net.save(out / "residual_net.pt")
+    net_entry = {
+        "path": str(out / "residual_net.pt"),
+        "error_after": net_error.as_report(log.joint_names),
+        "improves": bool(net_error.kstep_rmse_rad < after.kstep_rmse_rad),
+        "training": info,
+        "inputs": f"per joint: the last {net.config.history} position errors, velocities "
+        "and positions at the state rate",
+    }
+    return net_entry, net_error
+
+
+def _export_model(robot: RobotConfig, diagnosis: Diagnosis, path: Path) -> None:
+    """Write the full robot (floating base, like the nominal) with the claimed effects."""
+    from humimic.robots import export_nominal
+
+    injections = [
+        Injection(effect=f.effect, targets=f.acts_on, value=f.value) for f in diagnosis.claimed
+    ]
+    export_nominal(robot, path, edit=lambda spec: apply_to_spec(spec, injections))
+
+
 def _markdown(
     log_path: Path, robot: RobotConfig, report: dict, diagnosis: Diagnosis, plots: list[Path]
 ) -> str:
@@ -284,81 +321,9 @@ def _markdown(
         "",
     ]
     if report["base"] == "floating":
-        lines += [
-            f"Floating base (a robot on the floor): each window starts from {report['base_estimate']}. "
-            "Not on the floor yet: backlash, the signature plots and the residual network "
-            "(they need the contact forces or a play joint in the floor model).",
-            "",
-        ]
-        floor = report["noise_floor_rad"]
-        least = min(floor.values())  # The median joint's error (noise_floor).
-        high = sorted((n for n in floor if floor[n] > 1.5 * least), key=lambda n: -floor[n])
-        if high:
-            lines += [
-                "Noise floor: errors of the base estimate move some joints' predictions more "
-                f"than others, so their floors are above the least one ({1e3 * least:.2f} "
-                "mrad, the median joint's error): "
-                + ", ".join(f"{n} {1e3 * floor[n]:.2f}" for n in high[:6])
-                + " mrad. A joint is unexplained only above three times its own floor.",
-                "",
-            ]
-    claimed = diagnosis.claimed
-    if claimed:
-        lines += ["Claimed (confidence >= 0.5):", ""]
-        lines += [
-            f"- **{f.effect}** on {f.target}: {f.value:.4g} {EFFECTS[f.effect].unit} "
-            f"(confidence {f.confidence:.2f}; removes {100 * f.error_reduction:.0f}% of the "
-            "error of " + ", ".join(f.joints) + " on unseen fit data)"
-            for f in claimed
-        ]
-    else:
-        lines.append("No effect claimed.")
-    lines.append("")
-    partial = [f for f in claimed if f.partial]
-    if partial:
-        lines += [
-            "**Partial explanations**: with every claimed effect in the model, their joints "
-            f"keep more than {PARTIAL:g} times their noise floor. Such an effect is right but "
-            "incomplete (another acts on the same joints, or its model differs from the "
-            "robot's, e.g. kp weaker but kd not), or it stands in for an effect outside the "
-            "searched vocabulary; its confidence cannot tell which. Check these before "
-            "relying on their values.",
-            "",
-            *[
-                f"- {f.effect} on {f.target} ({f.value:.4g} {EFFECTS[f.effect].unit}, "
-                f"confidence {f.confidence:.2f}): its joints keep {f.stands_out:.1f} times "
-                "their noise floor"
-                for f in partial
-                if f.stands_out is not None
-            ],
-            "",
-        ]
-    if report["unexplained"]:
-        lines += [
-            f"**Unexplained**: {100 * report['unexplained_share']:.0f}% of the error above the "
-            "noise floor is left (joints: " + ", ".join(report["unexplained_joints"]) + "). "
-            "No effect of the searched vocabulary accounts for it.",
-            "",
-        ]
-    elif report["unexplained_joints"]:
-        lines += [
-            f"{100 * report['unexplained_share']:.0f}% of the error above the noise floor is "
-            "left; joints still above it: " + ", ".join(report["unexplained_joints"]) + ".",
-            "",
-        ]
-    net = report["residual_model"]
-    if net is not None:
-        verdict = (
-            "it improves the prediction"
-            if net["improves"]
-            else "it does NOT improve the prediction: do not use it"
-        )
-        lines += [
-            f"Residual actuator network ({Path(net['path']).name}): held-out error "
-            f"{net['error_after']['kstep_rmse_rad'] * 1e3:.2f} mrad with it, {verdict} "
-            f"(trained on {net['training']['samples']} samples of the fit part).",
-            "",
-        ]
+        lines += _floating_lines(report)
+    lines += _claimed_lines(diagnosis)
+    lines += _unexplained_lines(report)
     for s in diagnosis.not_identifiable:
         lines += [f"Not identifiable from this log: **{s.effect}** on "
                   f"{len(s.joints)} joints ({', '.join(s.joints)}): {s.reason}", ""]  # fmt: skip
@@ -394,144 +359,98 @@ def _markdown(
     return "\n".join(lines) + "\n"
 
 
-def _signature(
-    f: Finding,
-    log: RobotLog,
-    nominal: Correction,
-    res_nominal: np.ndarray,
-    res_corrected: np.ndarray,
-) -> tuple[str, np.ndarray, np.ndarray, np.ndarray, str]:
-    """The signature plot of a claimed effect: the residual torque of its joint (nominal and
-    corrected model, inverse dynamics on the fit part) against the variable the effect acts
-    through."""
-
-    names = log.joint_names
-    idx = _fit_samples(log)
-    cols = [names.index(n) for n in f.joints]
-    nom_all = res_nominal[:, cols]
-    cor_all = res_corrected[:, cols]
-    # The joint where the correction changes the residual most.
-    k = int(np.argmax(np.median(np.abs(nom_all), axis=0) - np.median(np.abs(cor_all), axis=0)))
-    j, res_nom, res_cor = cols[k], nom_all[:, k], cor_all[:, k]
-    c = log.command_index(log.t[idx] + 1e-7)
-    err = log.cmd_q[c, j] - log.q[idx, j]
-    if f.effect in ("coulomb_friction", "viscous_damping"):
-        x, label = log.qd[idx, j], f"{names[j]} velocity [rad/s]"
-    elif f.effect == "armature":
-        dt = float(np.median(np.diff(log.t)))
-        x, label = np.gradient(log.qd[:, j], dt)[idx], f"{names[j]} acceleration [rad/s^2]"
-    elif f.effect in ("gain_mismatch", "torque_limit"):
-        x = log.kp[c, j] * err - log.kd[c, j] * log.qd[idx, j]
-        label = f"{names[j]} commanded PD torque [N m]"
-    elif f.effect in ("delay", "lag"):
-        rate = np.gradient(log.cmd_q[:, j], log.t_cmd)
-        x, label = log.kp[c, j] * rate[c], f"kp x command rate at {names[j]} [N m/s]"
-    else:  # Payload, encoder offset: through gravity.
-        m, d = nominal.model, mujoco.MjData(nominal.model)
-        x = np.empty(idx.size)
-        for n, i in enumerate(idx):
-            d.qpos[:] = log.q[i]
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            mujoco.mj_rne(m, d, 0, d.qfrc_bias)
-            x[n] = d.qfrc_bias[j]
-        label = f"gravity torque at {names[j]} [N m]"
-    return label, x, res_nom, res_cor, names[j]
+def _floating_lines(report: dict) -> list[str]:
+    """The report's paragraph on a floating base: where each window starts from, what is not
+    done on the floor yet, and the joints whose noise floor the base estimate raises."""
+    lines = [
+        f"Floating base (a robot on the floor): each window starts from {report['base_estimate']}. "
+        "Not on the floor yet: backlash, the signature plots and the residual network "
+        "(they need the contact forces or a play joint in the floor model).",
+        "",
+    ]
+    floor = report["noise_floor_rad"]
+    least = min(floor.values())  # The median joint's error (noise_floor).
+    high = sorted((n for n in floor if floor[n] > 1.5 * least), key=lambda n: -floor[n])
+    if high:
+        lines += [
+            "Noise floor: errors of the base estimate move some joints' predictions more "
+            f"than others, so their floors are above the least one ({1e3 * least:.2f} "
+            "mrad, the median joint's error): "
+            + ", ".join(f"{n} {1e3 * floor[n]:.2f}" for n in high[:6])
+            + " mrad. A joint is unexplained only above three times its own floor.",
+            "",
+        ]
+    return lines
 
 
-def _fit_samples(log: RobotLog) -> np.ndarray:
-    """Every other state sample of the fit part, after the first second (filters settle; in
-    a short log, after the first half of the fit part)."""
-    lo = int(np.searchsorted(log.t, log.t[0] + min(1.0, 0.5 * FIT_END * log.duration)))
-    hi = int(np.searchsorted(log.t, log.t[0] + FIT_END * log.duration))
-    return np.arange(lo, hi, 2)
+def _claimed_lines(diagnosis: Diagnosis) -> list[str]:
+    """The report's claimed effects, and a warning on those that explain only part of their
+    joints' error."""
+    lines: list[str] = []
+    claimed = diagnosis.claimed
+    if claimed:
+        lines += ["Claimed (confidence >= 0.5):", ""]
+        lines += [
+            f"- **{f.effect}** on {f.target}: {f.value:.4g} {EFFECTS[f.effect].unit} "
+            f"(confidence {f.confidence:.2f}; removes {100 * f.error_reduction:.0f}% of the "
+            "error of " + ", ".join(f.joints) + " on unseen fit data)"
+            for f in claimed
+        ]
+    else:
+        lines.append("No effect claimed.")
+    lines.append("")
+    partial = [f for f in claimed if f.partial]
+    if partial:
+        lines += [
+            "**Partial explanations**: with every claimed effect in the model, their joints "
+            f"keep more than {PARTIAL:g} times their noise floor. Such an effect is right but "
+            "incomplete (another acts on the same joints, or its model differs from the "
+            "robot's, e.g. kp weaker but kd not), or it stands in for an effect outside the "
+            "searched vocabulary; its confidence cannot tell which. Check these before "
+            "relying on their values.",
+            "",
+            *[
+                f"- {f.effect} on {f.target} ({f.value:.4g} {EFFECTS[f.effect].unit}, "
+                f"confidence {f.confidence:.2f}): its joints keep {f.stands_out:.1f} times "
+                "their noise floor"
+                for f in partial
+                if f.stands_out is not None
+            ],
+            "",
+        ]
+    return lines
 
 
-def _plots(
-    out: Path,
-    log: RobotLog,
-    nominal: Correction,
-    corrected: Correction,
-    diagnosis: Diagnosis,
-    before: KStepError,
-    after: KStepError,
-    net_error: KStepError | None,
-    held: Predictor,
-) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names = log.joint_names
-    paths: list[Path] = []
-
-    def save(fig, name: str) -> None:
-        path = out / name
-        with atomic_write(path) as fh:
-            fig.savefig(fh, format="png", dpi=90, bbox_inches="tight")
-        plt.close(fig)
-        paths.append(path)
-
-    # 1. Held-out error per joint.
-    fig, ax = plt.subplots(figsize=(8, 0.22 * len(names) + 1.2))
-    y = np.arange(len(names))
-    rows = [("nominal", before), ("corrected", after)]
-    if net_error is not None:
-        rows.append(("corrected + residual net", net_error))
-    h = 0.8 / len(rows)
-    for k, (label, e) in enumerate(rows):
-        ax.barh(y + k * h, e.per_joint * 1e3, height=h, label=label)
-    ax.set_yticks(y + 0.4 - h / 2, names, fontsize=7)
-    ax.invert_yaxis()
-    ax.set_xscale("log")
-    ax.set_xlabel("held-out k-step RMSE [mrad]")
-    ax.legend(fontsize=8)
-    ax.set_title("Prediction error per joint, last 30% of the log")
-    save(fig, "residual_per_joint.png")
-
-    # 2. The worst joint over one held-out window: log, nominal, corrected.
-    j = int(np.argmax(before.per_joint))
-    w = int(np.argmax(np.abs(before.residual[:, :, j]).max(axis=1)))
-    s = held.starts[w]
-    t = log.t[s + 1 : s + 1 + held.samples] - log.t[s]
-    measured = log.q[s + 1 : s + 1 + held.samples, j]
-    fig, ax = plt.subplots(figsize=(7, 3.2))
-    ax.plot(t, measured, "k.", ms=3, label="log")
-    ax.plot(t, measured + before.residual[w, :, j], label="nominal")
-    ax.plot(t, measured + after.residual[w, :, j], label="corrected")
-    if net_error is not None:
-        ax.plot(t, measured + net_error.residual[w, :, j], label="corrected + residual net")
-    ax.set_xlabel("time in the window [s]")
-    ax.set_ylabel(f"{names[j]} [rad]")
-    ax.legend(fontsize=8)
-    ax.set_title("Open-loop prediction from a logged state (held-out window)")
-    save(fig, "prediction_window.png")
-
-    # 3. The signature that convinced the tool, per claimed effect.
-    from humimic.real2sim.actuator_net import residual_torque
-
-    # (Inverse dynamics of the logged motion: on the floor it needs the contact forces, which
-    # the log lacks, so a floating-base log gets no signature plot.)
-    claimed = diagnosis.claimed if log.base == "fixed" else []
-    res_nom = res_cor = np.zeros(0)
-    if claimed:  # Residual torques once, for every signature plot.
-        idx = _fit_samples(log)
-        res_nom, res_cor = residual_torque(nominal, log, idx), residual_torque(corrected, log, idx)
-    for f in claimed:
-        label, x, r0, r1, joint = _signature(f, log, nominal, res_nom, res_cor)
-        fig, ax = plt.subplots(figsize=(5.5, 3.6))
-        ax.plot(x, r0, ".", ms=2, alpha=0.5, label="nominal model")
-        ax.plot(x, r1, ".", ms=2, alpha=0.5, label=f"with {f.effect}")
-        lo, hi = np.percentile(np.concatenate([r0, r1]), [0.5, 99.5])
-        pad = 0.1 * (hi - lo) + 1e-3
-        ax.set_ylim(lo - pad, hi + pad)
-        ax.set_xlabel(label)
-        ax.set_ylabel(f"residual torque at {joint} [N m]")
-        ax.legend(fontsize=8, markerscale=4)
-        ax.set_title(f"{f.effect} on {f.target}: {f.value:.3g} {EFFECTS[f.effect].unit}")
-        save(fig, f"signature_{f.effect}_{f.target}.png")
-    return paths
+def _unexplained_lines(report: dict) -> list[str]:
+    """The report's word on the error left unexplained, and on the residual network."""
+    lines: list[str] = []
+    if report["unexplained"]:
+        lines += [
+            f"**Unexplained**: {100 * report['unexplained_share']:.0f}% of the error above the "
+            "noise floor is left (joints: " + ", ".join(report["unexplained_joints"]) + "). "
+            "No effect of the searched vocabulary accounts for it.",
+            "",
+        ]
+    elif report["unexplained_joints"]:
+        lines += [
+            f"{100 * report['unexplained_share']:.0f}% of the error above the noise floor is "
+            "left; joints still above it: " + ", ".join(report["unexplained_joints"]) + ".",
+            "",
+        ]
+    net = report["residual_model"]
+    if net is not None:
+        verdict = (
+            "it improves the prediction"
+            if net["improves"]
+            else "it does NOT improve the prediction: do not use it"
+        )
+        lines += [
+            f"Residual actuator network ({Path(net['path']).name}): held-out error "
+            f"{net['error_after']['kstep_rmse_rad'] * 1e3:.2f} mrad with it, {verdict} "
+            f"(trained on {net['training']['samples']} samples of the fit part).",
+            "",
+        ]
+    return lines
 
 
 def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | None) -> Physics:

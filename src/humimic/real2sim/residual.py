@@ -95,25 +95,7 @@ class Predictor:
         nthread: int | None = None,
         base_track: BaseEstimate | None = None,
     ) -> None:
-        where = log.where
-        if not (np.isfinite(horizon) and horizon > 0):
-            raise InputError(f"--horizon {horizon}: expected a positive number of seconds")
-        if stride is not None and not (np.isfinite(stride) and stride > 0):
-            raise InputError(f"stride {stride}: expected a positive number of seconds")
-        if JointMap.of(model).names != log.joint_names:
-            raise InputError(
-                f"{where}: the model's joints are not the log's joints (order matters)"
-            )
-        fj = free_joint(model)
-        n_free = 0 if fj is None else 1
-        if model.nv != model.njnt + 5 * n_free or model.nq != model.njnt + 6 * n_free:
-            raise InputError("predictions need a model of hinge and slide joints (and a free base)")
-        if fj is not None and log.base != "floating":
-            raise InputError(f"{where}: a floating-base model needs a floating-base log "
-                             f"(metadata robot.base is {log.base!r})")  # fmt: skip
-        if fj is None and log.base != "fixed":
-            raise InputError(f"{where}: a floating-base log (robot on the floor) needs a "
-                             "floating-base model")  # fmt: skip
+        fj = _checked_model(model, log, horizon, stride)
         self.dt = float(model.opt.timestep)
         """The physics step [s] the predictions take (the model's)."""
         if not PHYSICS_DT - 1e-12 <= self.dt <= MAX_STEP + 1e-12:
@@ -121,17 +103,7 @@ class Predictor:
                 f"predictions step at {PHYSICS_DT * 1e3:g} to {MAX_STEP * 1e3:g} ms; the "
                 f"model steps at {self.dt * 1e3:g} ms"
             )
-        for gains, what in ((log.kp, "kp"), (log.kd, "kd")):
-            changed = np.flatnonzero(np.ptp(gains, axis=0) > 1e-9 * (1 + np.abs(gains).max()))
-            if changed.size:
-                raise InputError(
-                    f"{where}: the log changes {what} of {log.joint_names[changed[0]]!r} while "
-                    "it runs; the diagnosis needs constant gains per joint"
-                )
-        if log.t.size < 2:
-            raise InputError(
-                f"{where}: {log.t.size} message on /joint_states; predictions need at least 2"
-            )
+        _check_log(log)
         self.log = log
         self.horizon = horizon
         stride = horizon if stride is None else stride
@@ -139,40 +111,17 @@ class Predictor:
         self.sub = round(dt_state / self.dt)
         if self.sub < 1 or abs(self.sub * self.dt - dt_state) > 0.05 * dt_state:
             raise InputError(
-                f"{where}: states every {dt_state * 1e3:.3g} ms: need a multiple of "
+                f"{log.where}: states every {dt_state * 1e3:.3g} ms: need a multiple of "
                 f"{self.dt * 1e3:g} ms"
             )
         self.samples = round(horizon / dt_state)
         if self.samples < 1:
             raise InputError(
-                f"--horizon {horizon}: shorter than the state interval of {where} "
+                f"--horizon {horizon}: shorter than the state interval of {log.where} "
                 f"({dt_state * 1e3:.3g} ms)"
             )
-        first = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
-        last = (
-            int(np.searchsorted(log.t, log.t[0] + span[1] * log.duration, side="right"))
-            - self.samples
-            - 1
-        )
-        starts = np.arange(first, max(last, first), max(1, round(stride / dt_state)))
-        # No window spans a gap in the log, or starts within SETTLE after one.
-        whole = log.unbroken(starts, self.samples, SETTLE)
-        broken = int(np.count_nonzero(~whole))
-        starts = starts[whole]
-        self.starts = starts[phase::every]
-        if self.starts.size == 0:
-            length = (span[1] - span[0]) * log.duration
-            part = (
-                f"the log ({log.duration:.3g} s)"
-                if tuple(span) == (0.0, 1.0)
-                else f"its {span[0]:.0%}-{span[1]:.0%} span ({length:.3g} s)"
-            )
-            spans = f" (and {broken} that span a gap in the log)" if broken else ""
-            raise InputError(
-                f"{where}: too short for --horizon {horizon:g} s windows: {part} holds "
-                f"{starts.size} window{'' if starts.size == 1 else 's'}{spans}, "
-                f"{phase + 1} needed"
-            )
+        self.starts = _window_starts(log, horizon, self.samples, round(stride / dt_state), span,
+                                     every, phase)  # fmt: skip
         steps = self.samples * self.sub
         # Time at the start of every physics step of every window, and of the step after the
         # window (its command is the one in force at the last sample).
@@ -438,6 +387,97 @@ class Predictor:
             residual=residual,
             starts=self.starts,
         )
+
+
+def _checked_model(
+    model: mujoco.MjModel, log: RobotLog, horizon: float, stride: float | None
+) -> int | None:
+    """The model's free joint (``None``: a fixed base), once the horizon, the stride and the
+    model are checked against the log: its joints, in order, of hinges and slides (and a free
+    base), its base the log's.
+
+    Raises:
+        InputError: What does not fit, naming the log.
+    """
+    where = log.where
+    if not (np.isfinite(horizon) and horizon > 0):
+        raise InputError(f"--horizon {horizon}: expected a positive number of seconds")
+    if stride is not None and not (np.isfinite(stride) and stride > 0):
+        raise InputError(f"stride {stride}: expected a positive number of seconds")
+    if JointMap.of(model).names != log.joint_names:
+        raise InputError(f"{where}: the model's joints are not the log's joints (order matters)")
+    fj = free_joint(model)
+    n_free = 0 if fj is None else 1
+    if model.nv != model.njnt + 5 * n_free or model.nq != model.njnt + 6 * n_free:
+        raise InputError("predictions need a model of hinge and slide joints (and a free base)")
+    if fj is not None and log.base != "floating":
+        raise InputError(f"{where}: a floating-base model needs a floating-base log "
+                         f"(metadata robot.base is {log.base!r})")  # fmt: skip
+    if fj is None and log.base != "fixed":
+        raise InputError(f"{where}: a floating-base log (robot on the floor) needs a "
+                         "floating-base model")  # fmt: skip
+    return fj
+
+
+def _check_log(log: RobotLog) -> None:
+    """Refuse a log that changes its gains while it runs, or has fewer than two states.
+
+    Raises:
+        InputError: Naming the log (and the first joint whose gain changes).
+    """
+    for gains, what in ((log.kp, "kp"), (log.kd, "kd")):
+        changed = np.flatnonzero(np.ptp(gains, axis=0) > 1e-9 * (1 + np.abs(gains).max()))
+        if changed.size:
+            raise InputError(
+                f"{log.where}: the log changes {what} of {log.joint_names[changed[0]]!r} while "
+                "it runs; the diagnosis needs constant gains per joint"
+            )
+    if log.t.size < 2:
+        raise InputError(
+            f"{log.where}: {log.t.size} message on /joint_states; predictions need at least 2"
+        )
+
+
+def _window_starts(
+    log: RobotLog,
+    horizon: float,
+    samples: int,
+    stride: int,
+    span: tuple[float, float],
+    every: int,
+    phase: int,
+) -> np.ndarray:
+    """State index of each window's start: ``stride`` states apart (at least one) within the
+    ``span`` of the log, none spanning a gap or starting within :data:`SETTLE` after one, then
+    every ``every``-th from ``phase``.
+
+    Raises:
+        InputError: No window is left, saying how many the span holds and why.
+    """
+    first = int(np.searchsorted(log.t, log.t[0] + span[0] * log.duration))
+    last = (
+        int(np.searchsorted(log.t, log.t[0] + span[1] * log.duration, side="right")) - samples - 1
+    )
+    starts = np.arange(first, max(last, first), max(1, stride))
+    # No window spans a gap in the log, or starts within SETTLE after one.
+    whole = log.unbroken(starts, samples, SETTLE)
+    broken = int(np.count_nonzero(~whole))
+    starts = starts[whole]
+    kept = starts[phase::every]
+    if kept.size == 0:
+        length = (span[1] - span[0]) * log.duration
+        part = (
+            f"the log ({log.duration:.3g} s)"
+            if tuple(span) == (0.0, 1.0)
+            else f"its {span[0]:.0%}-{span[1]:.0%} span ({length:.3g} s)"
+        )
+        spans = f" (and {broken} that span a gap in the log)" if broken else ""
+        raise InputError(
+            f"{log.where}: too short for --horizon {horizon:g} s windows: {part} holds "
+            f"{starts.size} window{'' if starts.size == 1 else 's'}{spans}, "
+            f"{phase + 1} needed"
+        )
+    return kept
 
 
 def set_gains(c: Correction, kp: np.ndarray, kd: np.ndarray) -> None:

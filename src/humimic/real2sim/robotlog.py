@@ -430,38 +430,9 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
     t_cmd = (ts_cmds - t_all0).astype(np.float64) * 1e-9
     imu = mocap = None
     if ts_imu is not None:
-        site = meta.get("imu_site", "")
-        if not site:
-            raise McapFormatError(
-                f"{log.path}: topic /imu is logged but metadata robot.imu_site is missing "
-                "(the model site the IMU sits at, e.g. imu_in_pelvis)"
-            )
-        acc = None
-        if all("linear_acceleration" in m for _, m in imu_msgs):
-            acc = _vectors(log.path, "/imu", imu_msgs, "linear_acceleration", "xyz")
-        imu = ImuLog(
-            site=site,
-            t=(ts_imu - t_all0).astype(np.float64) * 1e-9,
-            quat_w=_unit_quats(
-                log.path,
-                "/imu",
-                _vectors(log.path, "/imu", imu_msgs, "orientation", "wxyz"),
-                "orientation",
-            ),
-            gyro_b=_vectors(log.path, "/imu", imu_msgs, "angular_velocity", "xyz"),
-            acc_b=acc,
-        )
+        imu = _read_imu(log.path, meta, imu_msgs, (ts_imu - t_all0).astype(np.float64) * 1e-9)
     if ts_pose is not None:
-        mocap = PoseTrack(
-            t=(ts_pose - t_all0).astype(np.float64) * 1e-9,
-            pos_w=_vectors(log.path, "/base_pose", pose_msgs, "position", "xyz"),
-            quat_w=_unit_quats(
-                log.path,
-                "/base_pose",
-                _vectors(log.path, "/base_pose", pose_msgs, "orientation", "wxyz"),
-                "orientation",
-            ),
-        )
+        mocap = _read_mocap(log.path, pose_msgs, (ts_pose - t_all0).astype(np.float64) * 1e-9)
     has_effort = all("effort" in m for _, m in states)
     zero = np.zeros((len(cmds), len(joint_names)))
 
@@ -472,17 +443,7 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
             else zero.copy()
         )
 
-    gains = {}
-    for field in ("kp", "kd"):
-        g = _matrix(log.path, "/joint_commands", cmds, field, joint_names)
-        neg = np.argwhere(g < 0)
-        if neg.size:
-            i, j = (int(x) for x in neg[0])
-            raise McapFormatError(
-                f"{log.path}: topic /joint_commands, message {i}: field {field} of "
-                f"{joint_names[j]!r} is {g[i, j]:g}, expected a gain >= 0"
-            )
-        gains[field] = g
+    gains = _read_gains(log.path, cmds, joint_names)
     return RobotLog(
         robot=meta.get("name", ""),
         base=base,
@@ -504,3 +465,63 @@ def read_robot_log(path: str | os.PathLike[str], joint_names: tuple[str, ...]) -
         imu=imu,
         mocap=mocap,
     )
+
+
+def _read_imu(log_path: Path, meta: dict[str, str], msgs: list, t: np.ndarray) -> ImuLog:
+    """The ``/imu`` messages ``msgs`` (at log times ``t``) as an :class:`ImuLog`, its
+    accelerometer only if every message has ``linear_acceleration``.
+
+    Raises:
+        McapFormatError: No metadata ``robot.imu_site``, or a bad field (naming the message).
+    """
+    site = meta.get("imu_site", "")
+    if not site:
+        raise McapFormatError(
+            f"{log_path}: topic /imu is logged but metadata robot.imu_site is missing "
+            "(the model site the IMU sits at, e.g. imu_in_pelvis)"
+        )
+    acc = None
+    if all("linear_acceleration" in m for _, m in msgs):
+        acc = _vectors(log_path, "/imu", msgs, "linear_acceleration", "xyz")
+    return ImuLog(
+        site=site,
+        t=t,
+        quat_w=_unit_quats(
+            log_path, "/imu", _vectors(log_path, "/imu", msgs, "orientation", "wxyz"), "orientation"
+        ),
+        gyro_b=_vectors(log_path, "/imu", msgs, "angular_velocity", "xyz"),
+        acc_b=acc,
+    )
+
+
+def _read_mocap(log_path: Path, msgs: list, t: np.ndarray) -> PoseTrack:
+    """The ``/base_pose`` messages ``msgs`` (at log times ``t``) as a :class:`PoseTrack`.
+
+    Raises:
+        McapFormatError: A bad field (naming the message).
+    """
+    pos = _vectors(log_path, "/base_pose", msgs, "position", "xyz")
+    quat = _vectors(log_path, "/base_pose", msgs, "orientation", "wxyz")
+    return PoseTrack(
+        t=t, pos_w=pos, quat_w=_unit_quats(log_path, "/base_pose", quat, "orientation")
+    )
+
+
+def _read_gains(log_path: Path, cmds: list, joint_names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The commands' ``kp`` and ``kd`` per message and joint (M, J).
+
+    Raises:
+        McapFormatError: A missing or negative gain, naming the message and the joint.
+    """
+    gains = {}
+    for field in ("kp", "kd"):
+        g = _matrix(log_path, "/joint_commands", cmds, field, joint_names)
+        neg = np.argwhere(g < 0)
+        if neg.size:
+            i, j = (int(x) for x in neg[0])
+            raise McapFormatError(
+                f"{log_path}: topic /joint_commands, message {i}: field {field} of "
+                f"{joint_names[j]!r} is {g[i, j]:g}, expected a gain >= 0"
+            )
+        gains[field] = g
+    return gains

@@ -24,9 +24,7 @@ from humimic.robots.registry import RobotConfig
 from humimic.sim import rollout
 from humimic.sim.effects import Injection, apply_to_spec, value_problem
 from humimic.sim.joints import JointMap
-from humimic.sim.lqr import LqrWeights, control_step_jacobians, riccati
-from humimic.sim.models import PHYSICS_DT, fixed_base_spec, floating_prediction_spec
-from humimic.transforms import quat_mul
+from humimic.sim.models import PHYSICS_DT, fixed_base_spec
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -160,7 +158,9 @@ def simulate_log(
             outside the vocabulary).
     """
     if settings.base == "floating":
-        return _simulate_floating(robot, injections, settings, edit)
+        from humimic.real2sim.simulate_floor import simulate_floating
+
+        return simulate_floating(robot, injections, settings, edit)
     if settings.base != "fixed":
         raise InputError(f"--base {settings.base!r}: expected fixed or floating")
     rng = np.random.default_rng(settings.seed)
@@ -177,13 +177,32 @@ def simulate_log(
     offset = _encoder_offsets(injections, names)
     if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")
-    act = jm.act_log
     nominal = nominal_spec(robot)[1]
     kp = np.array([nominal[n].kp for n in names])
     kd = np.array([nominal[n].kd for n in names])
     # The experiment is designed on the nominal robot (its designer does not know the effects).
     t_cmd, cmd_q = excitation(fixed_base_spec(robot, base_pose).compile(), settings, rng)
+    t, q, qd, effort = _record_hanging(model, jm, t_cmd, cmd_q, offset, settings)
+    sensed = _sensed(q + offset, qd, effort, settings, rng)
+    return _robot_log(robot, "fixed", base_pose, names, t, sensed, t_cmd, cmd_q, kp, kd)
 
+
+def _record_hanging(
+    model: mujoco.MjModel,
+    jm: JointMap,
+    t_cmd: np.ndarray,
+    cmd_q: np.ndarray,
+    offset: np.ndarray,
+    settings: LogSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Run the hanging robot through the commands ``cmd_q`` (at ``t_cmd``) from rest at the
+    first one, its drives tracking their (offset) encoders, and record its true state.
+
+    Returns:
+        State times (N,), and the link side's positions, velocities and the drives' torques
+        at them (N, J), before any sensor noise or encoder offset.
+    """
+    act = jm.act_log
     data = mujoco.MjData(model)
     data.qpos[jm.qadr] = cmd_q[0]
     _hold(model, data, (cmd_q[0] - offset)[act])
@@ -192,7 +211,7 @@ def simulate_log(
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
     cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
     n_states = n_steps // state_every
-    q = np.zeros((n_states, len(names)))
+    q = np.zeros((n_states, len(jm.names)))
     qd = np.zeros_like(q)
     effort = np.zeros_like(q)
     for step in range(n_steps):
@@ -209,11 +228,31 @@ def simulate_log(
             effort[i, act] = data.actuator_force
         rollout.step(model, data)
     t = np.arange(n_states) * state_every * PHYSICS_DT
+    return t, q, qd, effort
+
+
+def _robot_log(
+    robot: RobotConfig,
+    base: str,
+    base_pose: np.ndarray,
+    names: tuple[str, ...],
+    t: np.ndarray,
+    sensed: tuple[np.ndarray, np.ndarray, np.ndarray],
+    t_cmd: np.ndarray,
+    cmd_q: np.ndarray,
+    kp: np.ndarray,
+    kd: np.ndarray,
+    imu: ImuLog | None = None,
+    mocap: PoseTrack | None = None,
+) -> RobotLog:
+    """The simulated log: the sensed joint states (``sensed``: positions, velocities,
+    torques), position commands with no velocity or torque feed-forward, and the drives'
+    gains ``kp``, ``kd`` (J,) held at every command."""
     M = len(t_cmd)
-    q_s, qd_s, effort_s = _sensed(q + offset, qd, effort, settings, rng)
+    q_s, qd_s, effort_s = sensed
     return RobotLog(
         robot=robot.name,
-        base="fixed",
+        base=base,
         base_pose=base_pose,
         joint_names=names,
         t=t,
@@ -226,6 +265,8 @@ def simulate_log(
         cmd_tau=np.zeros((M, len(names))),
         kp=np.tile(kp, (M, 1)),
         kd=np.tile(kd, (M, 1)),
+        imu=imu,
+        mocap=mocap,
     )
 
 
@@ -301,218 +342,4 @@ def imu_site_of(model: mujoco.MjModel, root: int, asked: str) -> str:
     raise InputError(
         f"the robot has no site named *imu* on its root body {model.body(root).name!r}; "
         "name the IMU's site with --imu-site"
-    )
-
-
-def _sway(
-    lo: np.ndarray,
-    hi: np.ndarray,
-    stand: np.ndarray,
-    legs: np.ndarray,
-    settings: LogSettings,
-    rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
-    """PD targets about the standing pose inside the joint ranges ``lo``-``hi``: slow
-    multi-sines, small on the legs (the feet stay planted), larger on the arms and the waist.
-    Returns command times (M,) and targets (M, J)."""
-    centre = np.clip(stand, lo, hi)
-    room = np.minimum(centre - lo, hi - centre)
-    amp = np.where(legs, settings.sway_legs, settings.sway * (hi - lo))
-    amp = np.minimum(amp, 0.8 * room)
-    t = np.arange(0.0, settings.duration, 1.0 / settings.command_rate)
-    J = centre.size
-    freqs = rng.uniform(0.1, 1.0, size=(J, 3))
-    phases = rng.uniform(0, 2 * np.pi, size=(J, 3))
-    weights = rng.dirichlet(np.ones(3), size=J)
-    ramp = np.clip((t - settings.still) / 2.0, 0.0, 1.0)
-    sines = np.einsum(
-        "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
-    )
-    return t, np.clip(centre + ramp[:, None] * amp * sines, lo, hi)
-
-
-def _standing_gain(
-    model: mujoco.MjModel, qpos: np.ndarray, ctrl: np.ndarray, decimation: int
-) -> np.ndarray:
-    """The steady-state LQR gain of the robot standing at ``qpos`` (commands held for
-    ``decimation`` physics steps). Shape: (nu, 2 nv)."""
-    data = mujoco.MjData(model)
-    data.qpos[:] = qpos
-    mujoco.mj_forward(model, data)
-    A, B = control_step_jacobians(model, data, ctrl, decimation, 1e-6)
-    H = 400  # Control steps of the backward pass: enough for the gain to settle.
-    w = LqrWeights()
-    nx = A.shape[0]
-    lxx = np.broadcast_to(np.diag(w.state_diagonal(model.nv)), (H + 1, nx, nx)).copy()
-    luu = np.broadcast_to(w.control * np.eye(model.nu), (H, model.nu, model.nu)).copy()
-    out = riccati(np.zeros((H + 1, nx)), lxx, np.zeros((H, model.nu)), luu,
-                  np.broadcast_to(A, (H, nx, nx)), np.broadcast_to(B, (H, *B.shape)), 0.0)  # fmt: skip
-    if out is None:
-        raise InputError("the standing robot's linearization is not finite")
-    return out[1][0]
-
-
-def _simulate_floating(
-    robot: RobotConfig,
-    injections: list[Injection],
-    settings: LogSettings,
-    edit: Callable[[mujoco.MjSpec], None] | None,
-) -> RobotLog:
-    """A deployment log: the robot stands on the floor and sways under PD targets."""
-    rng = np.random.default_rng(settings.seed)
-    spec = floating_prediction_spec(robot, filters=False)
-    apply_to_spec(spec, [inj for inj in injections if inj.effect != "encoder_offset"])
-    if edit is not None:
-        edit(spec)
-    probe = spec.compile()
-    root = int(probe.body(robot.root_body).id)
-    site = imu_site_of(probe, root, settings.imu_site)
-    # The IMU as a robot's driver reports it: MuJoCo's own sensors at the site.
-    site_obj = mujoco.mjtObj.mjOBJ_SITE
-    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEQUAT, objtype=site_obj, objname=site)
-    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_GYRO, objtype=site_obj, objname=site)
-    spec.add_sensor(type=mujoco.mjtSensor.mjSENS_ACCELEROMETER, objtype=site_obj, objname=site)
-    model = spec.compile()
-    jm = JointMap.of(model)
-    names = jm.names
-    if model.nu != len(names):
-        raise InputError(f"{robot.name}: expected one actuator per joint")
-    offset = _encoder_offsets(injections, names)
-    act = jm.act_log
-    nominal_robot, drives = nominal_spec(robot)
-    nominal = nominal_robot.compile()
-    kp = np.array([drives[n].kp for n in names])
-    kd = np.array([drives[n].kd for n in names])
-    # The standing pose: the robot's first keyframe (its joints by name), else zero.
-    stand = np.zeros(len(names))
-    if nominal.nkey:
-        for i, n in enumerate(names):
-            j = nominal.joint(n)
-            stand[i] = nominal.key_qpos[0, nominal.jnt_qposadr[j.id]]
-    feet = [probe.body(b).id for b in robot.feet.values()]
-    legs = np.zeros(len(names), dtype=bool)
-    for f in feet:
-        b = f
-        while b != root and b != 0:
-            j0, nj = model.body_jntadr[b], model.body_jntnum[b]
-            for j in range(j0, j0 + nj):
-                if model.joint(j).name in names:
-                    legs[names.index(model.joint(j).name)] = True
-            b = model.body_parentid[b]
-    ranges = np.array([nominal.jnt_range[nominal.joint(n).id] for n in names])
-    t_cmd, cmd_q = _sway(ranges[:, 0], ranges[:, 1], stand, legs, settings, rng)
-
-    data = mujoco.MjData(model)
-    fj = int(np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)[0])
-    qa = int(model.jnt_qposadr[fj])
-    data.qpos[jm.qadr] = cmd_q[0] - offset
-    data.qpos[qa : qa + 7] = 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0
-    mujoco.mj_kinematics(model, data)
-    lowest = min(float(data.geom_xpos[g, 2] - model.geom_rbound[g])
-                 for g in range(model.ngeom) if model.geom_bodyid[g] != 0)  # fmt: skip
-    data.qpos[qa + 2] = -lowest + 0.002  # Dropped from 2 mm above the floor.
-    _hold(model, data, (cmd_q[0] - offset)[act])
-    data.ctrl[:] = (cmd_q[0] - offset)[act]
-    # A balance controller (a robot on the floor needs one: joint PD alone tips over): the
-    # LQR of the standing robot, its reference the commanded joint pose with the base upright.
-    cmd_every = round(1.0 / (settings.command_rate * PHYSICS_DT))
-    rollout.step(model, data, round(0.3 / PHYSICS_DT))  # Land (PD alone tips over later).
-    # The controller is designed on the nominal robot (its designer does not know the
-    # effects; MuJoCo's derivatives do not support actuator delays either) and reads the
-    # robot's base and its link-side joints.
-    design = floating_prediction_spec(robot, filters=False).compile()
-    jd = JointMap.of(design)
-    fd = int(np.flatnonzero(design.jnt_type == mujoco.mjtJoint.mjJNT_FREE)[0])
-    qd0, dd0 = int(design.jnt_qposadr[fd]), int(design.jnt_dofadr[fd])
-    da = int(model.jnt_dofadr[fj])
-    ref_q = design.qpos0.copy()
-    ref_q[qd0 : qd0 + 7] = data.qpos[qa : qa + 7]
-    ref_q[jd.qadr] = jm.link(data.qpos, jm.play_q, jm.qadr)
-    row = np.argsort(jd.act_log)  # Design actuator of each joint.
-    gain = _standing_gain(design, ref_q, (cmd_q[0] - offset)[jd.act_log], cmd_every)[row[act]]
-    now_q, dq = design.qpos0.copy(), np.zeros(2 * design.nv)
-
-    def balanced(target: np.ndarray) -> np.ndarray:
-        """PD targets (per actuator) for joint targets ``target`` (per joint), balanced."""
-        ref = ref_q.copy()
-        ref[jd.qadr] = target
-        now_q[qd0 : qd0 + 7] = data.qpos[qa : qa + 7]
-        now_q[jd.qadr] = jm.link(data.qpos, jm.play_q, jm.qadr)
-        mujoco.mj_differentiatePos(design, dq[: design.nv], 1.0, ref, now_q)
-        dq[design.nv + dd0 : design.nv + dd0 + 6] = data.qvel[da : da + 6]
-        dq[design.nv + jd.dadr] = jm.link(data.qvel, jm.play_d, jm.dadr)
-        return target[act] + gain @ dq
-
-    settle = round(1.5 / PHYSICS_DT)  # Land and come to rest before the log starts.
-    for step in range(settle):
-        if step % cmd_every == 0:
-            data.ctrl[:] = balanced(cmd_q[0] - offset)
-        rollout.step(model, data)
-    height0 = float(data.xpos[root, 2])
-    n_steps = round(settings.duration / PHYSICS_DT)
-    state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
-    n_states = n_steps // state_every
-    q = np.zeros((n_states, len(names)))
-    qd, effort = np.zeros_like(q), np.zeros_like(q)
-    sent = np.zeros_like(cmd_q)  # The commands as sent: the balanced ones.
-    quat, pose_q = np.zeros((n_states, 4)), np.zeros((n_states, 4))
-    gyro, acc, pos = np.zeros((n_states, 3)), np.zeros((n_states, 3)), np.zeros((n_states, 3))
-    for step in range(n_steps):
-        if step % cmd_every == 0 and step // cmd_every < len(t_cmd):
-            k = step // cmd_every
-            data.ctrl[:] = balanced(cmd_q[k] - offset)
-            sent[k, act] = data.ctrl + offset[act]
-        if step % state_every == 0 and step // state_every < n_states:
-            mujoco.mj_forward(model, data)
-            i = step // state_every
-            if data.xpos[root, 2] < 0.6 * height0:
-                raise InputError(
-                    f"the robot fell {step * PHYSICS_DT:.2f} s into the log while standing "
-                    "with these effects; choose smaller effects or a shorter log"
-                )
-            q[i] = jm.link(data.qpos, jm.play_q, jm.qadr)
-            qd[i] = jm.link(data.qvel, jm.play_d, jm.dadr)
-            effort[i, act] = data.actuator_force
-            quat[i], gyro[i], acc[i] = (
-                data.sensordata[:4],
-                data.sensordata[4:7],
-                data.sensordata[7:10],
-            )
-            pos[i], pose_q[i] = data.xpos[root], data.xquat[root]
-        rollout.step(model, data)
-    t = np.arange(n_states) * state_every * PHYSICS_DT
-    M = len(t_cmd)
-
-    def tilt(qs: np.ndarray, sigma: float) -> np.ndarray:
-        """Quaternions turned by small random rotations (sensor noise)."""
-        dq = np.concatenate([np.ones((len(qs), 1)), rng.normal(0.0, sigma / 2.0, (len(qs), 3))],
-                            axis=1)  # fmt: skip
-        out = quat_mul(qs, dq / np.linalg.norm(dq, axis=1, keepdims=True))
-        return out * np.where(out[:, :1] < 0, -1.0, 1.0)
-
-    imu = ImuLog(site=site, t=t, quat_w=tilt(quat, settings.quat_noise),
-                 gyro_b=gyro + rng.normal(0, settings.gyro_noise, gyro.shape),
-                 acc_b=acc + rng.normal(0, settings.acc_noise, acc.shape))  # fmt: skip
-    mocap = None
-    if settings.mocap:
-        mocap = PoseTrack(t=t, pos_w=pos + rng.normal(0, settings.mocap_noise, pos.shape),
-                          quat_w=tilt(pose_q, settings.quat_noise))  # fmt: skip
-    q_s, qd_s, effort_s = _sensed(q + offset, qd, effort, settings, rng)
-    return RobotLog(
-        robot=robot.name,
-        base="floating",
-        base_pose=np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]),
-        joint_names=names,
-        t=t,
-        q=q_s,
-        qd=qd_s,
-        effort=effort_s,
-        t_cmd=t_cmd,
-        cmd_q=sent,
-        cmd_qd=np.zeros((M, len(names))),
-        cmd_tau=np.zeros((M, len(names))),
-        kp=np.tile(kp, (M, 1)),
-        kd=np.tile(kd, (M, 1)),
-        imu=imu,
-        mocap=mocap,
     )
