@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeAlias
 
 import mujoco
@@ -53,6 +53,112 @@ def _rotations(quat_wxyz: np.ndarray) -> np.ndarray:
 
 def _translation(p: np.ndarray) -> SE3:
     return pin.SE3(np.eye(3), np.asarray(p, dtype=np.float64).copy())
+
+
+@dataclass(kw_only=True)
+class _TreeJoints:
+    """What :meth:`PinocchioRobot.from_mujoco` has gathered of the joints so far, in
+    MuJoCo's order: the model-wide lists are built body by body.
+
+    Attributes:
+        names: The 1-dof joints' names.
+        dofs: MuJoCo's dof of each Pinocchio velocity coordinate (the free base's six, then
+            one per 1-dof joint).
+        lower, upper: Each Pinocchio position coordinate's limits (infinite where MuJoCo's
+            joint has none; the free base's seven).
+        free_base: The free joint became Pinocchio's free flyer.
+        welded: The free joint was welded at ``base_pose`` instead.
+    """
+
+    names: list[str] = field(default_factory=list)
+    dofs: list[int] = field(default_factory=list)
+    lower: list[float] = field(default_factory=list)
+    upper: list[float] = field(default_factory=list)
+    free_base: bool = False
+    welded: bool = False
+
+
+def _joint_model(jtype: mujoco.mjtJoint, axis: np.ndarray, jname: str) -> Any:
+    """Pinocchio's joint model of a MuJoCo hinge or slide along ``axis`` (the joint frame's
+    axis-aligned revolute joints where the hinge's axis is a coordinate axis: cheaper).
+
+    Raises:
+        InputError: Any other kind of joint (ball).
+    """
+    if jtype == mujoco.mjtJoint.mjJNT_HINGE:
+        aligned = _AXES.get((float(axis[0]), float(axis[1]), float(axis[2])))
+        return aligned() if aligned else pin.JointModelRevoluteUnaligned(axis)
+    if jtype == mujoco.mjtJoint.mjJNT_SLIDE:
+        return pin.JointModelPrismaticUnaligned(axis)
+    raise InputError(f"joint {jname!r}: {jtype.name} joints are not supported")
+
+
+def _add_body_joints(
+    model: Any,
+    mj: mujoco.MjModel,
+    b: int,
+    cur: SE3,
+    jid: int,
+    base_pose: np.ndarray | None,
+    joints: _TreeJoints,
+) -> tuple[SE3, int]:
+    """Add MuJoCo body ``b``'s joints to the Pinocchio ``model``, in order, each on the
+    previous one (the first on ``jid``, the joint carrying the parent), and record them in
+    ``joints``.
+
+    A hinge or slide is placed at its anchor in the current frame ``cur``, after which the
+    body's frame is the anchor's inverse offset; the free joint (the model's first) becomes
+    the free flyer, or with ``base_pose`` puts the body there, welded to the world.
+
+    Returns:
+        The body's frame in the frame of the joint that carries it, and that joint.
+
+    Raises:
+        InputError: A free joint that is not the model's first, or a ball joint.
+    """
+    j0, nj = int(mj.body_jntadr[b]), int(mj.body_jntnum[b])
+    for j in range(j0, j0 + nj):
+        jtype = mujoco.mjtJoint(int(mj.jnt_type[j]))
+        jname = mj.joint(j).name or f"joint{j}"
+        if jtype == mujoco.mjtJoint.mjJNT_FREE:
+            if j != 0:
+                raise InputError(f"joint {jname!r}: only the first joint may be free")
+            joints.welded = base_pose is not None
+            if base_pose is not None:
+                cur = _se3(base_pose[:3], base_pose[3:])
+                continue
+            # MuJoCo's free joint places the body's frame itself, wherever it was.
+            jid = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), jname)
+            joints.free_base = True
+            cur = pin.SE3.Identity()
+            joints.dofs += range(int(mj.jnt_dofadr[j]), int(mj.jnt_dofadr[j]) + 6)
+            joints.lower += [-np.inf] * 7
+            joints.upper += [np.inf] * 7
+            continue
+        anchor = np.asarray(mj.jnt_pos[j], dtype=np.float64)
+        jm = _joint_model(jtype, np.asarray(mj.jnt_axis[j], dtype=np.float64), jname)
+        jid = model.addJoint(jid, jm, cur * _translation(anchor), jname)
+        cur = _translation(-anchor)
+        joints.names.append(jname)
+        joints.dofs.append(int(mj.jnt_dofadr[j]))
+        limited = bool(mj.jnt_limited[j])
+        joints.lower.append(float(mj.jnt_range[j, 0]) if limited else -np.inf)
+        joints.upper.append(float(mj.jnt_range[j, 1]) if limited else np.inf)
+    return cur, jid
+
+
+def _append_body_inertia(model: Any, mj: mujoco.MjModel, b: int, jid: int, cur: SE3) -> np.ndarray:
+    """Append MuJoCo body ``b``'s inertia to Pinocchio joint ``jid``, the body's frame being
+    ``cur`` in the joint's.
+
+    Returns:
+        The body's centre of mass in the joint's frame. Shape: (3,).
+    """
+    rot = cur.rotation @ pin.Quaternion(*map(float, mj.body_iquat[b])).matrix()
+    com = cur.act(np.asarray(mj.body_ipos[b], dtype=np.float64))
+    inertia = pin.Inertia(float(mj.body_mass[b]), com, rot @ np.diag(mj.body_inertia[b]) @ rot.T)
+    model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
+    return com
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -113,70 +219,27 @@ class PinocchioRobot:
         frame_in_joint = [pin.SE3.Identity()] * mj.nbody
         frame_id = [0] * mj.nbody
         com_in_joint = [np.zeros(3)] * mj.nbody
-        free_base = welded = False
-        names: list[str] = []
-        dofs: list[int] = []
-        lower: list[float] = []
-        upper: list[float] = []
+        joints = _TreeJoints()
         for b in range(1, mj.nbody):
             parent = int(mj.body_parentid[b])
             name = mj.body(b).name or f"body{b}"
             cur = frame_in_joint[parent] * _se3(mj.body_pos[b], mj.body_quat[b])
-            jid = joint_of[parent]
-            j0, nj = int(mj.body_jntadr[b]), int(mj.body_jntnum[b])
-            for j in range(j0, j0 + nj):
-                jtype = mujoco.mjtJoint(int(mj.jnt_type[j]))
-                jname = mj.joint(j).name or f"joint{j}"
-                if jtype == mujoco.mjtJoint.mjJNT_FREE:
-                    if j != 0:
-                        raise InputError(f"joint {jname!r}: only the first joint may be free")
-                    welded = base_pose is not None
-                    if base_pose is not None:
-                        cur = _se3(base_pose[:3], base_pose[3:])
-                        continue
-                    # MuJoCo's free joint places the body's frame itself, wherever it was.
-                    jid = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), jname)
-                    free_base = True
-                    cur = pin.SE3.Identity()
-                    dofs += range(int(mj.jnt_dofadr[j]), int(mj.jnt_dofadr[j]) + 6)
-                    lower += [-np.inf] * 7
-                    upper += [np.inf] * 7
-                    continue
-                anchor = np.asarray(mj.jnt_pos[j], dtype=np.float64)
-                axis = np.asarray(mj.jnt_axis[j], dtype=np.float64)
-                if jtype == mujoco.mjtJoint.mjJNT_HINGE:
-                    aligned = _AXES.get((float(axis[0]), float(axis[1]), float(axis[2])))
-                    jm = aligned() if aligned else pin.JointModelRevoluteUnaligned(axis)
-                elif jtype == mujoco.mjtJoint.mjJNT_SLIDE:
-                    jm = pin.JointModelPrismaticUnaligned(axis)
-                else:
-                    raise InputError(f"joint {jname!r}: {jtype.name} joints are not supported")
-                jid = model.addJoint(jid, jm, cur * _translation(anchor), jname)
-                cur = _translation(-anchor)
-                names.append(jname)
-                dofs.append(int(mj.jnt_dofadr[j]))
-                limited = bool(mj.jnt_limited[j])
-                lower.append(float(mj.jnt_range[j, 0]) if limited else -np.inf)
-                upper.append(float(mj.jnt_range[j, 1]) if limited else np.inf)
-            rot = cur.rotation @ pin.Quaternion(*map(float, mj.body_iquat[b])).matrix()
-            com_in_joint[b] = cur.act(np.asarray(mj.body_ipos[b], dtype=np.float64))
-            inertia = pin.Inertia(
-                float(mj.body_mass[b]), com_in_joint[b], rot @ np.diag(mj.body_inertia[b]) @ rot.T
-            )
-            model.appendBodyToJoint(jid, inertia, pin.SE3.Identity())
+            cur, jid = _add_body_joints(model, mj, b, cur, joint_of[parent], base_pose, joints)
+            com_in_joint[b] = _append_body_inertia(model, mj, b, jid, cur)
             frame_id[b] = model.addBodyFrame(name, jid, cur, frame_id[parent])
             joint_of[b], frame_in_joint[b] = jid, cur
-        if base_pose is not None and not welded:
+        if base_pose is not None and not joints.welded:
             raise InputError("base_pose: the model has no free base to weld")
+        dofs = joints.dofs
         model.armature = np.array(mj.dof_armature[dofs], dtype=np.float64)
-        model.lowerPositionLimit = np.array(lower, dtype=np.float64)
-        model.upperPositionLimit = np.array(upper, dtype=np.float64)
+        model.lowerPositionLimit = np.array(joints.lower, dtype=np.float64)
+        model.upperPositionLimit = np.array(joints.upper, dtype=np.float64)
         bodies = [mj.body(b).name for b in range(1, mj.nbody)]
         return cls(
             model=model,
             data=model.createData(),
-            free_base=free_base,
-            joint_names=tuple(names),
+            free_base=joints.free_base,
+            joint_names=tuple(joints.names),
             body_joint=dict(zip(bodies, joint_of[1:], strict=True)),
             body_placement=dict(zip(bodies, frame_in_joint[1:], strict=True)),
             body_com=dict(zip(bodies, com_in_joint[1:], strict=True)),
@@ -363,6 +426,34 @@ def identify_payload(
         UnknownNameError: No such body.
     """
     start = time.perf_counter()
+    jid, chain = _payload_chain(robot, body, q, qd, qdd, tau)
+    friction = robot.friction_loss if friction is None else np.asarray(friction, dtype=float)
+    Y, Z, r = _payload_rows(
+        robot, jid, chain, q, qd, qdd, tau, friction,
+        samples=samples, min_speed=min_speed, limit_margin=limit_margin,
+    )  # fmt: skip
+    if len(r) == 0:
+        raise InputError(f"payload on {body!r}: no sample moves the joints that carry it")
+    return _fit_payload(robot, body, Y, Z, r, fit_com=fit_com, instrument=instrument, start=start)
+
+
+def _payload_chain(
+    robot: PinocchioRobot,
+    body: str,
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    tau: np.ndarray,
+) -> tuple[int, list[int]]:
+    """The joint that carries ``body``, and the velocity indices of the joints on the path
+    from the base to it (the only ones whose torque depends on the body), after checking
+    :func:`identify_payload`'s inputs.
+
+    Raises:
+        InputError: The robot has a free base, the shapes disagree, or the body is welded to
+            the world.
+        UnknownNameError: No such body.
+    """
     if robot.free_base:
         raise InputError("payload identification needs a fixed-base model (base_pose=...)")
     model, nv, T = robot.model, robot.model.nv, q.shape[0]
@@ -370,8 +461,33 @@ def identify_payload(
         if x.ndim != 2 or x.shape != (T, nv):
             raise InputError(f"{what}: expected shape ({T}, {nv}), got {x.shape}")
     jid = robot._joint(body)
-    chain = [int(model.joints[j].idx_v) for j in list(model.supports[jid])[1:]]
-    friction = robot.friction_loss if friction is None else np.asarray(friction, dtype=float)
+    return jid, [int(model.joints[j].idx_v) for j in list(model.supports[jid])[1:]]
+
+
+def _payload_rows(
+    robot: PinocchioRobot,
+    jid: int,
+    chain: list[int],
+    q: np.ndarray,
+    qd: np.ndarray,
+    qdd: np.ndarray,
+    tau: np.ndarray,
+    friction: np.ndarray,
+    *,
+    samples: np.ndarray | None,
+    min_speed: float,
+    limit_margin: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of :func:`identify_payload`'s fit: one per used sample and joint of
+    ``chain`` that moves at least ``min_speed`` and lies ``limit_margin`` inside its range.
+
+    Returns:
+        ``Y``: the 10 regressor columns of joint ``jid`` (Shape: (rows, 10)); ``Z``: its
+        first four at zero velocity and acceleration, the instruments (Shape: (rows, 4));
+        ``r``: the torque the nominal model, its friction loss and its damping leave
+        (Shape: (rows,)).
+    """
+    model, nv, T = robot.model, robot.model.nv, q.shape[0]
     use = np.ones(T, dtype=bool) if samples is None else np.asarray(samples, dtype=bool)
     idx = np.flatnonzero(use)
     qc = q[idx][:, chain]
@@ -391,11 +507,23 @@ def identify_payload(
         Z[n] = np.reshape(y, (nv, -1))[chain, cols][:, :4]
         r[n] = (tau[t] - tau_nominal)[chain]
         r[n] -= (friction * np.sign(qd[t]) + robot.damping * qd[t])[chain]
-    Y, Z, r = Y[keep], Z[keep], r[keep]
-    if len(r) == 0:
-        raise InputError(f"payload on {body!r}: no sample moves the joints that carry it")
+    return Y[keep], Z[keep], r[keep]
+
+
+def _fit_payload(
+    robot: PinocchioRobot,
+    body: str,
+    Y: np.ndarray,
+    Z: np.ndarray,
+    r: np.ndarray,
+    *,
+    fit_com: bool,
+    instrument: bool,
+    start: float,
+) -> PayloadFit:
+    """:func:`identify_payload`'s least-squares (or instrumental-variable) fit on the rows of
+    :func:`_payload_rows`; ``start`` is when the identification began (its ``seconds``)."""
     com_body = robot.body_com[body]
-    known = np.zeros_like(r)
     if fit_com:
         A, W = Y[:, :4], Z if instrument else Y[:, :4]
     else:  # One column: a unit mass at the body's centre of mass.
@@ -421,13 +549,7 @@ def identify_payload(
     mass_std = float(np.sqrt(max(cov[0, 0], 0.0)))
     if fit_com:
         if abs(mass) > 3.0 * mass_std:  # A centre of no (significant) mass means nothing.
-            for _ in range(2):  # The point mass's second moments to the known side.
-                com_j = sol[1:] / mass
-                known = Y[:, 4:] @ point_mass_parameters(mass, com_j)[4:]
-                sol = WA_inv @ (W.T @ (r - known))
-                mass = float(sol[0])
-            com_j = sol[1:] / mass
-            res = r - known - A @ sol
+            mass, com_j, res = _refit_second_moments(Y, A, W, WA_inv, r, sol)
         else:
             com_j = np.full(3, np.nan)
     return PayloadFit(
@@ -439,3 +561,30 @@ def identify_payload(
         rows=len(r),
         seconds=time.perf_counter() - start,
     )
+
+
+def _refit_second_moments(
+    Y: np.ndarray,
+    A: np.ndarray,
+    W: np.ndarray,
+    WA_inv: np.ndarray,
+    r: np.ndarray,
+    sol: np.ndarray,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Refit ``sol``, the fit of ``dm, dm c`` on the columns ``A`` (the first four of ``Y``)
+    with instruments ``W``, twice, each time with the second moments of the point mass it
+    places (the other six columns, which follow from ``dm`` and ``c``) moved to the known
+    side.
+
+    Returns:
+        The mass, where it sits (joint frame; Shape: (3,)) and the fit's residual (Shape:
+        (rows,)).
+    """
+    mass, known = float(sol[0]), np.zeros_like(r)
+    for _ in range(2):  # The point mass's second moments to the known side.
+        com_j = sol[1:] / mass
+        known = Y[:, 4:] @ point_mass_parameters(mass, com_j)[4:]
+        sol = WA_inv @ (W.T @ (r - known))
+        mass = float(sol[0])
+    com_j = sol[1:] / mass
+    return mass, com_j, r - known - A @ sol

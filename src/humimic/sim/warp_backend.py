@@ -68,6 +68,23 @@ def capacity(model: mujoco.MjModel) -> tuple[int, int]:
     return max(ncon, 1), max(rows_per_contact * ncon + int(model.jnt_limited.sum()), 1)
 
 
+def _torch_device(device: str | torch.device) -> torch.device:
+    """The torch device a backend on ``device`` simulates on: ``cuda`` with its index (the
+    current CUDA device's when none is given), or ``cpu``.
+
+    Raises:
+        InputError: No CUDA on this machine for a ``cuda`` device, or another device type.
+    """
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError(f"device {device}: CUDA is not available on this machine")
+        dev = torch.device("cuda", torch.cuda.current_device() if dev.index is None else dev.index)
+    elif dev.type != "cpu":
+        raise InputError(f"device {device}: the warp backend runs on 'cuda' or 'cpu'")
+    return dev
+
+
 class MujocoWarpBackend(LayoutBackend):
     """``num_envs`` MJWarp worlds of one training model.
 
@@ -139,15 +156,7 @@ class MujocoWarpBackend(LayoutBackend):
                 "the warp backend does not simulate actuators with a command history (a "
                 "physics file's delay) yet: use the CPU backend for this model"
             )
-        dev = torch.device(device)
-        if dev.type == "cuda":
-            if not torch.cuda.is_available():
-                raise InputError(f"device {device}: CUDA is not available on this machine")
-            dev = torch.device(
-                "cuda", torch.cuda.current_device() if dev.index is None else dev.index
-            )
-        elif dev.type != "cpu":
-            raise InputError(f"device {device}: the warp backend runs on 'cuda' or 'cpu'")
+        dev = _torch_device(device)
         self.device = dev
         self._wp_device = wp.get_device(str(dev))
         self.num_envs = num_envs
@@ -162,6 +171,23 @@ class MujocoWarpBackend(LayoutBackend):
             raise InputError(f"nconmax, njmax: must be at least 1, got {nconmax}, {njmax}")
         self.cuda_graph = cuda_graph and dev.type == "cuda"
 
+        self._put_model(model, per_env_models)
+        self._take_views(model, lay, per_env_models)
+        # Compile every kernel of a step and a forward pass before any capture, then start
+        # all worlds at qpos0, at rest.
+        with self._scope():
+            mjw.step(self._m, self._d)
+        qpos0 = np.tile(model.qpos0, (num_envs, 1))
+        self.reset_to(np.arange(num_envs), qpos0, np.zeros((num_envs, self.nv)))
+
+    def _put_model(self, model: mujoco.MjModel, per_env_models: bool) -> None:
+        """Copy ``model`` to the device (the randomized fields and the constants derived from
+        them batched per world with ``per_env_models``) and allocate the worlds' data.
+
+        Raises:
+            InputError: A model MJWarp cannot simulate.
+        """
+        mjw, num_envs = self._mjw, self.num_envs
         batch = {f: num_envs for f in (*DR_FIELDS, *_DERIVED_FIELDS)} if per_env_models else {}
         with self._scope():
             try:
@@ -172,7 +198,17 @@ class MujocoWarpBackend(LayoutBackend):
             # iterations, as mjlab), and check_overflow raises on a capacity overflow.
             self._m.opt.warn_overflow = 0
             self._d = mjw.make_data(model, nworld=num_envs, nconmax=self.nconmax, njmax=self.njmax)
-        t = wp.to_torch
+
+    def _take_views(self, model: mujoco.MjModel, lay: ModelLayout, per_env_models: bool) -> None:
+        """Take the torch views of the device arrays the backend reads and writes, and set up
+        the bookkeeping of resets, graphs and overflow checks.
+
+        Raises:
+            InputError: A model whose full physics state holds more than time, qpos, qvel and
+                act.
+        """
+        num_envs, dev = self.num_envs, self.device
+        t = self._wp.to_torch
         d, m = self._d, self._m
         self._qpos, self._qvel, self._ctrl = t(d.qpos), t(d.qvel), t(d.ctrl)
         self._sens, self._overflow = t(d.sensordata), t(d.overflow)
@@ -195,12 +231,6 @@ class MujocoWarpBackend(LayoutBackend):
         self._graphs: dict[str, Any] = {}
         self._steps = 0
         self._reset_mask = torch.zeros(num_envs, dtype=torch.bool, device=dev)
-        # Compile every kernel of a step and a forward pass before any capture, then start
-        # all worlds at qpos0, at rest.
-        with self._scope():
-            mjw.step(self._m, self._d)
-        qpos0 = np.tile(model.qpos0, (num_envs, 1))
-        self.reset_to(np.arange(num_envs), qpos0, np.zeros((num_envs, self.nv)))
 
     # ----------------------------------------------------------------------------- streams
 

@@ -10,6 +10,7 @@ from humimic.retarget.dynamics.inverse import (
     inverse_dynamics_torques,
     reference_flight,
 )
+from humimic.retarget.dynamics.plans import DynamicsResult, knot_weights
 from humimic.retarget.dynamics.refinement import refine
 from humimic.retarget.dynamics.replays import (
     check_replay,
@@ -18,7 +19,7 @@ from humimic.retarget.dynamics.replays import (
     physics_steps_per_frame,
     replay,
 )
-from humimic.retarget.dynamics.sampler import DynamicsResult, DynamicsRetargeter, knot_weights
+from humimic.retarget.dynamics.sampler import DynamicsRetargeter
 
 __all__ = [
     "FLIGHT_CLEARANCE",

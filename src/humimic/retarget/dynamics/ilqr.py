@@ -96,66 +96,131 @@ def ilqr(
     Returns:
         The polished plan and its exact cost.
     """
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    H, nu = controls.shape
-    nv, nx = model.nv, 2 * model.nv + model.na
-    data = mujoco.MjData(model)
-
-    def start() -> mujoco.MjData:
-        mujoco.mj_setState(model, data, state, spec)
-        data.qacc_warmstart[:] = warmstart
-        return data
-
+    problem = _Problem(
+        model, state, warmstart, *controls.shape, decimation=decimation, stage=stage,
+        lower=lower, upper=upper, eps=eps,
+    )  # fmt: skip
     u = np.clip(controls, lower, upper)
     c = c0 = float(cost(u))
     steps: list[float] = []
-    dq = np.zeros(nv)
-    xq, xv = np.zeros((H + 1, model.nq)), np.zeros((H + 1, nv))
-    xa = np.zeros((H + 1, model.na))
-    A, B = np.zeros((H, nx, nx)), np.zeros((H, nx, nu))
-    lx, lxx = np.zeros((H + 1, nx)), np.zeros((H + 1, nx, nx))
-    lu, luu = np.zeros((H, nu)), np.zeros((H, nu, nu))
     stale = True  # The linearization is not the current plan's (a rejected step keeps it).
     for _ in range(iterations):
         if stale:
-            d = start()
-            xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
-            for t in range(H):
-                A[t], B[t] = control_step_jacobians(model, d, u[t], decimation, eps)
-                xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
-                r, J, lu[t], luu[t] = stage(d, t, u[t])
-                lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
-                lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
-            stale = False
-        gains = None
-        while gains is None and mu <= 1e4:
-            gains = riccati(lx, lxx, lu, luu, A, B, mu)
-            if gains is None:
-                mu *= 10.0
+            problem.linearize(u)
+        gains, mu = problem.gains(mu)
         if gains is None:
             break
-        k, K = gains
-        # Line search on the exact cost, with the feedback closing the loop on the way.
-        taken = 0.0
+        u, c, taken = problem.line_search(u, c, *gains, cost=cost)
+        stale = taken > 0.0
+        steps.append(taken)
+        mu = max(mu / 3.0, 2e-4) if taken else mu * 10.0
+        if mu > 1e4:  # Only after a rejected step (gains came with mu <= 1e4).
+            break
+    return IlqrResult(controls=u, cost=c, initial_cost=c0, steps=tuple(steps))
+
+
+class _Problem:
+    """One :func:`ilqr` problem: the model, the start, the stage model and the bounds, and
+    the linearization of the current plan along its trajectory (the states it visits, the
+    control steps' Jacobians, and the cost's derivatives), refilled by :meth:`linearize`.
+
+    All simulation runs on one ``MjData``, set to the start before each rollout.
+
+    Args:
+        model, state, warmstart, decimation, stage, lower, upper, eps: As :func:`ilqr`'s.
+        H, nu: Control steps of the plan, and controls of each.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        state: np.ndarray,
+        warmstart: np.ndarray,
+        H: int,
+        nu: int,
+        *,
+        decimation: int,
+        stage: StageFn,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        eps: float,
+    ) -> None:
+        self.model, self.state, self.warmstart = model, state, warmstart
+        self.decimation, self.stage, self.eps = decimation, stage, eps
+        self.lower, self.upper = lower, upper
+        self.spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        nv, nx = model.nv, 2 * model.nv + model.na
+        self.data = mujoco.MjData(model)
+        self.dq = np.zeros(nv)
+        self.xq, self.xv = np.zeros((H + 1, model.nq)), np.zeros((H + 1, nv))
+        self.xa = np.zeros((H + 1, model.na))
+        self.A, self.B = np.zeros((H, nx, nx)), np.zeros((H, nx, nu))
+        self.lx, self.lxx = np.zeros((H + 1, nx)), np.zeros((H + 1, nx, nx))
+        self.lu, self.luu = np.zeros((H, nu)), np.zeros((H, nu, nu))
+
+    def start(self) -> mujoco.MjData:
+        """The ``MjData`` at the start state, with the start's solver warm start."""
+        mujoco.mj_setState(self.model, self.data, self.state, self.spec)
+        self.data.qacc_warmstart[:] = self.warmstart
+        return self.data
+
+    def linearize(self, u: np.ndarray) -> None:
+        """Simulate plan ``u`` (Shape: (H, nu)) from the start, recording the states it
+        visits, each control step's Jacobians, and the stage's Gauss-Newton model of the
+        cost at each step's end."""
+        model, xq, xv, xa = self.model, self.xq, self.xv, self.xa
+        d = self.start()
+        xq[0], xv[0], xa[0] = d.qpos, d.qvel, d.act
+        for t in range(u.shape[0]):
+            self.A[t], self.B[t] = control_step_jacobians(model, d, u[t], self.decimation, self.eps)
+            xq[t + 1], xv[t + 1], xa[t + 1] = d.qpos, d.qvel, d.act
+            r, J, self.lu[t], self.luu[t] = self.stage(d, t, u[t])
+            self.lx[t + 1, : J.shape[1]] = 2.0 * J.T @ r
+            self.lxx[t + 1, : J.shape[1], : J.shape[1]] = 2.0 * J.T @ J
+
+    def gains(self, mu: float) -> tuple[tuple[np.ndarray, np.ndarray] | None, float]:
+        """The Riccati pass's gains ``k, K`` on the current linearization, regularized by
+        ``mu``, which grows tenfold while ``Q_uu`` is not positive definite.
+
+        Returns:
+            The gains (``None`` once ``mu`` passes 1e4 without them) and the ``mu`` they
+            took.
+        """
+        gains = None
+        while gains is None and mu <= 1e4:
+            gains = riccati(self.lx, self.lxx, self.lu, self.luu, self.A, self.B, mu)
+            if gains is None:
+                mu *= 10.0
+        return gains, mu
+
+    def line_search(
+        self,
+        u: np.ndarray,
+        c: float,
+        k: np.ndarray,
+        K: np.ndarray,
+        *,
+        cost: Callable[[np.ndarray], float],
+    ) -> tuple[np.ndarray, float, float]:
+        """The first of the step sizes 1, 1/2, 1/4, 1/10 whose plan, the feedback closing
+        the loop on the linearized trajectory while it is made, lowers the exact ``cost``
+        below ``c``.
+
+        Returns:
+            The new plan, its cost and the step size; or ``u``, ``c`` and 0 if none helps.
+        """
+        model, lower, upper, dq = self.model, self.lower, self.upper, self.dq
         for alpha in (1.0, 0.5, 0.25, 0.1):
-            d, un = start(), np.zeros_like(u)
-            for t in range(H):
-                mujoco.mj_differentiatePos(model, dq, 1.0, xq[t], d.qpos)
-                dx = np.concatenate([dq, d.qvel - xv[t], d.act - xa[t]])
+            d, un = self.start(), np.zeros_like(u)
+            for t in range(u.shape[0]):
+                mujoco.mj_differentiatePos(model, dq, 1.0, self.xq[t], d.qpos)
+                dx = np.concatenate([dq, d.qvel - self.xv[t], d.act - self.xa[t]])
                 un[t] = np.clip(u[t] + alpha * k[t] + K[t] @ dx, lower, upper)
-                rollout.step(model, d, decimation, ctrl=un[t])
+                rollout.step(model, d, self.decimation, ctrl=un[t])
             cn = float(cost(un))
             if cn < c:
-                u, c, taken, stale = un, cn, alpha, True
-                break
-        steps.append(taken)
-        if taken:
-            mu = max(mu / 3.0, 2e-4)
-        else:
-            mu *= 10.0
-            if mu > 1e4:
-                break
-    return IlqrResult(controls=u, cost=c, initial_cost=c0, steps=tuple(steps))
+                return un, cn, alpha
+        return u, c, 0.0
 
 
 __all__ = ["IlqrResult", "control_step_jacobians", "ilqr", "riccati"]

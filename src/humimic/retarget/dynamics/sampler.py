@@ -18,6 +18,7 @@ from humimic.motion import Motion
 from humimic.retarget.contacts import step_speed
 from humimic.retarget.dynamics.ilqr import ilqr
 from humimic.retarget.dynamics.inverse import inverse_dynamics_torques
+from humimic.retarget.dynamics.plans import DynamicsResult, knot_weights
 from humimic.retarget.dynamics.replays import (
     _tilt_and_fall,
     _up_z,
@@ -35,59 +36,22 @@ _UPPER = ("waist", "shoulder", "elbow", "wrist")
 
 
 @dataclass(frozen=True, kw_only=True)
-class DynamicsResult:
-    """A dynamically feasible motion: initial state, controls, and the states they produce.
+class _WindowSearch:
+    """What sampling found for one window (:meth:`DynamicsRetargeter._sample_window`).
 
     Attributes:
-        initial_state: ``mjSTATE_FULLPHYSICS`` state at frame 0. Shape: (``mj_stateSize``,).
-        ctrl: PD targets of every physics step. Shape: (S, nu).
-        qpos: Generalized positions after each physics step. Shape: (S, nq).
-        qvel: Generalized velocities after each physics step. Shape: (S, nv).
-        physics_dt: Physics step [s].
-        decimation: Physics steps per frame of the reference.
-        seconds: Wall-clock time of the optimization [s].
-        cpu_seconds: Process CPU time of the optimization, all threads [s].
-        rollouts: Physics steps simulated by the sampler, all samples and iterations.
-        iterations: Sampling iterations of each window. Shape: (windows,).
-        window_costs: Each window's cost after sampling (its best sample's) and of the plan
-            committed from it (after the iLQR polish). Shape: (windows, 2).
+        offsets: The best sample's offsets from the nominal targets. Shape: (H, nu).
+        controls: Its PD targets, within the control bounds. Shape: (H, nu).
+        cost: Its cost.
+        iterations: Sampling iterations run.
+        rollouts: Physics steps simulated, all samples and members.
     """
 
-    initial_state: np.ndarray
-    ctrl: np.ndarray
-    qpos: np.ndarray
-    qvel: np.ndarray
-    physics_dt: float
-    decimation: int
-    seconds: float
-    cpu_seconds: float
+    offsets: np.ndarray
+    controls: np.ndarray
+    cost: float
+    iterations: int
     rollouts: int
-    iterations: np.ndarray
-    window_costs: np.ndarray
-
-    def frame_qpos(self) -> np.ndarray:
-        """The state at each reference frame: the start, then every ``decimation``-th step.
-        Shape: (T, nq)."""
-        start = self.initial_state[1 : 1 + self.qpos.shape[1]]
-        return np.concatenate([start[None], self.qpos[self.decimation - 1 :: self.decimation]])
-
-
-def knot_weights(num_steps: int, step_dt: float, knot_dt: float) -> np.ndarray:
-    """Linear interpolation of knots at ``0, knot_dt, 2 knot_dt, ...`` to control steps at
-    ``0, step_dt, ...``: row j holds the weights of the knots at ``j * step_dt``.
-
-    Returns:
-        Shape: (num_steps, K) with ``K = ceil((num_steps - 1) step_dt / knot_dt) + 1``; rows
-        sum to 1.
-    """
-    t = np.arange(num_steps) * step_dt / knot_dt
-    k = math.ceil(t[-1] - 1e-9) + 1 if num_steps > 1 else 1
-    w = np.zeros((num_steps, max(k, 2)))
-    lo = np.minimum(np.floor(t + 1e-9).astype(int), w.shape[1] - 2)
-    frac = t - lo
-    w[np.arange(num_steps), lo] = 1.0 - frac
-    w[np.arange(num_steps), lo + 1] += frac
-    return w
 
 
 class DynamicsRetargeter:
@@ -161,20 +125,7 @@ class DynamicsRetargeter:
         device: str = "cpu",
     ) -> None:
         cfg = cfg or DynamicsConfig()
-        cfg.validate()
-        task = setup or key_body_setup(motion.robot)
-        if task.robot != motion.robot:
-            raise InputError(f"the motion is for {motion.robot!r}, the setup for {task.robot!r}")
-        if motion.num_frames < 3:
-            raise InputError(f"the motion has {motion.num_frames} frames; at least 3 needed")
-        decimation = physics_steps_per_frame(motion.fps, task.sim_dt)
-        if decimation is None:
-            raise InputError(
-                f"the motion's {motion.fps} fps is not a whole number of {task.sim_dt} s "
-                "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
-            )
-        if task.body_names[0] != motion.body_names[0]:
-            raise InputError(f"the setup's first body must be the base {motion.body_names[0]!r}")
+        task, decimation = _checked_setup(motion, cfg, setup)
         self.motion, self.cfg, self.decimation = motion, cfg, decimation
         self.step_dt = 1.0 / motion.fps
         self.physics_dt = task.sim_dt
@@ -192,16 +143,36 @@ class DynamicsRetargeter:
         # the ensemble's (the sampler's draws).
         self.members = [model]
         if cfg.ensemble:
-            rng = np.random.default_rng(cfg.seed + 1)
-            smp = dr_mod.sample(dr, cfg.ensemble, num_bodies=self.backend.num_bodies_total,
-                                num_joints=self.backend.nu, rng=rng,
-                                com_column=self.backend.layout.com_column)  # fmt: skip
-            for e in range(cfg.ensemble):
-                ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
-                self.backend.set_params(ids, smp.physics.select(np.full(len(ids), e)))
-            self.members += physics_copies(model, self.backend.layout, smp.physics)
+            self.members += self._perturb_ensemble(dr)
+        self._take_reference(task)
+        self.nominal = self._nominal_targets()
 
-        be = self.backend
+    def _perturb_ensemble(self, dr: DomainRandomization) -> list[mujoco.MjModel]:
+        """Draw the ensemble's ``cfg.ensemble`` perturbed physics (seed ``cfg.seed + 1``) and
+        give member ``e``'s to the backend's ``e + 1``-th block of ``cfg.samples`` envs (the
+        first block keeps the nominal physics).
+
+        Returns:
+            The members' models, for the polish's exact cost.
+        """
+        cfg, be = self.cfg, self.backend
+        rng = np.random.default_rng(cfg.seed + 1)
+        smp = dr_mod.sample(dr, cfg.ensemble, num_bodies=be.num_bodies_total, num_joints=be.nu,
+                            rng=rng, com_column=be.layout.com_column)  # fmt: skip
+        for e in range(cfg.ensemble):
+            ids = np.arange((e + 1) * cfg.samples, (e + 2) * cfg.samples)
+            be.set_params(ids, smp.physics.select(np.full(len(ids), e)))
+        return physics_copies(self.model, be.layout, smp.physics)
+
+    def _take_reference(self, task: SimSetup) -> None:
+        """Read what the cost compares against from the motion, in the backend's joint order
+        and the setup's body order (the reference's joints, bodies, root and planted feet),
+        and the robot's sizes, gains and control bounds.
+
+        Raises:
+            InputError: The motion lacks one of the backend's joints or the setup's bodies.
+        """
+        motion, cfg, model, be = self.motion, self.cfg, self.model, self.backend
         missing = [n for n in be.joint_names if n not in motion.joint_names] + [
             n for n in task.body_names if n not in motion.body_names
         ]
@@ -214,7 +185,7 @@ class DynamicsRetargeter:
         self.ref_body = np.ascontiguousarray(motion.body_pos_w[:, bidx])
         self.ref_quat_root = motion.body_quat_w[:, 0]
         self.ref_root_vel = motion.body_lin_vel_w[:, 0]
-        self.root = 0  # task.body_names[0] is the pelvis (the floating base), checked above.
+        self.root = 0  # task.body_names[0] is the pelvis (the floating base): _checked_setup.
         self.joint_lo, self.joint_hi = be.joint_range[:, 0], be.joint_range[:, 1]
         self.kp = be.kp
         self.kd = -model.actuator_biasprm[:, 2].copy()
@@ -239,17 +210,25 @@ class DynamicsRetargeter:
         # the range's end (the model's actuators do not clamp their controls).
         reach = self.effort / self.kp
         self.ctrl_lo, self.ctrl_hi = self.joint_lo - reach, self.joint_hi + reach
-        # The reference's inverse-dynamics torques (None if its qpos is another model's).
+
+    def _nominal_targets(self) -> np.ndarray:
+        """The nominal targets of the control steps (row t: frame t to t + 1), around which
+        the sampler searches: the next frame's joints, or with feedforward the targets whose
+        PD torque at the step's middle is the reference's inverse-dynamics torque (kept as
+        ``reference_torque``: None if the motion's qpos is another model's). Shape: (T - 1,
+        nu).
+
+        Raises:
+            InputError: Feedforward for a motion whose qpos is another model's.
+        """
+        motion, cfg, model, be = self.motion, self.cfg, self.model, self.backend
         self.reference_torque: np.ndarray | None = None
         if motion.qpos.shape[1] == model.nq:
             self.reference_torque = inverse_dynamics_torques(
                 model, motion.qpos, motion.fps, be.joint_names, be.foot_body_names
             )
-        # The nominal targets of the control steps (row t: frame t to t + 1), around which
-        # the sampler searches: the next frame's joints, or with feedforward the targets
-        # whose PD torque at the step's middle is the reference's inverse-dynamics torque.
         if cfg.feedforward == 0:
-            self.nominal = self.ref_joint[1:]
+            nominal = self.ref_joint[1:]
         else:
             tau = self.reference_torque
             if tau is None:
@@ -258,8 +237,8 @@ class DynamicsRetargeter:
                 )
             ff = (tau + self.kd * self.ref_joint_vel) / self.kp  # kp (u - q) - kd qd = tau
             mid = 0.5 * (self.ref_joint[1:] + self.ref_joint[:-1])
-            self.nominal = mid + cfg.feedforward * 0.5 * (ff[1:] + ff[:-1])
-        self.nominal = np.clip(self.nominal, self.ctrl_lo, self.ctrl_hi)
+            nominal = mid + cfg.feedforward * 0.5 * (ff[1:] + ff[:-1])
+        return np.clip(nominal, self.ctrl_lo, self.ctrl_hi)
 
     # ------------------------------------------------------------------------------ costs
 
@@ -367,9 +346,8 @@ class DynamicsRetargeter:
 
     def run(self, progress: Callable[[int], Any] | None = None) -> DynamicsResult:
         """Optimize the whole motion. ``progress(n)`` is called with the frames committed."""
-        cfg, be, d = self.cfg, self.backend, self.decimation
+        cfg, d = self.cfg, self.decimation
         T = self.motion.num_frames
-        members, N = cfg.ensemble + 1, cfg.samples
         H_full = max(1, round(cfg.horizon_s / self.step_dt))
         C = max(1, round(cfg.commit_s / self.step_dt))
         rng = np.random.default_rng(cfg.seed)
@@ -390,68 +368,14 @@ class DynamicsRetargeter:
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         while f0 < T - 1:
             H = min(H_full, T - 1 - f0)
-            W = knot_weights(H, self.step_dt, cfg.knot_dt)  # (H, K)
-            K = W.shape[1]
-            mean = np.zeros((K, self.nu))
-            if plan_prev is not None:  # Warm start: the last plan's remaining offsets.
-                tk = np.arange(K) * cfg.knot_dt / self.step_dt  # knot times in steps
-                src = np.arange(plan_prev.shape[0])
-                for j in range(self.nu):
-                    mean[:, j] = np.interp(tk, src, plan_prev[:, j], right=0.0)
             ref_u = self.nominal[f0 : f0 + H]  # (H, J): targets toward the next frames
-            # The window's start state and solver warm start, for every rollout.
-            start = np.ascontiguousarray(np.broadcast_to(state, (N * members, state.size)))
-            warm = np.ascontiguousarray(
-                np.broadcast_to(live.qacc_warmstart, (N * members, self.nv))
-            )
-            ramp = 1.0 + (cfg.horizon_noise - 1.0) * np.arange(K) / max(K - 1, 1)
-            sigma0 = cfg.noise * ramp[:, None] * self.joint_noise[None]  # (K, J)
-            if plan_prev is not None:
-                sigma0[0] = 0.0  # The first knot continues the committed targets.
-            best_c, best = np.inf, None
-            stall, it = 0, 0
-            for it in range(cfg.iterations):
-                sigma = sigma0 * cfg.anneal**it
-                knots = mean + rng.standard_normal((N, K, self.nu)) * sigma
-                knots[0] = mean
-                if it == 0 and plan_prev is not None:
-                    knots[1] = 0.0  # The nominal targets, as a candidate.
-                offs = np.einsum("hk,nkj->nhj", W, knots)  # (N, H, J)
-                u = np.clip(ref_u + offs, self.ctrl_lo, self.ctrl_hi)
-                u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
-                ctrl = np.tile(u_steps, (members, 1, 1))
-                states, sens = be.rollout(start, ctrl, warm)
-                steps += ctrl.shape[0] * ctrl.shape[1]
-                cost_all = self._costs(states, sens, ctrl, f0).reshape(members, N)
-                cost = cost_all.mean(0) if cfg.robust == "mean" else cost_all.max(0)
-                k = int(np.argmin(cost))
-                improved = best_c - cost[k]
-                if cost[k] < best_c:
-                    best_c = float(cost[k])
-                    best = (offs[k].copy(), u[k].copy())
-                # MPPI over the elites, on costs normalized by their spread.
-                order = np.argsort(cost)[: cfg.elites]
-                ce = cost[order]
-                z = (ce - ce[0]) / (ce.std() + 1e-12)
-                w = np.exp(-z / cfg.temperature)
-                mean = np.einsum("n,nkj->kj", w / w.sum(), knots[order])
-                if it > 0 and improved < cfg.min_improvement * abs(best_c):
-                    stall += 1
-                    if stall >= 2:
-                        break
-                else:
-                    stall = 0
-            if best is None:  # Every cost was NaN: the simulation diverged in every rollout.
-                raise RetargetError(
-                    f"dynamics: every sampled rollout of the window at frame {f0} diverged "
-                    "(NaN cost); lower --dyn.noise or --dyn.feedforward"
-                )
-            offs_b, u_b = best
-            committed = best_c
+            found = self._sample_window(state, live.qacc_warmstart, f0, ref_u, plan_prev, rng)
+            steps += found.rollouts
+            offs_b, u_b, committed = found.offsets, found.controls, found.cost
             if cfg.polish_iterations:
                 u_b, committed = self._polish(state, live.qacc_warmstart.copy(), u_b, f0)
                 offs_b = u_b - ref_u
-            costs.append((best_c, committed))
+            costs.append((found.cost, committed))
             c = min(C, H)
             u_b = np.repeat(u_b, d, axis=0)
             ctrl_out.append(u_b[: c * d])
@@ -460,7 +384,7 @@ class DynamicsRetargeter:
             qvel_out.append(seg_v)
             mujoco.mj_getState(self.model, live, state, spec)
             plan_prev = offs_b[c:] if c < H else None
-            iters.append(it + 1)
+            iters.append(found.iterations)
             f0 += c
             if progress is not None:
                 progress(c)
@@ -477,6 +401,104 @@ class DynamicsRetargeter:
             iterations=np.array(iters),
             window_costs=np.array(costs).reshape(-1, 2),
         )
+
+    def _sample_window(
+        self,
+        state: np.ndarray,
+        warmstart: np.ndarray,
+        f0: int,
+        ref_u: np.ndarray,
+        plan_prev: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> _WindowSearch:
+        """The sampling iterations of the window at frame ``f0``: ``cfg.samples`` plans per
+        iteration around the mean (itself one of them), rolled out on every member from
+        ``state`` and solver warm start ``warmstart``, until ``cfg.iterations`` or two
+        iterations in a row that improve the best cost by less than ``cfg.min_improvement``.
+
+        Args:
+            state: The window's start (``mjSTATE_FULLPHYSICS``).
+            warmstart: The solver's warm start there (``qacc_warmstart``). Shape: (nv,).
+            f0: The window's first frame.
+            ref_u: The nominal targets of the window's control steps. Shape: (H, nu).
+            plan_prev: The last window's offsets beyond what it committed (the mean's warm
+                start), or ``None`` for the first window. Shape: (H', nu).
+            rng: The sampling noise.
+
+        Raises:
+            RetargetError: Every rollout diverged (NaN cost).
+        """
+        cfg, be, d = self.cfg, self.backend, self.decimation
+        members, N = cfg.ensemble + 1, cfg.samples
+        H = ref_u.shape[0]
+        W = knot_weights(H, self.step_dt, cfg.knot_dt)  # (H, K)
+        K = W.shape[1]
+        mean = self._warm_mean(plan_prev, K)
+        # The window's start state and solver warm start, for every rollout.
+        start = np.ascontiguousarray(np.broadcast_to(state, (N * members, state.size)))
+        warm = np.ascontiguousarray(np.broadcast_to(warmstart, (N * members, self.nv)))
+        ramp = 1.0 + (cfg.horizon_noise - 1.0) * np.arange(K) / max(K - 1, 1)
+        sigma0 = cfg.noise * ramp[:, None] * self.joint_noise[None]  # (K, J)
+        if plan_prev is not None:
+            sigma0[0] = 0.0  # The first knot continues the committed targets.
+        best_c, best = np.inf, None
+        stall, it, steps = 0, 0, 0
+        for it in range(cfg.iterations):
+            sigma = sigma0 * cfg.anneal**it
+            knots = mean + rng.standard_normal((N, K, self.nu)) * sigma
+            knots[0] = mean
+            if it == 0 and plan_prev is not None:
+                knots[1] = 0.0  # The nominal targets, as a candidate.
+            offs = np.einsum("hk,nkj->nhj", W, knots)  # (N, H, J)
+            u = np.clip(ref_u + offs, self.ctrl_lo, self.ctrl_hi)
+            u_steps = np.repeat(u, d, axis=1)  # (N, H d, J)
+            ctrl = np.tile(u_steps, (members, 1, 1))
+            states, sens = be.rollout(start, ctrl, warm)
+            steps += ctrl.shape[0] * ctrl.shape[1]
+            cost_all = self._costs(states, sens, ctrl, f0).reshape(members, N)
+            cost = cost_all.mean(0) if cfg.robust == "mean" else cost_all.max(0)
+            k = int(np.argmin(cost))
+            improved = best_c - cost[k]
+            if cost[k] < best_c:
+                best_c = float(cost[k])
+                best = (offs[k].copy(), u[k].copy())
+            mean = self._mppi_mean(cost, knots)
+            if it > 0 and improved < cfg.min_improvement * abs(best_c):
+                stall += 1
+                if stall >= 2:
+                    break
+            else:
+                stall = 0
+        if best is None:  # Every cost was NaN: the simulation diverged in every rollout.
+            raise RetargetError(
+                f"dynamics: every sampled rollout of the window at frame {f0} diverged "
+                "(NaN cost); lower --dyn.noise or --dyn.feedforward"
+            )
+        return _WindowSearch(
+            offsets=best[0], controls=best[1], cost=best_c, iterations=it + 1, rollouts=steps
+        )
+
+    def _warm_mean(self, plan_prev: np.ndarray | None, K: int) -> np.ndarray:
+        """The sampling mean a window starts from: zero offsets, or the last plan's remaining
+        offsets (``plan_prev``, one per control step) at the window's ``K`` knots, zero
+        beyond them. Shape: (K, nu)."""
+        mean = np.zeros((K, self.nu))
+        if plan_prev is not None:  # Warm start: the last plan's remaining offsets.
+            tk = np.arange(K) * self.cfg.knot_dt / self.step_dt  # knot times in steps
+            src = np.arange(plan_prev.shape[0])
+            for j in range(self.nu):
+                mean[:, j] = np.interp(tk, src, plan_prev[:, j], right=0.0)
+        return mean
+
+    def _mppi_mean(self, cost: np.ndarray, knots: np.ndarray) -> np.ndarray:
+        """The next sampling mean: the MPPI average of the ``cfg.elites`` cheapest samples'
+        knots (Shape: (N, K, nu)), weighted on their costs (Shape: (N,)) normalized by the
+        elites' spread. Shape: (K, nu)."""
+        order = np.argsort(cost)[: self.cfg.elites]
+        ce = cost[order]
+        z = (ce - ce[0]) / (ce.std() + 1e-12)
+        w = np.exp(-z / self.cfg.temperature)
+        return np.einsum("n,nkj->kj", w / w.sum(), knots[order])
 
     def _polish(
         self, state: np.ndarray, warm: np.ndarray, u: np.ndarray, f0: int
@@ -514,6 +536,32 @@ class DynamicsRetargeter:
         frame's joints over each frame). Shape: ((T - 1) decimation, nu)."""
         u = np.clip(self.ref_joint[1:], self.joint_lo, self.joint_hi)
         return np.repeat(u, self.decimation, axis=0)
+
+
+def _checked_setup(
+    motion: Motion, cfg: DynamicsConfig, setup: SimSetup | None
+) -> tuple[SimSetup, int]:
+    """The setup the retargeter simulates (``setup``, or the robot's key bodies on the CPU)
+    and its physics steps per frame, after checking that the settings and the motion fit it.
+
+    Raises:
+        InputError: If the settings or the motion do not fit.
+    """
+    cfg.validate()
+    task = setup or key_body_setup(motion.robot)
+    if task.robot != motion.robot:
+        raise InputError(f"the motion is for {motion.robot!r}, the setup for {task.robot!r}")
+    if motion.num_frames < 3:
+        raise InputError(f"the motion has {motion.num_frames} frames; at least 3 needed")
+    decimation = physics_steps_per_frame(motion.fps, task.sim_dt)
+    if decimation is None:
+        raise InputError(
+            f"the motion's {motion.fps} fps is not a whole number of {task.sim_dt} s "
+            "physics steps per frame: resample it (e.g. humimic retarget --ik.fps 50)"
+        )
+    if task.body_names[0] != motion.body_names[0]:
+        raise InputError(f"the setup's first body must be the base {motion.body_names[0]!r}")
+    return task, decimation
 
 
 def _ensemble_ranges(dr: DomainRandomization) -> DomainRandomization:
