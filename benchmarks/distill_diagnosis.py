@@ -25,7 +25,7 @@ def main() -> None:
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.export import load_policy_runner
     from humimic.tracking.runs import run_config
-    from humimic.tracking.train import load_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
 
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("run", type=Path)

@@ -33,7 +33,7 @@ from humimic.sim.warp_backend import MujocoWarpBackend
 from humimic.tracking.actions import has_stored_controls
 from humimic.tracking.config import g1_tracking
 from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
-from humimic.tracking.train import load_reference, resolve_dr
+from humimic.tracking.task import load_reference, resolve_dr
 
 
 def _sync() -> None:

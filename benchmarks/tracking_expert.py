@@ -59,7 +59,7 @@ def evaluate_variant(motion_path: Path, robot: str, variant: dict, dr: str, phys
     from humimic.tracking.config import AdaptiveSampling, ResetNoise
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.evaluate import _episodes
-    from humimic.tracking.train import load_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
 
     base = task_config(robot, dr, seed, physics)
     fields = dict(variant)

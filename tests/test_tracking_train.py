@@ -33,7 +33,7 @@ def _train_args(motion: Path, out: Path, iterations: int, *extra: str) -> list[s
 
 
 def test_reference_is_resampled_to_the_policy_rate(motion_file: Path) -> None:
-    from humimic.tracking.train import load_reference
+    from humimic.tracking.task import load_reference
 
     src = load_motion(motion_file)
     ref = load_reference(motion_file, "g1", 50.0)
@@ -85,7 +85,7 @@ def test_task_and_ppo_settings_are_recorded_and_kept_on_resume(
     import yaml
 
     from humimic.tracking.runs import read_run_settings
-    from humimic.tracking.train import task_config
+    from humimic.tracking.task import task_config
 
     out = tmp_path / "run"
     tuned = ["--task.action-scale", "0.5", "--task.reward-weights", "body_pos", "2.0",
@@ -152,7 +152,7 @@ def test_run_records_the_feedback_it_trains_with_and_older_runs_read_as_trained(
         resolved_settings,
         upgrade_run_config,
     )
-    from humimic.tracking.train import task_config
+    from humimic.tracking.task import task_config
 
     def read_v1(settings: dict) -> TrainSettings:
         config = upgrade_run_config({"settings": settings}, Path("run/config.yaml"))
@@ -513,7 +513,7 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
 def test_mujoco_model_of_the_reference_matches_the_env(motion_file: Path) -> None:
     """The trainer's motion uses the same joint names as the env's model."""
     from humimic.tracking.env import tracking_model
-    from humimic.tracking.train import load_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
 
     task = task_config("g1", "none", 0)
     model = tracking_model(task)

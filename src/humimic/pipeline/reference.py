@@ -36,7 +36,8 @@ def prepare_reference(
     """
     from humimic.motion import load_motion, save_motion
     from humimic.tracking.actions import STORED_BASES, has_stored_controls
-    from humimic.tracking.train import check_run_settings, load_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
+    from humimic.tracking.train import check_run_settings
 
     s = s.sized()
     check_run_settings(s)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import shutil
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -267,26 +268,54 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     (:class:`~humimic.tracking.rma.RmaDistillation`); ``progress.csv`` has ``loss_latent``
     (trained on) and ``loss_behavior`` (the actions' MSE, not trained on).
     """
-    from humimic.errors import first_line
-    from humimic.sim.randomization import DR_PROFILES
     from humimic.tracking.rsl import make_runner
-    from humimic.tracking.runs import (
-        RUN_SCHEMA,
-        recorded_motion,
-        resolve_checkpoint,
-        resolved_source,
-        run_config,
-        run_files,
-        run_folder_lock,
-        run_rsl_cfg,
-        yaml_ready,
-    )
-    from humimic.tracking.train import check_run_settings, fit, load_reference, run_env, task_config
+    from humimic.tracking.task import load_reference
+    from humimic.tracking.train import check_run_settings, fit, run_env
 
     s = settings.sized()
     assert s.num_envs is not None  # sized() set it.
     has_run = check_run_settings(s)
     _check_outputs(s)
+    teacher, teacher_cfg, ckpt, teacher_blob = _teacher_run(s)
+    task, teacher, teacher_base = _student_task(s, teacher)
+    moved = task.action_base != teacher_base
+    motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
+    cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
+    if moved:
+        cfg["teacher"]["class_name"] = f"{__name__}:ExpertTeacher"
+    run = s.out
+    created = not run.exists()
+    check_writable(run / "config.yaml", create=True)
+
+    from humimic.tracking.runs import run_folder_lock
+
+    with run_folder_lock(run, has_run):  # Until the student's last checkpoint.
+        torch.manual_seed(s.seed)
+        env = run_env(task, motion, s, created)
+        try:
+            venv = StudentView(env, teacher_base) if moved else env
+            runner = make_runner(venv, cfg, log_dir=run / "tensorboard", device=s.device)
+            _load_teacher(runner, teacher_blob, ckpt, s, created)
+            (run / "checkpoints").mkdir(parents=True, exist_ok=True)
+            if not has_run:
+                _write_student_config(s, ckpt, teacher, task, cfg)
+            return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
+        finally:
+            env.close()
+
+
+def _teacher_run(s: DistillSettings) -> tuple[Any, dict[str, Any], Path, dict]:
+    """The teacher run's settings, its rsl_rl config, its checkpoint and that checkpoint's
+    contents, checked: a PPO run (an ``rma`` one for an RMA student) whose files the student's
+    folder does not overwrite, and whose motion is unchanged since it trained."""
+    from humimic.tracking.runs import (
+        recorded_motion,
+        resolve_checkpoint,
+        run_config,
+        run_files,
+        run_rsl_cfg,
+    )
+
     recorded = run_config(s.teacher)
     teacher = recorded[1]
     teacher_cfg = run_rsl_cfg(s.teacher, recorded)
@@ -304,74 +333,77 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     ckpt, teacher_blob = resolve_checkpoint(s.teacher, s.teacher_checkpoint,
                                             "--teacher-checkpoint")  # fmt: skip
     recorded_motion(s.teacher, recorded)  # There, unchanged since the teacher trained on it.
-    run = s.out
-    dr = s.dr or teacher.dr
-    task = task_config(teacher.robot, dr, s.seed, teacher.physics, teacher.task)
+    return teacher, teacher_cfg, ckpt, teacher_blob
+
+
+def _student_task(s: DistillSettings, teacher: Any) -> tuple[Any, Any, str]:
+    """The student's task (the teacher's, on the student's action base and DR), the teacher's
+    settings as the student's run records them (its base moved with the student's: eval and
+    export rebuild the student's env), and the teacher's action base."""
+    from humimic.tracking.task import task_config
+
+    task = task_config(teacher.robot, s.dr or teacher.dr, s.seed, teacher.physics, teacher.task)
     task = replace(task, torch_compile=s.compile)
     teacher_base = task.action_base
     student_base = s.student_base or teacher_base
-    moved = student_base != teacher_base
-    if moved:
-        if teacher.variant == "rma":
-            raise InputError(
-                f"--student-base {student_base}: an rma teacher labels states around its own "
-                f"base ({teacher_base}) only; drop --student-base"
-            )
-        if task.feedback_delay:
-            raise InputError(
-                f"--student-base {student_base}: the teacher's feedback base is designed for "
-                f"{task.feedback_delay} steps of latency; a student on another base learns from "
-                "undelayed ones only"
-            )
-        task = replace(task, action_base=student_base)
-        # The student's run rebuilds its env on its own base (eval, export).
-        teacher = replace(teacher, task=replace(teacher.task, action_base=student_base))
-    motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
-    cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
-    if moved:
-        cfg["teacher"]["class_name"] = f"{__name__}:ExpertTeacher"
-    created = not run.exists()
-    check_writable(run / "config.yaml", create=True)
+    if student_base == teacher_base:
+        return task, teacher, teacher_base
+    if teacher.variant == "rma":
+        raise InputError(
+            f"--student-base {student_base}: an rma teacher labels states around its own "
+            f"base ({teacher_base}) only; drop --student-base"
+        )
+    if task.feedback_delay:
+        raise InputError(
+            f"--student-base {student_base}: the teacher's feedback base is designed for "
+            f"{task.feedback_delay} steps of latency; a student on another base learns from "
+            "undelayed ones only"
+        )
+    task = replace(task, action_base=student_base)
+    teacher = replace(teacher, task=replace(teacher.task, action_base=student_base))
+    return task, teacher, teacher_base
 
-    with run_folder_lock(run, has_run):  # Until the student's last checkpoint.
-        torch.manual_seed(s.seed)
-        env = run_env(task, motion, s, created)
-        try:
-            venv = StudentView(env, teacher_base) if moved else env
-            runner = make_runner(venv, cfg, log_dir=run / "tensorboard", device=s.device)
-            try:  # The teacher's actor -> the teacher model, before anything is written.
-                runner.alg.load(teacher_blob, None, True)
-            except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:
-                if created:  # Leave nothing behind for a run that never started.
-                    shutil.rmtree(run, ignore_errors=True)
-                flag = (
-                    "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
-                )
-                raise InputError(
-                    f"{flag} {ckpt}: does not fit the teacher's actor ({first_line(e)})"
-                ) from None
-            (run / "checkpoints").mkdir(parents=True, exist_ok=True)
-            if not has_run:
-                # Paths absolute, as a training run's config records them.
-                recorded = replace(
-                    s,
-                    teacher=s.teacher.resolve(),
-                    out=s.out.resolve(),
-                    teacher_checkpoint=None if s.teacher_checkpoint is None else ckpt.resolve(),
-                    dr=resolved_source(s.dr, DR_PROFILES),
-                )
-                blob = {
-                    "schema": RUN_SCHEMA,
-                    "kind": "student",
-                    "settings": yaml_ready(asdict(teacher)),
-                    "distill": yaml_ready(asdict(recorded)),
-                    "tracking": yaml_ready(task),
-                    "rsl": yaml_ready(cfg),
-                }
-                atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
-            return fit(runner, run, s, steps_per_env=int(cfg["num_steps_per_env"]))
-        finally:
-            env.close()
+
+def _load_teacher(runner: Any, blob: dict, ckpt: Path, s: DistillSettings, created: bool) -> None:
+    """The teacher's actor into the teacher model, before anything is written: one that does
+    not fit is refused naming the checkpoint, and a run folder made for it removed."""
+    from humimic.errors import first_line
+
+    try:
+        runner.alg.load(blob, None, True)
+    except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as e:
+        if created:  # Leave nothing behind for a run that never started.
+            shutil.rmtree(s.out, ignore_errors=True)
+        flag = "--teacher-checkpoint" if s.teacher_checkpoint else "the teacher's checkpoint"
+        raise InputError(
+            f"{flag} {ckpt}: does not fit the teacher's actor ({first_line(e)})"
+        ) from None
+
+
+def _write_student_config(
+    s: DistillSettings, ckpt: Path, teacher: Any, task: Any, cfg: dict[str, Any]
+) -> None:
+    """The student run's config.yaml: the teacher's settings, the distillation's (paths
+    absolute, as a training run's config records them), the task and the rsl_rl config."""
+    from humimic.sim.randomization import DR_PROFILES
+    from humimic.tracking.runs import RUN_SCHEMA, resolved_source, yaml_ready
+
+    recorded = replace(
+        s,
+        teacher=s.teacher.resolve(),
+        out=s.out.resolve(),
+        teacher_checkpoint=None if s.teacher_checkpoint is None else ckpt.resolve(),
+        dr=resolved_source(s.dr, DR_PROFILES),
+    )
+    blob = {
+        "schema": RUN_SCHEMA,
+        "kind": "student",
+        "settings": yaml_ready(asdict(teacher)),
+        "distill": yaml_ready(asdict(recorded)),
+        "tracking": yaml_ready(task),
+        "rsl": yaml_ready(cfg),
+    }
+    atomic_write_text(s.out / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
 
 
 def _check_outputs(s: DistillSettings) -> None:

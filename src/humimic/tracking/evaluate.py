@@ -18,6 +18,7 @@ import torch
 from humimic.configs.jobs import EvalSettings
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
+from humimic.motion import Motion
 from humimic.sim.randomization import param_layout
 from humimic.tracking.actions import stored_targets
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
@@ -206,20 +207,50 @@ def run_evaluation(
     """
     from humimic.tracking.env import TrackingEnv
     from humimic.tracking.rsl import make_runner
-    from humimic.tracking.runs import (
-        load_weights,
-        recorded_motion,
-        resolve_checkpoint,
-        run_config,
-        run_rsl_cfg,
-    )
-    from humimic.tracking.train import load_reference, task_config
+    from humimic.tracking.runs import load_weights, resolve_checkpoint, run_config, run_rsl_cfg
 
     s = settings
     s.validate()
     recorded = run_config(s.run)
-    run = recorded[1]
     path, blob = resolve_checkpoint(s.run, s.checkpoint)
+    task, motion, motion_path = _eval_task(s, recorded)
+    n = s.num_envs or s.episodes
+    results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
+                               "iterations": int(blob["iter"]), "dr": s.dr,
+                               "motion": str(motion_path), "frames": motion.num_frames,
+                               "start_noise": s.start_noise}  # fmt: skip
+    if task.physics is not None:
+        results["physics"] = {"name": task.physics.name, **task.physics.as_dict()}
+
+    torch.manual_seed(s.seed)
+    env = TrackingEnv(task, motion, n, device=s.device)
+    try:
+        runner = make_runner(env, run_rsl_cfg(s.run, recorded), log_dir=None, device=s.device)
+        load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
+        policy = runner.get_inference_policy(device=s.device)
+        policy_traces = [_Trace(env=k) for k in range(max(1, min(traces, s.episodes)))]
+        record: dict[str, np.ndarray] = {}
+        results["policy"] = _episodes(env, policy, s.episodes, policy_traces, record)
+        joint_names = env.joint_names
+        layout = param_layout(env.backend.num_bodies_total, len(joint_names))
+    finally:
+        env.close()
+    open_trace = _Trace()
+    if open_loop:
+        env = TrackingEnv(task, motion, n, device=s.device)
+        results |= _open_loop(env, motion, s.episodes, open_trace)
+    return Evaluation(results, policy_traces[0], open_trace, joint_names, motion, task.step_dt,
+                      record, layout, policy_traces)  # fmt: skip
+
+
+def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[Any, Motion, Path]:
+    """The task an evaluation runs (the run's, under the chosen DR and physics, every episode
+    from the clip's first frame, with the training's reset noise only for ``--start-noise``,
+    no adaptive sampling, long enough for the whole clip), the reference and its file."""
+    from humimic.tracking.runs import recorded_motion
+    from humimic.tracking.task import load_reference, task_config
+
+    run = recorded[1]
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
     if s.motion is None:
         motion_path = recorded_motion(s.run, recorded)  # There, unchanged since the run began.
@@ -237,56 +268,33 @@ def run_evaluation(
         adaptive=AdaptiveSampling(enabled=False),
         episode_length_s=motion.num_frames * base.step_dt + 1.0,
     )  # fmt: skip
-    n = s.num_envs or s.episodes
-    results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
-                               "iterations": int(blob["iter"]), "dr": s.dr,
-                               "motion": str(motion_path), "frames": motion.num_frames,
-                               "start_noise": s.start_noise}  # fmt: skip
-    if base.physics is not None:
-        results["physics"] = {"name": base.physics.name, **base.physics.as_dict()}
+    return task, motion, motion_path
 
-    torch.manual_seed(s.seed)
-    env = TrackingEnv(task, motion, n, device=s.device)
+
+def _open_loop(env: Any, motion: Motion, episodes: int, trace: _Trace) -> dict[str, Any]:
+    """The open loop's episodes on ``env`` (closed after): a refined motion (humimic refine)
+    stores the PD targets that replay it, one per control step, held over its physics steps;
+    a kinematic reference's open loop is its next frame's joint positions."""
     try:
-        runner = make_runner(env, run_rsl_cfg(s.run, recorded), log_dir=None, device=s.device)
-        load_weights(runner, blob, path, "--checkpoint" if s.checkpoint else "checkpoint")
-        policy = runner.get_inference_policy(device=s.device)
-        policy_traces = [_Trace(env=k) for k in range(max(1, min(traces, s.episodes)))]
-        policy_trace = policy_traces[0]
-        record: dict[str, np.ndarray] = {}
-        results["policy"] = _episodes(env, policy, s.episodes, policy_traces, record)
-        joint_names = env.joint_names
-        layout = param_layout(env.backend.num_bodies_total, len(joint_names))
-    finally:
-        env.close()
-    open_trace = _Trace()
-    if not open_loop:
-        return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
-                          record, layout, policy_traces)  # fmt: skip
-    env = TrackingEnv(task, motion, n, device=s.device)
-    try:
-        st = env.state
-        # A refined motion (humimic refine) stores the PD targets that replay it: one per
-        # control step, held over its physics steps. Those are its open loop; a kinematic
-        # reference's open loop is its next frame's joint positions.
+        st, task = env.state, env.cfg
         targets = stored_targets(motion, task.sim_dt, task.decimation)
+        out: dict[str, Any] = {}
         if targets is None:
             targets = env.reference_joint_pos[1:]
-            results["open_loop_targets"] = "reference joint positions"
+            out["open_loop_targets"] = "reference joint positions"
         else:
             targets = torch.as_tensor(targets, dtype=torch.float32, device=env.device)
-            results["open_loop_targets"] = "stored dynamic controls"
+            out["open_loop_targets"] = "stored dynamic controls"
 
         def replay(obs: Any) -> torch.Tensor:
             del obs
             k = st.frame.clamp(max=len(targets) - 1)
             return env.action_for_targets(targets[k])
 
-        results["open_loop"] = _episodes(env, replay, s.episodes, [open_trace])
+        out["open_loop"] = _episodes(env, replay, episodes, [trace])
+        return out
     finally:
         env.close()
-    return Evaluation(results, policy_trace, open_trace, joint_names, motion, task.step_dt,
-                      record, layout, policy_traces)  # fmt: skip
 
 
 def write_eval_mcap(

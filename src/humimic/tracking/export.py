@@ -32,7 +32,7 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
         run_config,
         run_rsl_cfg,
     )
-    from humimic.tracking.train import load_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
 
     recorded = run_config(run)
     settings = recorded[1]

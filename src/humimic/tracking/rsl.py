@@ -216,6 +216,91 @@ def _critic_only(alg: Any) -> Iterator[None]:
             p.requires_grad_(True)
 
 
+class _RunnerMixin:
+    """rsl_rl's runner, except for checkpoints: rsl_rl writes ``model_<it>.pt`` with a plain
+    ``torch.save`` inside ``learn`` (a crash mid-write leaves a damaged file that looks
+    whole) and names it by the iteration in progress. humimic writes them atomically, named
+    by iterations done, and loads them with ``weights_only=True``."""
+
+    ranks: Ranks | None = None
+    """The process group to train data-parallel with (None: a single process)."""
+    # rsl_rl's runner's, which the class this is mixed into has.
+    alg: Any
+    cfg: dict[str, Any]
+    device: str
+    current_learning_iteration: int
+    gpu_world_size: int
+    gpu_local_rank: int
+    gpu_global_rank: int
+    is_distributed: bool
+
+    critic_warmup = 0
+    """Iterations whose updates train the critic alone (:attr:`PpoConfig.critic_warmup_iterations`)."""
+    update_stats: dict[str, float] | None = None
+    """The last update's :meth:`UpdateProbe.summary` (None before the first)."""
+
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
+        """rsl_rl's loop; on the CPU, rollouts run torch on one thread and the PPO update
+        on all of them (see :func:`torch_threads`). The first :attr:`critic_warmup`
+        iterations (counted from the run's start, so a resume after them has none)
+        update the critic alone."""
+        cpu = torch.device(self.device).type == "cpu"
+        full, update = torch.get_num_threads(), self.alg.update
+        done = [self.current_learning_iteration]
+
+        def wrapped(*args: Any, **kwargs: Any) -> Any:
+            warm = done[0] < self.critic_warmup
+            done[0] += 1
+            probe = UpdateProbe(self.alg)
+            with torch_threads(full) if cpu else contextlib.nullcontext(), probe:
+                if not warm:
+                    out = update(*args, **kwargs)
+                else:
+                    with _critic_only(self.alg):
+                        out = update(*args, **kwargs)
+            self.update_stats = probe.summary()
+            return out
+
+        self.alg.update = wrapped
+        try:
+            with torch_threads(1) if cpu else contextlib.nullcontext():
+                return super().learn(num_learning_iterations, init_at_random_ep_len)  # pyright: ignore[reportAttributeAccessIssue]
+        finally:
+            self.alg.update = update
+
+    def _configure_multi_gpu(self) -> None:
+        """rsl_rl's, except that the process group is humimic's (gloo on the CPU, NCCL
+        on GPUs; rsl_rl's own allows NCCL alone) and that only ``ranks`` enables it."""
+        ranks = self.ranks
+        if ranks is None or not ranks.distributed:
+            self.gpu_world_size, self.is_distributed = 1, False
+            self.gpu_local_rank = self.gpu_global_rank = 0
+            self.cfg["multi_gpu"] = None
+            return
+        assert ranks is not None
+        self.gpu_world_size, self.is_distributed = ranks.world_size, True
+        self.gpu_local_rank, self.gpu_global_rank = ranks.local_rank, ranks.rank
+        self.cfg["multi_gpu"] = {
+            "global_rank": ranks.rank,
+            "local_rank": ranks.local_rank,
+            "world_size": ranks.world_size,
+        }
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        del path, infos  # Checkpoints are written by save_checkpoint.
+
+    def save_checkpoint(self, path: Path, iterations_done: int) -> None:
+        blob = self.alg.save()
+        blob["iter"] = iterations_done
+        blob["infos"] = None
+        with atomic_write(path) as f:
+            torch.save(blob, f)
+
+    def load_checkpoint(self, blob: dict[str, Any]) -> None:
+        self.alg.load(blob, None, True)
+        self.current_learning_iteration = int(blob["iter"])
+
+
 def make_runner(
     env: Any,
     cfg: dict[str, Any],
@@ -224,7 +309,7 @@ def make_runner(
     device: str,
     ranks: Ranks | None = None,
 ) -> Any:
-    """An rsl_rl runner whose checkpoints humimic writes (see :class:`_Runner`):
+    """An rsl_rl runner whose checkpoints humimic writes (see :class:`_RunnerMixin`):
     ``OnPolicyRunner`` for PPO, ``DistillationRunner`` for ``Distillation``.
 
     Args:
@@ -234,84 +319,15 @@ def make_runner(
             joined (:func:`humimic.tracking.distributed.start`). Default: a single process,
             whatever torchrun's variables say.
     """
-    one = ranks is None or not ranks.distributed
     from rsl_rl.runners import DistillationRunner, OnPolicyRunner
 
     distill = cfg["algorithm"]["class_name"] == "Distillation"
     base: type[OnPolicyRunner] = DistillationRunner if distill else OnPolicyRunner
-
-    class _Runner(base):  # pyright: ignore[reportGeneralTypeIssues]
-        """rsl_rl's runner, except for checkpoints: rsl_rl writes ``model_<it>.pt`` with a plain
-        ``torch.save`` inside ``learn`` (a crash mid-write leaves a damaged file that looks
-        whole) and names it by the iteration in progress. humimic writes them atomically, named
-        by iterations done, and loads them with ``weights_only=True``."""
-
-        critic_warmup = 0
-        """Iterations whose updates train the critic alone (:attr:`PpoConfig.critic_warmup_iterations`)."""
-        update_stats: dict[str, float] | None = None
-        """The last update's :meth:`UpdateProbe.summary` (None before the first)."""
-
-        def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> None:
-            """rsl_rl's loop; on the CPU, rollouts run torch on one thread and the PPO update
-            on all of them (see :func:`torch_threads`). The first :attr:`critic_warmup`
-            iterations (counted from the run's start, so a resume after them has none)
-            update the critic alone."""
-            cpu = torch.device(self.device).type == "cpu"
-            full, update = torch.get_num_threads(), self.alg.update
-            done = [self.current_learning_iteration]
-
-            def wrapped(*args: Any, **kwargs: Any) -> Any:
-                warm = done[0] < self.critic_warmup
-                done[0] += 1
-                probe = UpdateProbe(self.alg)
-                with torch_threads(full) if cpu else contextlib.nullcontext(), probe:
-                    if not warm:
-                        out = update(*args, **kwargs)
-                    else:
-                        with _critic_only(self.alg):
-                            out = update(*args, **kwargs)
-                self.update_stats = probe.summary()
-                return out
-
-            self.alg.update = wrapped
-            try:
-                with torch_threads(1) if cpu else contextlib.nullcontext():
-                    return super().learn(num_learning_iterations, init_at_random_ep_len)
-            finally:
-                self.alg.update = update
-
-        def _configure_multi_gpu(self) -> None:
-            """rsl_rl's, except that the process group is humimic's (gloo on the CPU, NCCL
-            on GPUs; rsl_rl's own allows NCCL alone) and that only ``ranks`` enables it."""
-            if one:
-                self.gpu_world_size, self.is_distributed = 1, False
-                self.gpu_local_rank = self.gpu_global_rank = 0
-                self.cfg["multi_gpu"] = None
-                return
-            assert ranks is not None
-            self.gpu_world_size, self.is_distributed = ranks.world_size, True
-            self.gpu_local_rank, self.gpu_global_rank = ranks.local_rank, ranks.rank
-            self.cfg["multi_gpu"] = {
-                "global_rank": ranks.rank,
-                "local_rank": ranks.local_rank,
-                "world_size": ranks.world_size,
-            }
-
-        def save(self, path: str, infos: dict | None = None) -> None:
-            del path, infos  # Checkpoints are written by save_checkpoint.
-
-        def save_checkpoint(self, path: Path, iterations_done: int) -> None:
-            blob = self.alg.save()
-            blob["iter"] = iterations_done
-            blob["infos"] = None
-            with atomic_write(path) as f:
-                torch.save(blob, f)
-
-        def load_checkpoint(self, blob: dict[str, Any]) -> None:
-            self.alg.load(blob, None, True)
-            self.current_learning_iteration = int(blob["iter"])
-
+    # The group is known before rsl_rl's __init__ configures it (_configure_multi_gpu).
+    runner_class: Any = type("_Runner", (_RunnerMixin, base), {"ranks": ranks})
     with contextlib.redirect_stdout(io.StringIO()):  # rsl_rl prints its networks.
-        runner = _Runner(env, cfg, log_dir=None if log_dir is None else str(log_dir), device=device)
+        runner = runner_class(
+            env, cfg, log_dir=None if log_dir is None else str(log_dir), device=device
+        )
     runner.critic_warmup = int(cfg.get("critic_warmup_iterations", 0))
     return runner

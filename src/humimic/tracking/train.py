@@ -19,13 +19,13 @@ import numpy as np
 import torch
 import yaml
 
-from humimic.configs.runs import TIMED_ITERATIONS, PpoConfig, TaskSettings, TrainSettings
+from humimic.configs.runs import TIMED_ITERATIONS, PpoConfig, TrainSettings
 from humimic.errors import HumimicError, InputError, first_line
 from humimic.io import check_not_input, check_writable
-from humimic.motion import Motion, load_motion, motion_from_qpos
-from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_profile
+from humimic.motion import Motion
+from humimic.sim.randomization import DR_PROFILES
 from humimic.tracking import distributed
-from humimic.tracking.config import TrackingConfig, tracking_task
+from humimic.tracking.config import TrackingConfig
 from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import make_runner, scale_actor_output, train_cfg
 from humimic.tracking.runs import (
@@ -47,6 +47,7 @@ from humimic.tracking.runs import (
     trim_progress,
     write_run_config,
 )
+from humimic.tracking.task import load_reference, task_config
 
 if TYPE_CHECKING:
     from humimic.tracking.env import TrackingEnv
@@ -74,121 +75,6 @@ _MUST_MATCH_ON_RESUME = (
 )
 
 
-def resolve_dr(dr: str) -> DomainRandomization:
-    """A DR profile by name, or from a YAML file."""
-    if dr in DR_PROFILES:
-        return DR_PROFILES[dr]()
-    path = Path(dr)
-    if path.suffix.lower() not in (".yaml", ".yml"):
-        raise InputError(
-            f"--dr {dr!r}: choose a profile ({', '.join(DR_PROFILES)}) or a .yaml file"
-        )
-    return load_dr_profile(path)
-
-
-def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> TrackingConfig:
-    """The task with the values ``settings`` sets (``--task.*``; unset ones keep the task's).
-
-    Raises:
-        InputError: ``--task.reward-weights`` names a term the task does not have, or
-            ``--task.reward-stds`` one without a std.
-    """
-    names = ("episode_length_s", "action_base", "action_scale", "soft_limit_factor",
-             "history_length")  # fmt: skip
-    changes: dict[str, Any] = {n: getattr(settings, n) for n in names}
-    changes = {n: v for n, v in changes.items() if v is not None}
-    weights = settings.reward_weights
-    unknown = sorted(set(weights) - set(task.rewards))
-    if unknown:
-        raise InputError(
-            f"--task.reward-weights: the {task.robot} task has no reward term {unknown[0]!r}; "
-            f"its terms: {', '.join(task.rewards)}"
-        )
-    stds = settings.reward_stds
-    no_std = sorted(n for n in stds if "std" not in getattr(task.rewards.get(n), "params", {}))
-    if no_std:
-        with_std = [n for n, t in task.rewards.items() if "std" in t.params]
-        raise InputError(
-            f"--task.reward-stds: the {task.robot} task has no reward term {no_std[0]!r} with a "
-            f"std; its terms with one: {', '.join(with_std)}"
-        )
-    if weights or stds:
-        changes["rewards"] = {
-            name: replace(
-                term,
-                weight=float(weights.get(name, term.weight)),
-                params={**term.params, **({"std": float(stds[name])} if name in stds else {})},
-            )
-            for name, term in task.rewards.items()
-        }
-    if settings.feedback_root_cost is not None:
-        changes["feedback"] = replace(task.feedback, base_position=settings.feedback_root_cost)
-    if settings.feedback_delay is not None:
-        changes["feedback_delay"] = int(settings.feedback_delay)
-    if settings.dr_replay is not None:
-        changes["adaptive"] = replace(task.adaptive, dr_replay=float(settings.dr_replay))
-    return replace(task, **changes)
-
-
-def task_config(
-    robot: str,
-    dr: str,
-    seed: int,
-    physics: str | None = None,
-    settings: TaskSettings | None = None,
-) -> TrackingConfig:
-    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile, the
-    values a run's ``settings`` set (:func:`apply_task_settings`) and, if given, a physics file
-    (or a shipped one's name)."""
-    from humimic.sim.physics import load_physics
-
-    task = replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
-    if settings is not None:
-        task = apply_task_settings(task, settings)
-    return task if physics is None else replace(task, physics=load_physics(physics))
-
-
-def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0, -q1, q1)
-    dot = np.abs(dot)
-    theta = np.arccos(np.clip(dot, -1.0, 1.0))
-    small = theta < 1e-6
-    s = np.sin(np.where(small, 1.0, theta))
-    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / s)
-    w1 = np.where(small, u, np.sin(u * theta) / s)
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def load_reference(path: Path, robot: str, fps: float) -> Motion:
-    """The motion file at the policy rate (resampled by interpolating ``qpos`` if needed)."""
-    from humimic.robots import get_robot, nominal_model
-
-    motion = load_motion(path)
-    if motion.robot != robot:
-        raise InputError(f"{path}: the motion is for robot {motion.robot!r}, not {robot!r}")
-    if motion.num_frames < 2:
-        raise InputError(
-            f"{path}: the motion has {motion.num_frames} frame; tracking needs 2 or more"
-        )
-    if abs(motion.fps - fps) < 1e-6:
-        return motion
-    T = motion.num_frames
-    duration = (T - 1) / motion.fps
-    n = max(2, math.floor(duration * fps + 1e-9) + 1)
-    x = np.arange(n) / fps * motion.fps
-    i0 = np.clip(np.floor(x).astype(int), 0, T - 2)
-    u = (x - i0)[:, None]
-    q0, q1 = motion.qpos[i0], motion.qpos[i0 + 1]
-    qpos = (1 - u) * q0 + u * q1
-    qpos[:, 3:7] = _slerp(q0[:, 3:7], q1[:, 3:7], u)
-    model = nominal_model(get_robot(robot))
-    info = dict(motion.info or {})
-    info["resampled_from_fps"] = motion.fps
-    return motion_from_qpos(model, qpos, fps, robot, info=info)
-
-
 @dataclass
 class _Progress:
     """Called by the runner after every iteration: logs, checks, checkpoints."""
@@ -211,28 +97,11 @@ class _Progress:
 
     def __call__(self, *, it: int, loss_dict: dict, learning_rate: float, action_std: torch.Tensor,
                  collect_time: float, learn_time: float, **_: Any) -> None:  # fmt: skip
-        lg, ranks = self.runner.logger, self.ranks
+        ranks = self.ranks
         done = it + 1
-        batch = self.num_envs * self.steps_per_env * ranks.world_size  # Over all ranks.
         elapsed = time.perf_counter() - self.started  # This process's: --max-minutes.
-        row: dict[str, float] = {
-            "iteration": done,
-            "env_steps": done * batch,
-            "seconds": self.seconds_before + elapsed,
-            "steps_per_second": batch / max(collect_time + learn_time, 1e-9),
-            "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
-            "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
-            "learning_rate": float(learning_rate),
-            **(self.runner.update_stats or {}),
-            "action_std": float(action_std.detach().mean()),
-            **{f"loss_{k}": float(v) for k, v in loss_dict.items()},
-        }
-        keys = dict.fromkeys(k for ep in lg.ep_extras for k in ep)
-        for key in keys:
-            vals = [torch.as_tensor(ep[key], dtype=torch.float32).flatten()
-                    for ep in lg.ep_extras if key in ep]  # fmt: skip
-            row[key] = float(torch.cat(vals).mean()) if vals else math.nan
-        lg.ep_extras.clear()
+        row = self._row(done, elapsed, loss_dict, learning_rate, action_std,
+                        collect_time + learn_time)  # fmt: skip
         bad = [k for k, v in row.items() if k.startswith(("loss_", "action_std")) and
                not math.isfinite(v)]  # fmt: skip
         params = list(self.runner.alg.get_policy().parameters())
@@ -262,6 +131,48 @@ class _Progress:
             if time_up:
                 raise _TimeUp
             return
+        self._record(row, done, elapsed, time_up)
+        if time_up:
+            raise _TimeUp
+
+    def _row(
+        self,
+        done: int,
+        elapsed: float,
+        loss_dict: dict,
+        learning_rate: float,
+        action_std: torch.Tensor,
+        seconds: float,
+    ) -> dict[str, float]:
+        """The iteration's progress row: counts, speed, rewards, the update's statistics,
+        losses, and the episodes' logged means (rsl_rl's extras, cleared here)."""
+        lg = self.runner.logger
+        batch = self.num_envs * self.steps_per_env * self.ranks.world_size  # Over all ranks.
+        row: dict[str, float] = {
+            "iteration": done,
+            "env_steps": done * batch,
+            "seconds": self.seconds_before + elapsed,
+            "steps_per_second": batch / max(seconds, 1e-9),
+            "mean_reward": float(np.mean(lg.rewbuffer)) if len(lg.rewbuffer) else math.nan,
+            "mean_episode_length": float(np.mean(lg.lenbuffer)) if len(lg.lenbuffer) else math.nan,
+            "learning_rate": float(learning_rate),
+            **(self.runner.update_stats or {}),
+            "action_std": float(action_std.detach().mean()),
+            **{f"loss_{k}": float(v) for k, v in loss_dict.items()},
+        }
+        keys = dict.fromkeys(k for ep in lg.ep_extras for k in ep)
+        for key in keys:
+            vals = [torch.as_tensor(ep[key], dtype=torch.float32).flatten()
+                    for ep in lg.ep_extras if key in ep]  # fmt: skip
+            row[key] = float(torch.cat(vals).mean()) if vals else math.nan
+        lg.ep_extras.clear()
+        return row
+
+    def _record(self, row: dict[str, float], done: int, elapsed: float, time_up: bool) -> None:
+        """Rank 0's record of an iteration: TensorBoard, progress.csv (the header's columns,
+        in its order), the progress bar, and a checkpoint every ``every`` iterations, at the
+        last and when the time is up."""
+        lg = self.runner.logger
         if lg.writer is not None:
             for k, v in row.items():
                 if k != "iteration":
@@ -288,8 +199,6 @@ class _Progress:
         if done % self.every == 0 or done == self.total or time_up:
             path = self.run / "checkpoints" / f"model_{done:06d}.pt"
             self.runner.save_checkpoint(path, done)
-        if time_up:
-            raise _TimeUp
 
 
 def train(
@@ -313,17 +222,7 @@ def train(
     ranks = Ranks.from_env()
     has_run = check_run_settings(s)
     if s.resume:
-        # Compared with the paths resolved: ./walk.npz and /abs/walk.npz are the same motion.
-        recorded = run_config(run)
-        old, new = recorded[1], resolved_settings(s)
-        diff = settings_differences(old, new, _MUST_MATCH_ON_RESUME)
-        if diff:
-            names = [d.split("=", 1)[0] for d in diff]
-            verb = "differs" if len(diff) == 1 else "differ"
-            raise InputError(
-                f"--resume: {', '.join(names)} {verb} from the run's ({', '.join(diff)})"
-            )
-        recorded_motion(run, recorded, "a resumed run goes on with the motion it began on")
+        _check_resume(s)
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     ppo = ppo or ppo_for(s)
@@ -337,13 +236,7 @@ def train(
         backend=s.backend,
     )
     motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
-    init = None
-    if s.init_from is not None and not has_run:
-        if not s.init_from.exists():
-            raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
-        file = s.init_from if s.init_from.is_file() else None
-        init = resolve_checkpoint(s.init_from, file, "--init-from")
-        _check_init_base(init[0], task.action_base)
+    init = None if has_run else _init_checkpoint(s, task.action_base)
     device = s.device
     if ranks.distributed:
         device = distributed.start(ranks, s.device)
@@ -379,6 +272,33 @@ def train(
     finally:
         hold.close()
         distributed.stop()
+
+
+def _check_resume(s: TrainSettings) -> None:
+    """``--resume`` goes on as the run began: the settings that must match do (compared with
+    the paths resolved: ./walk.npz and /abs/walk.npz are the same motion), and the motion is
+    unchanged since."""
+    recorded = run_config(s.out)
+    old, new = recorded[1], resolved_settings(s)
+    diff = settings_differences(old, new, _MUST_MATCH_ON_RESUME)
+    if diff:
+        names = [d.split("=", 1)[0] for d in diff]
+        verb = "differs" if len(diff) == 1 else "differ"
+        raise InputError(f"--resume: {', '.join(names)} {verb} from the run's ({', '.join(diff)})")
+    recorded_motion(s.out, recorded, "a resumed run goes on with the motion it began on")
+
+
+def _init_checkpoint(s: TrainSettings, action_base: str) -> tuple[Path, dict] | None:
+    """The checkpoint ``--init-from`` names (a run's newest, or a file) and its contents,
+    checked against the run's action base; None without the flag."""
+    if s.init_from is None:
+        return None
+    if not s.init_from.exists():
+        raise InputError(f"--init-from {s.init_from}: no such run or checkpoint")
+    file = s.init_from if s.init_from.is_file() else None
+    init = resolve_checkpoint(s.init_from, file, "--init-from")
+    _check_init_base(init[0], action_base)
+    return init
 
 
 def _check_init_base(checkpoint: Path, action_base: str) -> None:
@@ -591,7 +511,6 @@ def fit(
 __all__ = [
     "TrainSettings",
     "TrainingDiverged",
-    "apply_task_settings",
     "check_batch",
     "check_run_settings",
     "fit",
@@ -601,7 +520,6 @@ __all__ = [
     "read_checkpoint",
     "read_run_settings",
     "resolve_checkpoint",
-    "resolve_dr",
     "resolved_settings",
     "run_files",
     "run_rsl_cfg",

@@ -1,0 +1,136 @@
+"""The task a tracking command runs: the robot's task under a DR profile, physics file and
+``--task.*`` settings (:func:`task_config`), and the reference motion at the policy rate
+(:func:`load_reference`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from humimic.configs.runs import TaskSettings
+from humimic.errors import InputError
+from humimic.motion import Motion, load_motion, motion_from_qpos
+from humimic.sim.randomization import DR_PROFILES, DomainRandomization, load_dr_profile
+from humimic.tracking.config import TrackingConfig, tracking_task
+
+
+def resolve_dr(dr: str) -> DomainRandomization:
+    """A DR profile by name, or from a YAML file."""
+    if dr in DR_PROFILES:
+        return DR_PROFILES[dr]()
+    path = Path(dr)
+    if path.suffix.lower() not in (".yaml", ".yml"):
+        raise InputError(
+            f"--dr {dr!r}: choose a profile ({', '.join(DR_PROFILES)}) or a .yaml file"
+        )
+    return load_dr_profile(path)
+
+
+def apply_task_settings(task: TrackingConfig, settings: TaskSettings) -> TrackingConfig:
+    """The task with the values ``settings`` sets (``--task.*``; unset ones keep the task's).
+
+    Raises:
+        InputError: ``--task.reward-weights`` names a term the task does not have, or
+            ``--task.reward-stds`` one without a std.
+    """
+    names = ("episode_length_s", "action_base", "action_scale", "soft_limit_factor",
+             "history_length")  # fmt: skip
+    changes: dict[str, Any] = {n: getattr(settings, n) for n in names}
+    changes = {n: v for n, v in changes.items() if v is not None}
+    weights = settings.reward_weights
+    unknown = sorted(set(weights) - set(task.rewards))
+    if unknown:
+        raise InputError(
+            f"--task.reward-weights: the {task.robot} task has no reward term {unknown[0]!r}; "
+            f"its terms: {', '.join(task.rewards)}"
+        )
+    stds = settings.reward_stds
+    no_std = sorted(n for n in stds if "std" not in getattr(task.rewards.get(n), "params", {}))
+    if no_std:
+        with_std = [n for n, t in task.rewards.items() if "std" in t.params]
+        raise InputError(
+            f"--task.reward-stds: the {task.robot} task has no reward term {no_std[0]!r} with a "
+            f"std; its terms with one: {', '.join(with_std)}"
+        )
+    if weights or stds:
+        changes["rewards"] = {
+            name: replace(
+                term,
+                weight=float(weights.get(name, term.weight)),
+                params={**term.params, **({"std": float(stds[name])} if name in stds else {})},
+            )
+            for name, term in task.rewards.items()
+        }
+    if settings.feedback_root_cost is not None:
+        changes["feedback"] = replace(task.feedback, base_position=settings.feedback_root_cost)
+    if settings.feedback_delay is not None:
+        changes["feedback_delay"] = int(settings.feedback_delay)
+    if settings.dr_replay is not None:
+        changes["adaptive"] = replace(task.adaptive, dr_replay=float(settings.dr_replay))
+    return replace(task, **changes)
+
+
+def task_config(
+    robot: str,
+    dr: str,
+    seed: int,
+    physics: str | None = None,
+    settings: TaskSettings | None = None,
+) -> TrackingConfig:
+    """The registered tracking task of a robot (:func:`tracking_task`) with a DR profile, the
+    values a run's ``settings`` set (:func:`apply_task_settings`) and, if given, a physics file
+    (or a shipped one's name)."""
+    from humimic.sim.physics import load_physics
+
+    task = replace(tracking_task(robot, resolve_dr(dr)), seed=seed)
+    if settings is not None:
+        task = apply_task_settings(task, settings)
+    return task if physics is None else replace(task, physics=load_physics(physics))
+
+
+def _slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0, -q1, q1)
+    dot = np.abs(dot)
+    theta = np.arccos(np.clip(dot, -1.0, 1.0))
+    small = theta < 1e-6
+    s = np.sin(np.where(small, 1.0, theta))
+    w0 = np.where(small, 1.0 - u, np.sin((1.0 - u) * theta) / s)
+    w1 = np.where(small, u, np.sin(u * theta) / s)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def load_reference(path: Path, robot: str, fps: float) -> Motion:
+    """The motion file at the policy rate (resampled by interpolating ``qpos`` if needed)."""
+    from humimic.robots import get_robot, nominal_model
+
+    motion = load_motion(path)
+    if motion.robot != robot:
+        raise InputError(f"{path}: the motion is for robot {motion.robot!r}, not {robot!r}")
+    if motion.num_frames < 2:
+        raise InputError(
+            f"{path}: the motion has {motion.num_frames} frame; tracking needs 2 or more"
+        )
+    if abs(motion.fps - fps) < 1e-6:
+        return motion
+    T = motion.num_frames
+    duration = (T - 1) / motion.fps
+    n = max(2, math.floor(duration * fps + 1e-9) + 1)
+    x = np.arange(n) / fps * motion.fps
+    i0 = np.clip(np.floor(x).astype(int), 0, T - 2)
+    u = (x - i0)[:, None]
+    q0, q1 = motion.qpos[i0], motion.qpos[i0 + 1]
+    qpos = (1 - u) * q0 + u * q1
+    qpos[:, 3:7] = _slerp(q0[:, 3:7], q1[:, 3:7], u)
+    model = nominal_model(get_robot(robot))
+    info = dict(motion.info or {})
+    info["resampled_from_fps"] = motion.fps
+    return motion_from_qpos(model, qpos, fps, robot, info=info)
+
+
+__all__ = ["apply_task_settings", "load_reference", "resolve_dr", "task_config"]
