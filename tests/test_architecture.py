@@ -28,7 +28,7 @@ ALLOWED: dict[str, set[str]] = {
     "cli": INPUTS | {"sim", "configs", "viewer", "pipeline"} | PARTS,
 }
 """Layer -> the layers it may import (its own always). ``core`` is the top-level modules
-(errors, io, transforms, motion, npyio, lazy)."""
+(errors, io, transforms, motion, motion_checks, npyio, lazy)."""
 
 
 def layer(module: str) -> str:
@@ -260,4 +260,46 @@ def test_the_boundary_check_sees_every_form(tmp_path: Path) -> None:
         "tracking/env.py:5: rsl_rl",
         "tracking/env.py:6: rsl_rl",
         "tracking/rma.py:1: rsl_rl",
+    ]
+
+
+MAX_MODULE_LINES = 600
+MAX_FUNCTION_LINES = 80
+"""Issue 58's bounds: a module a reader can hold, a function that fits a screen (its
+docstring counted)."""
+
+
+def oversized(root: Path = SRC) -> list[str]:
+    """Each module over :data:`MAX_MODULE_LINES` lines and each function (or method) over
+    :data:`MAX_FUNCTION_LINES`, as ``file: name (lines)``."""
+    bad = []
+    for path in sorted(root.rglob("*.py")):
+        text = path.read_text()
+        rel = path.relative_to(root.parent)
+        if (n := len(text.splitlines())) > MAX_MODULE_LINES:
+            bad.append(f"{rel}: module ({n})")
+        for node in ast.walk(ast.parse(text, filename=str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    bad.append(f"{rel}: {node.name} ({n})")
+    return bad
+
+
+def test_modules_and_functions_stay_short() -> None:
+    bad = oversized()
+    assert not bad, "split these (docs/architecture.md):\n" + "\n".join(bad)
+
+
+def test_the_size_check_counts_lines(tmp_path: Path) -> None:
+    pkg = tmp_path / "humimic"
+    pkg.mkdir()
+    body = "\n".join(f"    x{i} = {i}" for i in range(MAX_FUNCTION_LINES))
+    (pkg / "long.py").write_text(f"def f():\n{body}\n\n\ndef g():\n    return 1\n")
+    (pkg / "big.py").write_text("x = 1\n" * (MAX_MODULE_LINES + 1))
+    (pkg / "ok.py").write_text("x = 1\n" * MAX_MODULE_LINES)
+    found = [b.split("humimic/", 1)[1] for b in oversized(pkg)]
+    assert found == [
+        f"big.py: module ({MAX_MODULE_LINES + 1})",
+        f"long.py: f ({MAX_FUNCTION_LINES + 1})",
     ]
