@@ -34,7 +34,12 @@ import numpy as np
 from humimic.real2sim import LogSettings, simulate_log
 from humimic.real2sim.residual import Correction, Predictor, kstep_error
 from humimic.robots import get_robot
-from humimic.sim.models import REST_DEPTH, floating_prediction_spec, floor_colliders, lowest_point
+from humimic.sim.models import (
+    REST_DEPTH,
+    floating_prediction_spec,
+    floor_and_colliders,
+    lowest_point,
+)
 
 HORIZONS = (0.02, 0.1, 0.5)
 
@@ -120,7 +125,7 @@ def _deployment(run: Path, episodes: int, seed: int) -> dict:
         row["true_base"] = {"kstep_mrad": 1e3 * p.error(c).kstep_rmse_rad}
         out[f"horizon_{h}s"] = row
     d = mujoco.MjData(m)
-    f, cols = floor_colliders(m)
+    f, cols = floor_and_colliders(m)
     depth, speed = [], []
     jac = np.zeros((3, m.nv))
     for k in range(len(qpos)):

@@ -32,7 +32,7 @@ from env_throughput import arm_swing  # The CPU benchmark's reference (no data f
 from humimic.sim.warp_backend import MujocoWarpBackend
 from humimic.tracking.actions import has_stored_controls
 from humimic.tracking.config import g1_tracking
-from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
+from humimic.tracking.env import TrackingEnv, tracking_backend, tracking_model
 from humimic.tracking.task import load_reference, resolve_dr
 
 
@@ -91,7 +91,7 @@ def main() -> None:
     for n in args.num_envs:
         row: dict = {"num_envs": n}
         t0 = time.perf_counter()
-        be = build_backend(cfg, n, model=model, device=args.device)
+        be = tracking_backend(cfg, n, model=model, device=args.device)
         assert isinstance(be, MujocoWarpBackend)
         row["backend_build_s"] = time.perf_counter() - t0
         ctrl = torch.as_tensor(be.default_joint_pos, dtype=torch.float32, device=be.device)

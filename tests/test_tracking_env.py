@@ -28,7 +28,7 @@ from humimic.tracking.config import (
     g1_tracking,
     tracking_task,
 )
-from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
+from humimic.tracking.env import TrackingEnv, tracking_backend, tracking_model
 from humimic.tracking.math import quat_from_euler_xyz
 from humimic.tracking.rsl import PpoConfig, train_cfg
 from humimic.tracking.state import TrackingState
@@ -521,8 +521,8 @@ def test_compile_failure_is_reported(
 
 def test_rollout_and_threads_agree(model: mujoco.MjModel) -> None:
     cfg = g1_tracking("none")
-    a = build_backend(replace(cfg, step_method="rollout"), 2, model=model)
-    b = build_backend(replace(cfg, step_method="threads"), 2, model=model)
+    a = tracking_backend(replace(cfg, step_method="rollout"), 2, model=model)
+    b = tracking_backend(replace(cfg, step_method="threads"), 2, model=model)
     q = np.tile(model.key_qpos[0], (2, 1))
     q[1, 2] += 0.05
     for be in (a, b):

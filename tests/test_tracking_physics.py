@@ -14,7 +14,7 @@ from humimic.errors import InputError
 from humimic.sim.backend import MujocoCpuBackend
 from humimic.sim.physics import SHIPPED, load_physics, parse_physics, write_physics
 from humimic.tracking.config import g1_tracking
-from humimic.tracking.env import build_backend, tracking_model
+from humimic.tracking.env import tracking_backend, tracking_model
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def test_dr_varies_a_physics_files_friction_instead_of_replacing_it(
     for physics, expect_feet, expect_rest in ((None, 0.9, 0.9), ({"floor_friction": 0.3},
                                               0.9 * 0.3 / 0.6, 0.9 * 0.3 / 1.0)):  # fmt: skip
         c = cfg if physics is None else replace(cfg, physics=parse_physics(physics, "t", "t"))
-        backend = build_backend(c, 2)
+        backend = tracking_backend(c, 2)
         assert isinstance(backend, MujocoCpuBackend)
         params = backend.nominal_params(2)
         params = replace(params, friction=np.array([0.9, 0.45]))
@@ -131,7 +131,7 @@ def test_transport_delay_starts_full_of_the_first_command_and_survives_steps(
     def knee_after(model: mujoco.MjModel, calls: int, change: float, push: bool = False) -> float:
         """The knee after ``calls`` 10 ms stepping calls: the first sends the pose with the
         knee target 0.5 rad further bent, the later ones add ``change`` to it."""
-        be = build_backend(replace(g1_tracking("none"), step_method=method), 1, model=model)
+        be = tracking_backend(replace(g1_tracking("none"), step_method=method), 1, model=model)
         assert isinstance(be, MujocoCpuBackend)
         be.set_ctrl(np.zeros((1, model.nu)))  # Whatever the previous episode commanded.
         be.reset_to(np.array([0]), pose[None], np.zeros((1, model.nv)))

@@ -21,7 +21,7 @@ from humimic.sim.backend import MujocoCpuBackend
 from humimic.sim.setup import WarpOptions
 from humimic.sim.warp_backend import MujocoWarpBackend, capacity, warp_available
 from humimic.tracking.config import g1_tracking
-from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
+from humimic.tracking.env import TrackingEnv, tracking_backend, tracking_model
 
 pytestmark = [
     pytest.mark.slow,
@@ -207,9 +207,9 @@ def test_default_capacity_bounds_the_floor_contacts(model: mujoco.MjModel) -> No
 def test_bad_settings_are_refused(model: mujoco.MjModel) -> None:
     cfg = g1_tracking("none")
     with pytest.raises(InputError, match="device"):
-        build_backend(replace(cfg, backend="warp"), 1, model=model, device="mps")
+        tracking_backend(replace(cfg, backend="warp"), 1, model=model, device="mps")
     with pytest.raises(InputError, match="njmax"):
-        build_backend(replace(cfg, backend="warp", warp=WarpOptions(njmax=0)), 1, model=model)
+        tracking_backend(replace(cfg, backend="warp", warp=WarpOptions(njmax=0)), 1, model=model)
 
 
 def test_dynamics_retargeting_samples_on_the_warp_backend(shared_data: Path) -> None:

@@ -14,7 +14,7 @@ from humimic.errors import InputError
 from humimic.real2sim.robotlog import ImuLog, RobotLog
 from humimic.real2sim.smoother import smooth_track
 from humimic.sim.joints import JointMap
-from humimic.sim.models import MAX_STEP, PHYSICS_DT, REST_DEPTH, floor_colliders, lowest_point
+from humimic.sim.models import MAX_STEP, PHYSICS_DT, REST_DEPTH, floor_and_colliders, lowest_point
 from humimic.transforms import quat_conj, quat_mul, quat_slerp, quat_to_matrix, quat_to_rotvec
 
 _SLACK = 0.05
@@ -314,7 +314,7 @@ def _attitude(model: mujoco.MjModel, log: RobotLog, imu: ImuLog, sid: int) -> _A
         quat_mo = _interp_quat(log.mocap.t, log.mocap.quat_w, t)
         heading = heading_offset(quat_wb, quat_mo, t)
         quat_ws, quat_wb = _turned(heading, quat_ws), _turned(heading, quat_wb)
-    f, colliders = floor_colliders(model)
+    f, colliders = floor_and_colliders(model)
     # The IMU's mount tilt (its frame not quite the site's): against motion capture, or
     # against the stance soles, which lie flat on the floor.
     if quat_mo is not None:

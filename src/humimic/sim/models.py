@@ -221,7 +221,7 @@ when it stands (MuJoCo's contacts are soft), to place a robot standing on the fl
 _REST_DEPTHS: dict[str, float] = {}
 
 
-def floor_colliders(model: mujoco.MjModel) -> tuple[int, list[int]]:
+def floor_and_colliders(model: mujoco.MjModel) -> tuple[int, list[int]]:
     """The floor (the first plane) and the robot geoms that collide with it.
 
     Raises:
@@ -265,7 +265,7 @@ def _rest_depth(name: str, spec: mujoco.MjSpec) -> float:
         mujoco.mj_resetDataKeyframe(m, d, 0)
         hinge = m.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT
         ctrl = np.where(hinge, d.qpos[m.jnt_qposadr[m.actuator_trnid[:, 0]]], 0.0)
-        f, colliders = floor_colliders(m)
+        f, colliders = floor_and_colliders(m)
         mujoco.mj_kinematics(m, d)
         d.qpos[int(m.jnt_qposadr[free[0]]) + 2] -= lowest_point(m, d, f, colliders)[0]
         seen = []

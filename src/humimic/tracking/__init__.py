@@ -15,7 +15,7 @@ from humimic.tracking.config import (
     t1_tracking,
     tracking_task,
 )
-from humimic.tracking.env import TrackingEnv, build_backend, tracking_model
+from humimic.tracking.env import TrackingEnv, tracking_backend, tracking_model
 from humimic.tracking.rsl import PpoConfig, tracking_ppo, train_cfg
 from humimic.tracking.state import TrackingState
 
@@ -28,9 +28,9 @@ __all__ = [
     "TrackingConfig",
     "TrackingEnv",
     "TrackingState",
-    "build_backend",
     "g1_tracking",
     "t1_tracking",
+    "tracking_backend",
     "tracking_model",
     "tracking_ppo",
     "tracking_task",

@@ -1,5 +1,5 @@
 """The whole-body motion-tracking environment (BeyondMimic on MuJoCo): :class:`TrackingEnv`,
-an rsl_rl ``VecEnv``, and :func:`build_backend` / :func:`tracking_model`, the simulator it runs on.
+an rsl_rl ``VecEnv``, and :func:`tracking_backend` / :func:`tracking_model`, the simulator it runs on.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from humimic.tracking.rsl import VecEnv
 from humimic.tracking.state import TrackingState
 
 
-def build_backend(
+def tracking_backend(
     cfg: TrackingConfig,
     num_envs: int,
     *,
@@ -113,7 +113,7 @@ class TrackingEnv(VecEnv):
         motion: The reference clip, at the policy rate (``1 / cfg.step_dt`` frames per second).
         num_envs: Number of parallel envs.
         device: Torch device of the observations, rewards and buffers.
-        backend: The simulator; default: :func:`build_backend`.
+        backend: The simulator; default: :func:`tracking_backend`.
         model: A prebuilt training model for the default backend.
 
     Raises:
@@ -142,7 +142,7 @@ class TrackingEnv(VecEnv):
         self.step_dt = cfg.step_dt
         self.max_episode_length = math.ceil(cfg.episode_length_s / cfg.step_dt)
         self._attach_backend(
-            backend or build_backend(cfg, num_envs, model=model, device=self.device)
+            backend or tracking_backend(cfg, num_envs, model=model, device=self.device)
         )
         be, dev, J = self.backend, self.device, self.num_actions
         robot = get_robot(cfg.robot)
@@ -565,4 +565,4 @@ class TrackingEnv(VecEnv):
         self._fresh.zero_()
 
 
-__all__ = ["TrackingEnv", "build_backend", "tracking_model"]
+__all__ = ["TrackingEnv", "tracking_backend", "tracking_model"]
