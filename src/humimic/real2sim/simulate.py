@@ -74,6 +74,26 @@ def _tree_distance(model: mujoco.MjModel, a: int, b: int) -> int:
     return len(tree_path(model, a, b))
 
 
+def multisines(
+    rng: np.random.Generator, t: np.ndarray, joints: int, f_max: float, still: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's sum of three sines at times ``t`` (frequencies drawn in 0.1 to ``f_max``
+    Hz, random phases, convex weights: the sum stays within +-1), and a ramp from 0 to 1 over
+    the 2 s after ``still`` seconds that starts the motion from rest.
+
+    Returns:
+        The ramp (M,) and the sums (M, joints).
+    """
+    freqs = rng.uniform(0.1, f_max, size=(joints, 3))
+    phases = rng.uniform(0, 2 * np.pi, size=(joints, 3))
+    weights = rng.dirichlet(np.ones(3), size=joints)
+    ramp = np.clip((t - still) / 2.0, 0.0, 1.0)
+    sines = np.einsum(
+        "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
+    )
+    return ramp, sines
+
+
 def excitation(
     model: mujoco.MjModel, settings: LogSettings, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -91,13 +111,7 @@ def excitation(
     amp = np.minimum(amp, np.minimum(centre - lo, hi - centre) * 0.8)
     t = np.arange(0.0, settings.duration, 1.0 / settings.command_rate)
     J = model.njnt
-    freqs = rng.uniform(0.1, 1.2, size=(J, 3))
-    phases = rng.uniform(0, 2 * np.pi, size=(J, 3))
-    weights = rng.dirichlet(np.ones(3), size=J)
-    ramp = np.clip((t - settings.still) / 2.0, 0.0, 1.0)
-    sines = np.einsum(
-        "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
-    )
+    ramp, sines = multisines(rng, t, J, 1.2, settings.still)
     # |sines| <= 1 (convex weights), and the ramp starts the motion from the centre.
     data = mujoco.MjData(model)
     saved = model.geom_margin.copy(), model.opt.disableflags

@@ -20,6 +20,7 @@ from humimic.real2sim.simulate import (
     _robot_log,
     _sensed,
     imu_site_of,
+    multisines,
 )
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
@@ -162,14 +163,7 @@ def _sway(
     amp = np.where(legs, settings.sway_legs, settings.sway * (hi - lo))
     amp = np.minimum(amp, 0.8 * room)
     t = np.arange(0.0, settings.duration, 1.0 / settings.command_rate)
-    J = centre.size
-    freqs = rng.uniform(0.1, 1.0, size=(J, 3))
-    phases = rng.uniform(0, 2 * np.pi, size=(J, 3))
-    weights = rng.dirichlet(np.ones(3), size=J)
-    ramp = np.clip((t - settings.still) / 2.0, 0.0, 1.0)
-    sines = np.einsum(
-        "jk,tjk->tj", weights, np.sin(2 * np.pi * freqs[None] * t[:, None, None] + phases[None])
-    )
+    ramp, sines = multisines(rng, t, centre.size, 1.0, settings.still)
     return t, np.clip(centre + ramp[:, None] * amp * sines, lo, hi)
 
 
