@@ -5,7 +5,7 @@ a reference's flight solved by CasADi and by a linear solve.
 1. ``inverse_dynamics``: the G1 on the CMU walk (35_01, after the T-pose frame, retargeted at
    50 fps), finite-difference velocities and accelerations as
    ``retarget.dynamics.inverse_dynamics_torques`` takes them; ``mj_inverse`` (constraints
-   off) against Pinocchio's RNEA (``humimic.sim.pinocchio``): largest difference, and time
+   off) against Pinocchio's RNEA (``humimic.real2sim.pinocchio``): largest difference, and time
    per frame, interleaved repeats (the ratio is MuJoCo's time over Pinocchio's).
 2. ``payload``: ``humimic sysid simulate`` logs (written to MCAP and read back) with an
    undeclared payload; ``identify_payload`` on the fit part of the log (its first 70%, as the
@@ -38,6 +38,7 @@ from humimic.configs import DynamicsConfig, RetargetConfig
 from humimic.datasets import load_clip
 from humimic.motion import Motion, motion_from_qpos
 from humimic.real2sim import LogSettings, simulate_log, write_robot_log
+from humimic.real2sim.pinocchio import PinocchioRobot, accelerations, identify_payload, pin
 from humimic.real2sim.report import load_fixed_base_log, run_diagnosis
 from humimic.retarget import Retargeter
 from humimic.retarget.dynamics import FLIGHT_CLEARANCE, reference_flight, refine
@@ -45,7 +46,6 @@ from humimic.retarget.dynamics.inverse import com_and_feet
 from humimic.robots import get_robot
 from humimic.robots.model import nominal_model, robot_xml_path
 from humimic.sim.effects import parse_injection
-from humimic.sim.pinocchio import PinocchioRobot, accelerations, identify_payload, pin
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
 FIT_END = 0.7

@@ -12,10 +12,16 @@ import pytest
 
 from humimic.errors import InputError, UnknownNameError
 from humimic.real2sim import LogSettings, read_robot_log, simulate_log, write_robot_log
+from humimic.real2sim.pinocchio import (
+    PayloadFit,
+    PinocchioRobot,
+    accelerations,
+    identify_payload,
+    pin,
+)
 from humimic.robots import get_robot
 from humimic.robots.model import nominal_model, nominal_spec
 from humimic.sim.effects import parse_injection
-from humimic.sim.pinocchio import PayloadFit, PinocchioRobot, accelerations, identify_payload, pin
 
 # Two hinges on one body (the second's axis turned by the first), an unaligned hinge, a
 # slide, a body without joints (fused into its parent's joint), rotated inertia frames,

@@ -116,7 +116,7 @@ def _effect_entry(f: Finding) -> dict:
 
 def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
     """A payload on ``body`` sized by linear least squares on Pinocchio's torque regressor over
-    the fit part of the log (:func:`humimic.sim.pinocchio.identify_payload`): a second method,
+    the fit part of the log (:func:`humimic.real2sim.pinocchio.identify_payload`): a second method,
     with no search and no simulation, beside the diagnosis's k-step fit. The torques are the
     logged efforts, or the drives' PD law from the held commands when the log has none.
 
@@ -124,8 +124,8 @@ def payload_regression(robot: RobotConfig, log: RobotLog, body: str) -> dict:
         ``mass`` and ``mass_std`` [kg], ``rows`` used and ``seconds``; or ``error``, why the
         log cannot size it (no sample moves the joints that carry the body).
     """
+    from humimic.real2sim.pinocchio import PinocchioRobot, accelerations, identify_payload
     from humimic.robots import nominal_model
-    from humimic.sim.pinocchio import PinocchioRobot, accelerations, identify_payload
 
     t0 = time.perf_counter()
     pr = PinocchioRobot.from_mujoco(nominal_model(robot), base_pose=log.base_pose)
