@@ -10,6 +10,7 @@ frames are drawn in proportion (Liao et al., "BeyondMimic", 2025).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -19,7 +20,7 @@ import torch
 from humimic import transforms as tf
 from humimic.errors import InputError
 from humimic.motion import Motion
-from humimic.tracking.actions import STORED_BASES, base_table, stored_states
+from humimic.tracking.actions import STORED_BASES, stored_states
 from humimic.tracking.config import TrackingConfig
 
 
@@ -66,7 +67,7 @@ class MotionCommand:
         self.split = [x.reshape(T, -1).shape[1] for x in tables]
         """The widths of the fields in :attr:`packed`: joint positions and velocities, tracked
         bodies' positions, orientations, linear and angular velocities (world frame)."""
-        self.start = self._start_states(motion, jidx, root_m)
+        self._motion, self._root_m = motion, root_m
         # Adaptive sampling: failure rates per bin of the clip.
         ad = cfg.adaptive
         self.bin_count = int(T // max(ad.bin_s / cfg.step_dt, 1.0)) + 1
@@ -83,16 +84,18 @@ class MotionCommand:
         """The packed reference at each env's ``frame`` into ``out`` (one gather)."""
         torch.index_select(self.packed, 0, frame, out=out)
 
-    def _start_states(self, motion: Motion, jidx: list[int], root_m: int) -> dict[str, np.ndarray]:
+    @functools.cached_property
+    def start(self) -> dict[str, np.ndarray]:
         """The reference states episodes start from (float64): the motion's frames and their
         finite-difference velocities, or, with a stored base (``feedforward``, ``feedback``),
         the simulated states the stored controls continue from
-        (:func:`~humimic.tracking.actions.stored_states`)."""
+        (:func:`~humimic.tracking.actions.stored_states`). Read after the action base is
+        built (:class:`~humimic.tracking.bases.BaseTargets`), which checks the motion's
+        dynamic section."""
+        motion, jidx, root_m = self._motion, self.joint_index, self._root_m
         if self.cfg.action_base in STORED_BASES:
-            cfg = self.cfg
-            base_table(cfg.action_base, motion, jidx, cfg.sim_dt, cfg.decimation)  # Its checks.
-            states = stored_states(motion, cfg.decimation)
-            assert states is not None  # base_table has checked the dynamic section.
+            states = stored_states(motion, self.cfg.decimation)
+            assert states is not None  # BaseTargets' base_table has checked the section.
             qpos, qvel = states
             quat = qpos[:, 3:7] / np.linalg.norm(qpos[:, 3:7], axis=-1, keepdims=True)
             rot = tf.quat_to_matrix(quat)

@@ -248,7 +248,7 @@ class TrackingEnv(VecEnv):
     def _make_observation_buffers(self) -> None:
         """The groups' buffers, their sizes from the terms (:mod:`.observations`)."""
         n, dev = self.num_envs, self.device
-        self._obs_dims = dims = obs.ObsDims(
+        dims = obs.ObsDims(
             joints=self.num_actions,
             bodies=len(self.cfg.body_names),
             feet=len(self.backend.foot_body_names),

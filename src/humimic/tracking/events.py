@@ -7,7 +7,7 @@ failed draws, the noisy reference state an episode starts from) and the pushes.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -39,7 +39,7 @@ class Events:
         start: dict[str, np.ndarray],
         soft_limits: tuple[np.ndarray, np.ndarray],
         rng: np.random.Generator,
-        rand: Any,
+        rand: Callable[[float, float, tuple[int, ...]], torch.Tensor],
         device: torch.device,
     ) -> None:
         self.cfg, self.backend, self.start = cfg, backend, start
