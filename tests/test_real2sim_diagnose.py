@@ -254,14 +254,14 @@ def test_an_effect_refitted_to_nothing_has_no_size() -> None:
     """The final refit can move an effect back to "no effect" when the others explain its
     joints (a 0.0 ms delay on all joints was claimed on the backpack's log): such a value is
     no finding."""
-    from humimic.real2sim.candidates import _Pair, _sized
+    from humimic.real2sim.candidates import Candidate, is_sized
 
-    delay = _Pair(effect="delay", index=0, joints=np.arange(3), lo=0.0, hi=0.05, none=0.0,
+    delay = Candidate(effect="delay", index=0, joints=np.arange(3), lo=0.0, hi=0.05, none=0.0,
                   probe=0.01, group=(0, 1, 2), label="all_joints")  # fmt: skip
-    assert not _sized(delay, 0.0) and not _sized(delay, 0.0004) and _sized(delay, 0.003)
-    limit = _Pair(effect="torque_limit", index=0, joints=np.arange(1), lo=1.0, hi=20.0,
+    assert not is_sized(delay, 0.0) and not is_sized(delay, 0.0004) and is_sized(delay, 0.003)
+    limit = Candidate(effect="torque_limit", index=0, joints=np.arange(1), lo=1.0, hi=20.0,
                   none=20.0, probe=16.0)  # fmt: skip
-    assert not _sized(limit, 19.9) and _sized(limit, 15.0)
+    assert not is_sized(limit, 19.9) and is_sized(limit, 15.0)
 
 
 def test_an_offset_the_log_cannot_reveal_is_declared_not_guessed() -> None:

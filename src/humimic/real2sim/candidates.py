@@ -1,5 +1,5 @@
 """The candidates of the diagnosis: each an effect of the vocabulary on a joint, a body or a
-group of them (:class:`_Pair`), with its search interval, and the joints whose error it is
+group of them (:class:`Candidate`), with its search interval, and the joints whose error it is
 fitted and scored on.
 """
 
@@ -16,7 +16,7 @@ from humimic.sim.joints import JointMap
 
 
 @dataclass(frozen=True, kw_only=True)
-class _Pair:
+class Candidate:
     """A candidate: one effect on one joint (or body), fitted on some joints' residual."""
 
     effect: str
@@ -56,7 +56,7 @@ def _limb_end(model: mujoco.MjModel, body: int) -> int:
         body = int(children[0])
 
 
-def _peak_torque(log: RobotLog) -> np.ndarray:
+def peak_torque(log: RobotLog) -> np.ndarray:
     """Largest commanded PD torque per joint over the log (from the logged state)."""
     idx = log.command_index(log.t)
     tau = log.kp[idx] * (log.cmd_q[idx] - log.q) + log.kd[idx] * (log.cmd_qd[idx] - log.qd)
@@ -78,12 +78,12 @@ _SINGLE: dict[str, tuple[float, float, float, float]] = {
 """Search interval, "no effect" value and first probe of each joint effect."""
 
 
-def _pairs(
+def joint_candidates(
     model: mujoco.MjModel, joints: list[int], peak: np.ndarray, reach: np.ndarray
-) -> list[_Pair]:
+) -> list[Candidate]:
     """Candidate pairs for the standing-out joints. ``reach[i, j]``: an offset of joint i's
     encoder shows in joint j's predictions."""
-    out: list[_Pair] = []
+    out: list[Candidate] = []
     bodies: set[int] = set()
     offsets: set[int] = set()
     soles = [b for b in range(model.nbody) if soft_geoms(model, b).size]
@@ -97,21 +97,21 @@ def _pairs(
             # lay below 5 % of its peak on a 12 s log).
             spec["torque_limit"] = (0.01 * peak[j], peak[j], peak[j], 0.8 * peak[j])
         for effect, (lo, hi, none, probe) in spec.items():
-            out.append(_Pair(effect=effect, index=j, joints=one, lo=lo, hi=hi, none=none,
+            out.append(Candidate(effect=effect, index=j, joints=one, lo=lo, hi=hi, none=none,
                              probe=probe))  # fmt: skip
         # An encoder offset anywhere that shows at this joint (through gravity, often on
         # another joint of the limb than its own).
         for i in np.flatnonzero(reach[:, j]):
             if int(i) not in offsets:
                 offsets.add(int(i))
-                out.append(_Pair(effect="encoder_offset", index=int(i),
+                out.append(Candidate(effect="encoder_offset", index=int(i),
                                  joints=np.flatnonzero(reach[i]), lo=-0.2, hi=0.2, none=0.0,
                                  probe=0.02))  # fmt: skip
         body = int(model.jnt_bodyid[JointMap.of(model).jid[j]])
         for b in (body, _limb_end(model, body)):
             if b not in bodies:
                 bodies.add(b)
-                out.append(_Pair(effect="payload_mass", index=b, joints=_chain(model, b),
+                out.append(Candidate(effect="payload_mass", index=b, joints=_chain(model, b),
                                  lo=0.0, hi=PAYLOAD_MAX, none=0.0, probe=0.5))  # fmt: skip
                 if b in soles:  # A sole (floating-base logs have a floor).
                     out.append(_sole_pair(model, (b,), "contact_softness"))
@@ -127,7 +127,7 @@ def _pairs(
     return out
 
 
-def _sole_pair(model: mujoco.MjModel, soles: tuple[int, ...], effect: str) -> _Pair:
+def _sole_pair(model: mujoco.MjModel, soles: tuple[int, ...], effect: str) -> Candidate:
     """The ``contact_softness`` or ``contact_friction`` candidate of one sole, or of several
     sharing one value (the floor's; the group's label is ``all_soles``), scored on the joints
     that carry them."""
@@ -142,7 +142,7 @@ def _sole_pair(model: mujoco.MjModel, soles: tuple[int, ...], effect: str) -> _P
         probe = 0.5 * now
     joints = np.unique(np.concatenate([_chain(model, b) for b in soles]))
     group = soles if len(soles) > 1 else ()
-    return _Pair(effect=effect, index=first, joints=joints, lo=lo, hi=hi, none=now,
+    return Candidate(effect=effect, index=first, joints=joints, lo=lo, hi=hi, none=now,
                  probe=probe, group=group, label="all_soles" if group else "")  # fmt: skip
 
 
@@ -173,7 +173,9 @@ def _mirror(name: str, names: tuple[str, ...]) -> int | None:
     return names.index(other) if other != name and other in names else None
 
 
-def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...]) -> list[_Pair]:
+def group_candidates(
+    model: mujoco.MjModel, joints: list[int], names: tuple[str, ...]
+) -> list[Candidate]:
     """Group candidates for the standing-out joints: each one's limb (the joints of the
     chain from the base that starts at the limb's first joint), the limbs of all of them
     together, each one with its mirror joint (:func:`_mirror`), and every joint; groups of one
@@ -200,7 +202,7 @@ def _group_pairs(model: mujoco.MjModel, joints: list[int], names: tuple[str, ...
             continue
         for effect in GROUPED:
             lo, hi, none, probe = _SINGLE[effect]
-            out.append(_Pair(effect=effect, index=group[0], joints=np.array(group), lo=lo,
+            out.append(Candidate(effect=effect, index=group[0], joints=np.array(group), lo=lo,
                              hi=hi, none=none, probe=probe, group=group, label=label))  # fmt: skip
     return out
 
@@ -216,7 +218,7 @@ and the torque error from 0.119 up to 0.145 N m (``benchmarks/sysid_floor_checks
 slip_truth``)."""
 
 
-def _channels(p: _Pair, n: int) -> list[int]:
+def scored_channels(p: Candidate, n: int) -> list[int]:
     """The residual channels (0: positions, 1: torques) pair ``p`` is scored on."""
     return [0] if p.effect in POSITION_SCORED else list(range(n))
 
@@ -226,12 +228,12 @@ NONE_SHARE = 0.01
 no size and is not claimed."""
 
 
-def _sized(p: _Pair, value: float) -> bool:
+def is_sized(p: Candidate, value: float) -> bool:
     """Whether ``value`` is an effect at all (see :data:`NONE_SHARE`)."""
     return abs(value - p.none) > NONE_SHARE * (p.hi - p.lo)
 
 
-def _at_bound(p: _Pair, value: float) -> bool:
+def at_bound(p: Candidate, value: float) -> bool:
     """Whether ``value`` sits on the far end of its search interval (within
     :data:`NONE_SHARE` of it): the data want more of the effect than any plausible robot has,
     so it stands in for something else (an effect outside the vocabulary, or a base state the

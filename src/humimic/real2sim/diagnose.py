@@ -13,24 +13,24 @@ import mujoco
 import numpy as np
 
 from humimic.real2sim.candidates import (
-    _at_bound,
-    _channels,
-    _group_pairs,
-    _Pair,
-    _pairs,
-    _peak_torque,
-    _sized,
+    Candidate,
+    at_bound,
+    group_candidates,
+    is_sized,
+    joint_candidates,
+    peak_torque,
+    scored_channels,
 )
 from humimic.real2sim.fitting import (
     FIT_END,
     OFFSET_PROBE,
-    _fit,
-    _polish,
-    _refit,
-    _Scorer,
+    Scorer,
+    fit_candidates,
     fit_predictors,
     noise_floor,
     offset_reach,
+    polish_kept,
+    refit_together,
 )
 from humimic.real2sim.floating import BaseEstimate
 from humimic.real2sim.robotlog import RobotLog
@@ -162,19 +162,19 @@ class _Search:
         # its error is discontinuous in a delay (a sample falls before or after the delayed step)
         # and would trap the search. Scoring on B uses both.
         pred_fit, pred_a, pred_b = fit_predictors(base.model, log, horizon, base_track)
-        self.fit_a = _Scorer(pred_fit, False)
-        self.score_a = _Scorer(pred_a, effort)
-        self.score_b = _Scorer(pred_b, effort)
+        self.fit_a = Scorer(pred_fit, False)
+        self.score_a = Scorer(pred_a, effort)
+        self.score_b = Scorer(pred_b, effort)
         self.floor_q = float(np.median(self.score_a.calibrate(base)))  # Position floor [rad].
         self.score_b.sigma = self.score_a.sigma
         self.fit_a.sigma = self.score_a.sigma[:1]
-        self.peak = _peak_torque(log)
+        self.peak = peak_torque(log)
         self.reach = offset_reach(self.fit_a.predictor, base) > 2.0 * self.floor_q
         self.diagnosis = Diagnosis(correction=base)
         self._note_hidden_offsets()
         self.findings: list[Finding] = []
         self.rejected: list[Finding] = []
-        self.kept: list[tuple[_Pair, float]] = []
+        self.kept: list[tuple[Candidate, float]] = []
         self.nominal = self.start = self.base = base
         self.plays: tuple[str, ...] = ()  # Joints whose claimed backlash the model carries.
 
@@ -222,7 +222,7 @@ class _Search:
         """One round: fit the candidates of the joints that stand out, score them on B, and
         claim the best or stop. Returns whether the search goes on."""
         if self.kept:  # The effects so far at their best together, before crediting a new one.
-            self._set_kept_values(_polish(self.fit_a, self.start, self.kept))
+            self._set_kept_values(polish_kept(self.fit_a, self.start, self.kept))
             self.base = self.with_kept(self.start)
         model = self.base.model
         joints = self._candidate_joints(candidates_per_round)
@@ -230,7 +230,7 @@ class _Search:
             return False
         pairs, bases = self._candidate_pairs(model, joints)
         shares: list[float] = []
-        values = _fit(self.fit_a, bases, pairs, removed=shares)
+        values = fit_candidates(self.fit_a, bases, pairs, removed=shares)
         pairs, bases, values = self._screen(pairs, bases, values, shares)
         revised, cs = self._corrections(pairs, bases, values)
         return self._choose(model, pairs, values, revised, cs)
@@ -246,23 +246,29 @@ class _Search:
 
     def _candidate_pairs(
         self, model: mujoco.MjModel, joints: list[int]
-    ) -> tuple[list[_Pair], list[Correction]]:
+    ) -> tuple[list[Candidate], list[Correction]]:
         """Every effect that can act on ``joints``, each with the correction it is fitted on
         (backlash: a model with one more hinge)."""
         names = self.names
-        pairs = _pairs(model, joints, self.peak, self.reach) + _group_pairs(model, joints, names)
+        pairs = joint_candidates(model, joints, self.peak, self.reach) + group_candidates(
+            model, joints, names
+        )
         bases = [self.base] * len(pairs)
         if self.backlash_model is not None:  # Play in a joint: a model with one more hinge.
             for j in joints:
                 if names[j] not in self.plays:
                     bases.append(self.with_kept(self.start_for((*self.plays, names[j]))))
-                    pairs.append(_Pair(effect="backlash", index=j, joints=np.array([j]),
+                    pairs.append(Candidate(effect="backlash", index=j, joints=np.array([j]),
                                        lo=0.002, hi=0.2, none=0.0, probe=0.02))  # fmt: skip
         return pairs, bases
 
     def _screen(
-        self, pairs: list[_Pair], bases: list[Correction], values: list[float], shares: list[float]
-    ) -> tuple[list[_Pair], list[Correction], list[float]]:
+        self,
+        pairs: list[Candidate],
+        bases: list[Correction],
+        values: list[float],
+        shares: list[float],
+    ) -> tuple[list[Candidate], list[Correction], list[float]]:
         """The pairs scored on B: those that remove a part of their joints' error on A, and
         always the best few of them, the rivals the confidence weighs (a pair that removes less
         than :data:`SCREEN` of its joints' error where it was fitted does not remove
@@ -275,7 +281,7 @@ class _Search:
         return [pairs[i] for i in keep], [bases[i] for i in keep], [values[i] for i in keep]
 
     def _corrections(
-        self, pairs: list[_Pair], bases: list[Correction], values: list[float]
+        self, pairs: list[Candidate], bases: list[Correction], values: list[float]
     ) -> tuple[list[list[float]], list[Correction]]:
         """Each pair's correction with the kept effects. A pair on joints that already carry
         an effect is refitted together with it (the effect found first took more than its
@@ -300,7 +306,7 @@ class _Search:
                     if k not in shared:
                         q.apply(others, v)
                 group = [kept[k] for k in shared] + [(p, values[i])]
-                fitted = _refit(self.fit_a, others, group)
+                fitted = refit_together(self.fit_a, others, group)
                 for k, v in zip(shared, fitted[:-1], strict=True):
                     revised[i][k] = v
                 values[i] = fitted[-1]
@@ -314,7 +320,7 @@ class _Search:
     def _choose(
         self,
         model: mujoco.MjModel,
-        pairs: list[_Pair],
+        pairs: list[Candidate],
         values: list[float],
         revised: list[list[float]],
         cs: list[Correction],
@@ -325,7 +331,7 @@ class _Search:
         res_b = self.score_b.run([self.base, *cs])
         gains, reds = [], []
         for i, p in enumerate(pairs):
-            ch = _channels(p, res_b.shape[-1])
+            ch = scored_channels(p, res_b.shape[-1])
             sse0 = np.sum(res_b[0][..., ch] ** 2, axis=(0, 1, 3))  # Per joint, before.
             sse = np.sum(res_b[1 + i][..., ch] ** 2, axis=(0, 1, 3))
             gains.append(float(np.sum(sse0 - sse)))
@@ -339,7 +345,7 @@ class _Search:
         # under the noise floors, counting each window and channel once (samples inside a
         # window are not independent: a k-step error accumulates).
         evidence = (gains[k] - max(rival, 0.0)) / (
-            2 * self.score_b.samples * len(_channels(best, res_b.shape[-1]))
+            2 * self.score_b.samples * len(scored_channels(best, res_b.shape[-1]))
         )
         conf = float(np.clip(red / (2 * MIN_REDUCTION), 0.0, 1.0)
                      * (0.4 + 0.6 * (1.0 - np.exp(-evidence))))  # fmt: skip
@@ -364,7 +370,7 @@ class _Search:
         return True
 
     def _finding(
-        self, model: mujoco.MjModel, p: _Pair, value: float, red: float, confidence: float
+        self, model: mujoco.MjModel, p: Candidate, value: float, red: float, confidence: float
     ) -> Finding:
         names = self.names
         on_body = EFFECTS[p.effect].target == "body"
@@ -381,7 +387,7 @@ class _Search:
         lack nothing: a claimed effect's joints should come down to their noise floor."""
         if not self.findings:
             return
-        self._set_kept_values(_refit(self.fit_a, self.start, self.kept))
+        self._set_kept_values(refit_together(self.fit_a, self.start, self.kept))
         self.base = self.with_kept(self.start)
         final = self.score_b.run([self.start, self.base])
         residual_after = final[1][..., 0] * self.score_b.sigma[0]  # Positions [rad].
@@ -389,14 +395,14 @@ class _Search:
         floor_after = noise_floor(self.score_b.predictor, self.base, residual_after)
         claimed, unclaimed = [], []
         for f, (p, v) in zip(self.findings, self.kept, strict=True):
-            ch = _channels(p, final.shape[-1])
+            ch = scored_channels(p, final.shape[-1])
             sse0 = float(np.sum(final[0][..., p.joints, :][..., ch] ** 2))
             sse1 = float(np.sum(final[1][..., p.joints, :][..., ch] ** 2))
             noise = float(final[0][..., p.joints, :][..., ch].size)  # One floor squared each.
             left = max(sse1 - noise, 0.0) / max(sse0 - noise, 1e-30)
             conf = f.confidence * float(np.clip(1.0 - 1.5 * left, 0.0, 1.0))
             stands = float(np.sqrt(np.mean((after[p.joints] / floor_after[p.joints]) ** 2)))
-            if not _sized(p, v) or _at_bound(p, v):  # Nothing, or a proxy (see the two).
+            if not is_sized(p, v) or at_bound(p, v):  # Nothing, or a proxy (see the two).
                 conf = min(conf, CLAIM - 0.01)
             g = replace(f, confidence=conf, stands_out=stands)
             (claimed if conf >= CLAIM else unclaimed).append((g, p, v))

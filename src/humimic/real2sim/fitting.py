@@ -1,5 +1,5 @@
 """Fitting and scoring the diagnosis's candidates on a log's k-step windows: batched secant
-and grid searches (:func:`_fit`), joint refits (:func:`_refit`), the noise floors, and the
+and grid searches (:func:`fit_candidates`), joint refits (:func:`refit_together`), the noise floors, and the
 predictors of the log's fit part (A and B windows).
 """
 
@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
-from humimic.real2sim.candidates import _Pair
+from humimic.real2sim.candidates import Candidate
 from humimic.real2sim.floating import BaseEstimate
 from humimic.real2sim.residual import Predictor
 from humimic.real2sim.robotlog import RobotLog
@@ -36,10 +36,10 @@ _SECANT_TOL = 1e-4
 (1e-3 left a 0.8 kg payload at 0.785 kg and the held-out error at 0.45 against 0.31 mrad)."""
 
 
-def _fit(
-    predictor: _Scorer,
+def fit_candidates(
+    predictor: Scorer,
     bases: list[Correction],
-    pairs: list[_Pair],
+    pairs: list[Candidate],
     first: list[float] | None = None,
     removed: list[float] | None = None,
 ) -> list[float]:
@@ -106,14 +106,14 @@ def _fit(
 
 
 def _fit_mixed(
-    predictor: _Scorer,
+    predictor: Scorer,
     bases: list[Correction],
-    pairs: list[_Pair],
+    pairs: list[Candidate],
     grid: list[int],
     first: list[float] | None,
     removed: list[float] | None,
 ) -> list[float]:
-    """:func:`_fit` of pairs some of which (``grid``) are fitted by :func:`_grid_fit`, the
+    """:func:`fit_candidates` of pairs some of which (``grid``) are fitted by :func:`_grid_fit`, the
     rest by the secant search."""
     smooth = [i for i in range(len(pairs)) if i not in grid]
     out = [0.0] * len(pairs)
@@ -125,7 +125,7 @@ def _fit_mixed(
     if smooth:
         firsts = None if first is None else [first[i] for i in smooth]
         part = []
-        for k, (i, v) in enumerate(zip(smooth, _fit(predictor, [bases[i] for i in smooth],
+        for k, (i, v) in enumerate(zip(smooth, fit_candidates(predictor, [bases[i] for i in smooth],
                                    [pairs[i] for i in smooth], firsts, part), strict=True)):  # fmt: skip
             out[i], shares[i] = v, part[k]
     if removed is not None:
@@ -133,7 +133,7 @@ def _fit_mixed(
     return out
 
 
-class _Scorer:
+class Scorer:
     """Residuals of corrections on a predictor's windows, in units of the noise floor: joint
     positions and, when the log has them, drive torques (its effort), each divided by its
     floor (the median joint's error with the nominal model: most joints lack nothing).
@@ -253,9 +253,9 @@ the play, a tangential load past friction x the normal one): their error is flat
 
 
 def _grid_fit(
-    predictor: _Scorer,
+    predictor: Scorer,
     bases: list[Correction],
-    pairs: list[_Pair],
+    pairs: list[Candidate],
     n: int = 8,
     golden: int = 9,
     removed: list[float] | None = None,
@@ -329,8 +329,8 @@ def _grid_fit(
     return [float(v) for v in out]
 
 
-def _refit(
-    predictor: _Scorer, start: Correction, kept: list[tuple[_Pair, float]], iters: int = 5
+def refit_together(
+    predictor: Scorer, start: Correction, kept: list[tuple[Candidate, float]], iters: int = 5
 ) -> list[float]:
     """Refit the kept effects together (Gauss-Newton on the residual of all their joints,
     finite-difference Jacobian): effects on the same joint share its error, and the first one
@@ -374,12 +374,14 @@ def _refit(
     return list(values)
 
 
-def _polish(predictor: _Scorer, start: Correction, kept: list[tuple[_Pair, float]]) -> list[float]:
-    """Refit the kept effects: alone from where they are, or together (:func:`_refit`)."""
+def polish_kept(
+    predictor: Scorer, start: Correction, kept: list[tuple[Candidate, float]]
+) -> list[float]:
+    """Refit the kept effects: alone from where they are, or together (:func:`refit_together`)."""
     if len(kept) > 1:
-        return _refit(predictor, start, kept)
+        return refit_together(predictor, start, kept)
     ((p, v),) = kept
-    return _fit(predictor, [start], [p], first=[v])
+    return fit_candidates(predictor, [start], [p], first=[v])
 
 
 def backlash_models(

@@ -188,7 +188,7 @@ def simulate_log(
     model = spec.compile()
     jm = JointMap.of(model)  # Backlash adds a hidden joint per affected joint.
     names = jm.names
-    offset = _encoder_offsets(injections, names)
+    offset = encoder_offsets(injections, names)
     if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")
     nominal = nominal_spec(robot)[1]
@@ -197,8 +197,8 @@ def simulate_log(
     # The experiment is designed on the nominal robot (its designer does not know the effects).
     t_cmd, cmd_q = excitation(fixed_base_spec(robot, base_pose).compile(), settings, rng)
     t, q, qd, effort = _record_hanging(model, jm, t_cmd, cmd_q, offset, settings)
-    sensed = _sensed(q + offset, qd, effort, settings, rng)
-    return _robot_log(robot, "fixed", base_pose, names, t, sensed, t_cmd, cmd_q, kp, kd)
+    sensed = sensed_values(q + offset, qd, effort, settings, rng)
+    return assemble_robot_log(robot, "fixed", base_pose, names, t, sensed, t_cmd, cmd_q, kp, kd)
 
 
 def _record_hanging(
@@ -219,7 +219,7 @@ def _record_hanging(
     act = jm.act_log
     data = mujoco.MjData(model)
     data.qpos[jm.qadr] = cmd_q[0]
-    _hold(model, data, (cmd_q[0] - offset)[act])
+    hold_pose(model, data, (cmd_q[0] - offset)[act])
     mujoco.mj_forward(model, data)
     n_steps = round(settings.duration / PHYSICS_DT)
     state_every = round(1.0 / (settings.state_rate * PHYSICS_DT))
@@ -245,7 +245,7 @@ def _record_hanging(
     return t, q, qd, effort
 
 
-def _robot_log(
+def assemble_robot_log(
     robot: RobotConfig,
     base: str,
     base_pose: np.ndarray,
@@ -304,7 +304,7 @@ def tilt_imu(log: RobotLog, roll: float, pitch: float) -> RobotLog:
     return replace(log, imu=imu)
 
 
-def _hold(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> None:
+def hold_pose(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> None:
     """The drives have been holding ``target`` (per actuator): their delay lines are full of
     it and their filters settled on it."""
     for a in range(model.nu):
@@ -317,7 +317,7 @@ def _hold(model: mujoco.MjModel, data: mujoco.MjData, target: np.ndarray) -> Non
         data.act[model.actuator_actadr[a]] = target[a]
 
 
-def _sensed(
+def sensed_values(
     q: np.ndarray,
     qd: np.ndarray,
     effort: np.ndarray,
@@ -330,7 +330,7 @@ def _sensed(
             effort + rng.normal(0, settings.effort_noise, effort.shape))  # fmt: skip
 
 
-def _encoder_offsets(injections: list[Injection], names: tuple[str, ...]) -> np.ndarray:
+def encoder_offsets(injections: list[Injection], names: tuple[str, ...]) -> np.ndarray:
     offset = np.zeros(len(names))
     for inj in injections:
         if inj.effect == "encoder_offset":

@@ -15,12 +15,12 @@ from humimic.errors import InputError
 from humimic.real2sim.robotlog import ImuLog, PoseTrack, RobotLog
 from humimic.real2sim.simulate import (
     LogSettings,
-    _encoder_offsets,
-    _hold,
-    _robot_log,
-    _sensed,
+    assemble_robot_log,
+    encoder_offsets,
+    hold_pose,
     imu_site_of,
     multisines,
+    sensed_values,
 )
 from humimic.robots.model import nominal_spec
 from humimic.robots.registry import RobotConfig
@@ -46,7 +46,7 @@ def simulate_floating(
     names = jm.names
     if model.nu != len(names):
         raise InputError(f"{robot.name}: expected one actuator per joint")
-    offset = _encoder_offsets(injections, names)
+    offset = encoder_offsets(injections, names)
     nominal_robot, drives = nominal_spec(robot)
     nominal = nominal_robot.compile()
     kp = np.array([drives[n].kp for n in names])
@@ -59,8 +59,8 @@ def simulate_floating(
     data, balanced = _landed(robot, model, jm, cmd_q[0] - offset, cmd_every)
     rec = _record_standing(model, data, jm, root, balanced, t_cmd, cmd_q, offset, settings)
     imu, mocap = _floor_sensors(site, rec, settings, rng)
-    sensed = _sensed(rec.q + offset, rec.qd, rec.effort, settings, rng)
-    return _robot_log(robot, "floating", np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), names,
+    sensed = sensed_values(rec.q + offset, rec.qd, rec.effort, settings, rng)
+    return assemble_robot_log(robot, "floating", np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), names,
                       rec.t, sensed, t_cmd, rec.sent, kp, kd, imu, mocap)  # fmt: skip
 
 
@@ -141,7 +141,7 @@ def _landed(
     lowest = min(float(data.geom_xpos[g, 2] - model.geom_rbound[g])
                  for g in range(model.ngeom) if model.geom_bodyid[g] != 0)  # fmt: skip
     data.qpos[qa + 2] = -lowest + 0.002  # Dropped from 2 mm above the floor.
-    _hold(model, data, target[act])
+    hold_pose(model, data, target[act])
     data.ctrl[:] = target[act]
     rollout.step(model, data, round(0.3 / PHYSICS_DT))  # Land (PD alone tips over later).
     return data, _Balance(robot, model, data, jm, target, cmd_every)
