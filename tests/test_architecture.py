@@ -39,8 +39,9 @@ def layer(module: str) -> str:
     return parts[1]
 
 
-def _module_of(path: Path) -> str:
-    rel = path.relative_to(SRC.parent).with_suffix("")
+def _module_of(path: Path, root: Path | None = None) -> str:
+    """The dotted module name of a file under ``root`` (default: :data:`SRC`)."""
+    rel = path.relative_to((root or SRC).parent).with_suffix("")
     parts = list(rel.parts)
     if parts[-1] == "__init__":
         parts = parts[:-1]
@@ -157,7 +158,7 @@ def physics_steps(root: Path = SRC) -> list[str]:
     string. Docstrings and comments may mention them."""
     bad = []
     for path in sorted(root.rglob("*.py")):
-        if layer(_module_of_under(path, root)) == "sim":
+        if layer(_module_of(path, root)) == "sim":
             continue
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             found = None
@@ -177,12 +178,6 @@ def physics_steps(root: Path = SRC) -> list[str]:
             if found:
                 bad.append(f"{path.relative_to(root.parent)}:{getattr(node, 'lineno', 0)}: {found}")
     return bad
-
-
-def _module_of_under(path: Path, root: Path) -> str:
-    rel = path.relative_to(root.parent).with_suffix("")
-    parts = list(rel.parts)
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def test_only_sim_steps_physics() -> None:
@@ -222,7 +217,7 @@ def boundary_breaches(root: Path = SRC) -> list[str]:
     (lazy imports and ``importlib`` strings included)."""
     bad = []
     for path in sorted(root.rglob("*.py")):
-        mine = _module_of_under(path, root)
+        mine = _module_of(path, root)
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             names: list[str] = []
             if isinstance(node, ast.Import):
