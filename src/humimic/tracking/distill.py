@@ -18,7 +18,7 @@ from tensordict import TensorDict
 from humimic.configs.runs import DistillSettings, PpoConfig
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable
-from humimic.tracking.rsl import RMA_ACTOR, MLPModel, VecEnv
+from humimic.tracking.rsl import RMA_ACTOR, MLPModel, VecEnv, make_runner
 
 STUDENT_OBS: dict[str, tuple[str, ...]] = {
     "mlp-history": ("policy", "proprio_history"),
@@ -268,7 +268,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     (:class:`~humimic.tracking.rma.RmaDistillation`); ``progress.csv`` has ``loss_latent``
     (trained on) and ``loss_behavior`` (the actions' MSE, not trained on).
     """
-    from humimic.tracking.rsl import make_runner
+    from humimic.tracking.runs import run_folder_lock
     from humimic.tracking.task import load_reference
     from humimic.tracking.train import check_run_settings, fit, run_env
 
@@ -286,9 +286,6 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     run = s.out
     created = not run.exists()
     check_writable(run / "config.yaml", create=True)
-
-    from humimic.tracking.runs import run_folder_lock
-
     with run_folder_lock(run, has_run):  # Until the student's last checkpoint.
         torch.manual_seed(s.seed)
         env = run_env(task, motion, s, created)

@@ -277,7 +277,6 @@ class _RunnerMixin:
             self.gpu_local_rank = self.gpu_global_rank = 0
             self.cfg["multi_gpu"] = None
             return
-        assert ranks is not None
         self.gpu_world_size, self.is_distributed = ranks.world_size, True
         self.gpu_local_rank, self.gpu_global_rank = ranks.local_rank, ranks.rank
         self.cfg["multi_gpu"] = {
