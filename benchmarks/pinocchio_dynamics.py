@@ -228,7 +228,7 @@ def payload(seed: int, duration: float, diagnose: bool) -> list[dict[str, Any]]:
             path = write_robot_log(sim, Path(tmp) / f"{name.split()[0]}.mcap")
             logs[name] = load_fixed_base_log(path)[2]  # Read back: what the diagnosis reads.
             if diagnose:
-                r = run_diagnosis(path, Path(tmp) / name.split()[0])
+                r = run_diagnosis(path, Path(tmp) / name.split()[0]).report
                 diagnosed[name] = {
                     "claimed": [
                         {

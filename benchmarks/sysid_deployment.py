@@ -20,10 +20,11 @@ import time
 import numpy as np
 
 from humimic.real2sim import LogSettings, diagnose_log, simulate_log
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.residual import Predictor
 from humimic.robots import get_robot
-from humimic.sim.effects import Correction, parse_injection
+from humimic.sim.effects import parse_injection
 from humimic.sim.models import floating_prediction_spec
 
 CASES = {

@@ -104,7 +104,7 @@ def main() -> None:
             if retime:
                 log = _bus_latency(log)
             path = write_robot_log(log, Path(tmp) / "log.mcap")
-            r = run_diagnosis(path, Path(tmp) / name.replace(" ", "_"))
+            r = run_diagnosis(path, Path(tmp) / name.replace(" ", "_")).report
             case = {
                 "case": name,
                 "injected": [{"effect": i.effect, "target": ",".join(i.targets), "value": i.value}

@@ -47,13 +47,13 @@ from unittest.mock import patch
 import numpy as np
 
 from humimic.real2sim import LogSettings, floating, simulate_log, write_robot_log
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.fitting import BASE_PROBES, FIT_END, noise_floor
 from humimic.real2sim.floating import gyro_bias, prediction_step
 from humimic.real2sim.report import load_robot_log, run_diagnosis
 from humimic.real2sim.residual import Predictor
 from humimic.real2sim.simulate import tilt_imu
 from humimic.robots import get_robot
-from humimic.sim.effects import Correction
 from humimic.sim.models import floating_prediction_spec
 
 TOP = 6
@@ -95,7 +95,7 @@ def floor_part(tmp: Path) -> dict:
                 "median": 1e3 * float(np.median(d)),
             }
     floor = noise_floor(held, c, res0)
-    r = run_diagnosis(path, tmp / "diag")
+    r = run_diagnosis(path, tmp / "diag").report
     return {"part": "floor", "log": "clean, 40 s, seed 11", "unit": "mrad",
             "nominal_error": {**_top(names, error), "median": 1e3 * float(np.median(error))},
             "moved_by_base_probe": moved,
@@ -110,7 +110,7 @@ def short_part(tmp: Path) -> dict:
                              ("knee spring", _cable, 4), ("knee spring", _cable, 6)):  # fmt: skip
         log = simulate_log(get_robot("g1"), [], LogSettings(duration=8.0, base="floating", seed=seed),
                            edit=edit)  # fmt: skip
-        r = run_diagnosis(write_robot_log(log, tmp / f"s{seed}.mcap"), tmp / f"d{seed}")
+        r = run_diagnosis(write_robot_log(log, tmp / f"s{seed}.mcap"), tmp / f"d{seed}").report
         rows.append({"log": name, "seed": seed,
                      "claimed": [{"effect": e["effect"], "on": e.get("body") or e.get("group")
                                   or e["joints"][0], "value": round(e["params"]["value"], 3),
@@ -279,7 +279,7 @@ def _contact_rows(tmp: Path, cases, label: str, edit_of) -> list[dict]:
         log = simulate_log(get_robot("g1"), [], settings, edit=edit_of(what, feet))
         clean = _clean_kstep(settings, tmp)
         name = f"{label}_{'_'.join(map(str, np.atleast_1d(what)))}_{len(feet)}_{seed}"
-        r = run_diagnosis(write_robot_log(log, tmp / f"{name}.mcap"), tmp / name)
+        r = run_diagnosis(write_robot_log(log, tmp / f"{name}.mcap"), tmp / name).report
         rows.append({label: what, "feet": list(feet), "seed": seed, "seconds": duration,
                      "claimed": [(e["effect"], e.get("group") or e.get("body")
                                   or e.get("joints"), round(e["params"]["value"], 4),
@@ -322,7 +322,7 @@ def slip_truth_part(tmp: Path) -> dict:
     """What the true friction does to the predictions: the held-out error of joint positions
     and of drive torques with the nominal model and with the log's own friction set on both
     soles (the vocabulary's effect at the true value), per log."""
-    from humimic.sim.effects import apply_effect
+    from humimic.real2sim.correction import apply_effect
 
     rows = []
     for mu, seed, duration, noise_free in SLIP_TRUTH_CASES:

@@ -135,7 +135,7 @@ def main() -> None:
                 sim_s = time.perf_counter() - t0
                 case_dir = Path(tmp) / f"{base}_{name.replace(' ', '_')}"
                 path = write_robot_log(log, Path(tmp) / f"{case_dir.name}.mcap")
-                r = run_diagnosis(path, case_dir)
+                r = run_diagnosis(path, case_dir).report
                 case = {
                     "case": name, "base": base, "truth": truth,
                     **diagnosis_summary(r),

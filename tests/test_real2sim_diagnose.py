@@ -19,11 +19,12 @@ import pytest
 
 from humimic.cli.main import main
 from humimic.real2sim import LogSettings, RobotLog, simulate_log
+from humimic.real2sim.correction import apply_effect
 from humimic.real2sim.diagnose import FIT_END, Diagnosis, Finding, diagnose_log
 from humimic.real2sim.fitting import backlash_models
 from humimic.real2sim.residual import Correction, Predictor, kstep_error
 from humimic.robots import get_robot
-from humimic.sim.effects import apply_effect, apply_to_spec, parse_injection
+from humimic.sim.effects import apply_to_spec, parse_injection
 from humimic.sim.models import prediction_spec
 
 DURATION = 12.0
@@ -89,6 +90,20 @@ def test_predictions_express_every_effect_exactly(effect: str, target: str, valu
         assert written.actuator_biasprm[a, 2] == pytest.approx(value * model.actuator_biasprm[a, 2])
     else:
         assert kstep_error(written, log).kstep_rmse_rad < 1e-9
+
+
+def test_every_effect_acts_on_a_spec_and_on_a_compiled_model() -> None:
+    """The vocabulary, the spec's delta items and the compiled model's appliers name the same
+    effects; each effect is a parameter change or a structural item, never both."""
+    from humimic.real2sim.correction import ON_MODEL
+    from humimic.sim.delta import STRUCTURAL, Change, Structural
+    from humimic.sim.effects import EFFECTS
+
+    assert set(ON_MODEL) == set(EFFECTS)
+    for name, e in EFFECTS.items():
+        (item,) = e.items(("x",), 1.0)
+        assert isinstance(item, Structural) == (name in STRUCTURAL)
+        assert isinstance(item, Change) == (e.change is not None)
 
 
 def test_play_joints_in_different_places_predict_alone_and_batched_alike() -> None:
@@ -237,14 +252,17 @@ def test_a_latency_of_the_whole_bus_is_one_shared_delay() -> None:
 
 
 def test_a_group_finding_acts_on_its_joints_in_the_report_and_the_physics() -> None:
-    from humimic.real2sim.report import _effect_entry, physics_from_sysid
+    from humimic.real2sim.report import _effect_entry
+    from humimic.real2sim.result import SysidResult
 
     legs = ("left_knee_joint", "right_knee_joint")
     f = Finding(effect="delay", target="limbs_of_left_hip_pitch_joint+right_hip_pitch_joint",
                 joints=legs, value=0.03, confidence=0.9, error_reduction=0.8, targets=legs)  # fmt: skip
     entry = _effect_entry(f)
     assert entry["joints"] == list(legs) and entry["group"] == f.target
-    physics = physics_from_sysid({"effects": [entry]}, name="x", robot="g1")
+    err = {"kstep_rmse_rad": 0.01}
+    report = {"effects": [entry], "error_before": err, "error_after": err}
+    physics = SysidResult.of(report).physics(name="x", robot="g1")
     assert [(i.effect, i.targets, i.value) for i in physics.effects] == [("delay", legs, 0.03)]
     one = _effect_entry(replace(f, target="left_knee_joint", joints=legs[:1], targets=()))
     assert one["joints"] == ["left_knee_joint"] and "group" not in one

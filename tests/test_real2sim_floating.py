@@ -21,12 +21,15 @@ import pytest
 from humimic.cli.main import main
 from humimic.errors import InputError
 from humimic.real2sim import LogSettings, RobotLog, read_robot_log, simulate_log, write_robot_log
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.floating import prediction_step, smooth_track
 from humimic.real2sim.residual import Predictor, kstep_error
+from humimic.real2sim.result import SysidResult
 from humimic.real2sim.simulate import tilt_imu
 from humimic.robots import get_robot
-from humimic.sim.effects import Correction, parse_injection
+from humimic.sim.effects import parse_injection
 from humimic.sim.models import floating_prediction_spec
+from humimic.sim.physics import load_physics
 
 DURATION = 6.0
 
@@ -262,7 +265,7 @@ def test_a_clean_deployment_log_yields_no_confident_claim(
     monkeypatch.setattr(
         residual, "estimate_base", lambda *a, **k: calls.append(1) or estimate(*a, **k)
     )
-    r = run_diagnosis(write_robot_log(log, tmp_path / "clean.mcap"), tmp_path / "diag")
+    r = run_diagnosis(write_robot_log(log, tmp_path / "clean.mcap"), tmp_path / "diag").report
     assert len(calls) == 1
     assert [e for e in r["effects"] if e["confidence"] >= 0.5] == []
     assert r["unexplained"] is False and r["unexplained_joints"] == []
@@ -367,7 +370,8 @@ def _sole_effect_both_ways(
     """A sole effect on the left foot written into a spec and set on a compiled model: the
     two give the same ``field`` (a geom array), changed on the left foot's floor colliders
     (all four spheres) only. Returns the nominal model, the written one and the correction."""
-    from humimic.sim.effects import apply_effect, apply_to_spec
+    from humimic.real2sim.correction import apply_effect
+    from humimic.sim.effects import apply_to_spec
 
     spec = floating_prediction_spec(get_robot("g1"))
     apply_to_spec(spec, [parse_injection(f"{effect}:left_ankle_roll_link={value}")])
@@ -415,8 +419,6 @@ def test_soft_soles_are_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
     """Both feet on a softer contact: the diagnosis claims one contact time constant for
     every sole within 30 % and nothing else, the held-out error at least halves, and the
     physics file it writes carries the effect on both feet."""
-    from humimic.real2sim.report import physics_from_sysid
-
     r = _diagnosed_cli(_floor_log(6, _soft_soles), tmp_path)
     claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
     assert [(e["effect"], e.get("group")) for e in claimed] == [("contact_softness", "all_soles")]
@@ -424,7 +426,7 @@ def test_soft_soles_are_found_blind_in_a_deployment_log(tmp_path: Path) -> None:
     assert claimed[0]["params"]["value"] == pytest.approx(0.1, rel=0.3)
     assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
     assert r["unexplained"] is False
-    physics = physics_from_sysid(r, name="soft", robot="g1")
+    physics = load_physics(tmp_path / "diag" / "physics.yaml")
     assert [(e.effect, sorted(e.targets)) for e in physics.effects] == [
         ("contact_softness", ["left_ankle_roll_link", "right_ankle_roll_link"])
     ]
@@ -444,14 +446,12 @@ def test_a_slippery_floor_is_found_blind_in_a_deployment_log(tmp_path: Path) -> 
     every sole within 30 % and nothing else, the held-out error halves, and the physics file
     it writes carries the friction on both feet; the same effect written into a spec and set
     on a compiled model give the same model."""
-    from humimic.real2sim.report import physics_from_sysid
-
     r = _diagnosed_cli(_floor_log(6, _slippery_soles), tmp_path)
     claimed = [e for e in r["effects"] if e["confidence"] >= 0.5]
     assert [(e["effect"], e.get("group")) for e in claimed] == [("contact_friction", "all_soles")]
     assert claimed[0]["params"]["value"] == pytest.approx(0.07, rel=0.3)
     assert r["error_after"]["kstep_rmse_rad"] <= 0.5 * r["error_before"]["kstep_rmse_rad"]
-    physics = physics_from_sysid(r, name="slippery", robot="g1")
+    physics = SysidResult.of(r).physics(name="slippery", robot="g1")
     assert [(e.effect, sorted(e.targets)) for e in physics.effects] == [
         ("contact_friction", ["left_ankle_roll_link", "right_ankle_roll_link"])
     ]

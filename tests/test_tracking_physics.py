@@ -101,11 +101,43 @@ def test_dr_varies_a_physics_files_friction_instead_of_replacing_it(
         ({"effects": ["rust:left_knee_joint=1"]}, "unknown effect 'rust'"),
         ({"effects": ["payload_mass:no_body=1"]}, "no body 'no_body'"),
         ({"robot": "t1"}, "written for 't1', not 'g1'"),
+        ({"kp_scale": {"*": 0.9, "left_knee_joint": 1.1}}, "or name them, not both"),
     ],
 )
 def test_bad_files_are_refused(data: dict, message: str) -> None:
     with pytest.raises(InputError, match=message.replace("[", r"\[").replace("]", r"\]")):
         tracking_model(replace(g1_tracking("none"), physics=parse_physics(data, "bad", "bad")))
+
+
+def test_a_dr_draw_as_a_delta_builds_the_models_the_batched_path_sets(
+    nominal: mujoco.MjModel,
+) -> None:
+    """Two renderings of the same draws, computed apart: the backends write the DR fields into
+    copies of the compiled model (arrays, ``ModelLayout.fields``), a delta edits the spec that
+    MuJoCo then compiles. Both give the same model, constants derived from the inertia too."""
+    from humimic.robots.registry import get_robot
+    from humimic.sim.models import training_model
+    from humimic.sim.params import ModelLayout, physics_copies
+    from humimic.sim.randomization import dr_profile, sample
+
+    setup = g1_tracking("none").sim_setup()
+    layout = ModelLayout.of(nominal, setup.body_names, setup.contact_body_names, setup.feet,
+                            com_body=setup.com_body)  # fmt: skip
+    dr = replace(dr_profile("wide"), kp_scale=(0.7, 1.3), armature_scale=(0.5, 2.0))
+    draws = sample(dr, 2, num_bodies=len(layout.robot_bodies), num_joints=nominal.nu,
+                   rng=np.random.default_rng(3), com_column=layout.com_column).physics  # fmt: skip
+    for k, batched in enumerate(physics_copies(nominal, layout, draws)):
+        delta = layout.delta(draws, k, nominal)
+        assert len(delta.items) == 1 + len(layout.robot_bodies) + 1 + 3 * nominal.nu
+        spec_built = training_model(get_robot("g1"), body_names=setup.body_names,
+                                    contact_body_names=setup.contact_body_names,
+                                    foot_body_names=setup.feet, edit=delta.on_spec)  # fmt: skip
+        assert not np.array_equal(batched.body_mass, nominal.body_mass)
+        for name in ("geom_friction", "body_mass", "body_inertia", "body_ipos", "actuator_gainprm",
+                     "actuator_biasprm", "dof_armature", "dof_invweight0", "body_invweight0",
+                     "actuator_acc0", "body_subtreemass"):  # fmt: skip
+            np.testing.assert_allclose(getattr(spec_built, name), getattr(batched, name),
+                                       rtol=1e-9, atol=1e-12, err_msg=name)  # fmt: skip
 
 
 def test_missing_file_names_the_shipped_ones() -> None:

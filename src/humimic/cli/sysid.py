@@ -215,9 +215,9 @@ def run_import(cmd: SysidImport) -> None:
 
 def run_residual(cmd: SysidResidual) -> None:
     """Run ``humimic sysid residual``."""
+    from humimic.real2sim.correction import Correction
     from humimic.real2sim.report import load_robot_log
     from humimic.real2sim.residual import Predictor
-    from humimic.sim.effects import Correction
 
     if cmd.report is not None:
         check_not_input(cmd.report, {"the log": cmd.log}, "--report")
@@ -243,22 +243,19 @@ def run_diagnose(cmd: SysidDiagnose) -> None:
     """Run ``humimic sysid diagnose``."""
     from humimic.real2sim.report import run_diagnosis
 
-    report = run_diagnosis(cmd.log, cmd.out_dir, horizon=cmd.horizon, residual_net=cmd.residual_net)
-    before, after = report["error_before"], report["error_after"]
-    print(f"{cmd.log.name}: held-out k-step error {before['kstep_rmse_rad'] * 1e3:.2f} mrad "
-          f"nominal -> {after['kstep_rmse_rad'] * 1e3:.2f} mrad corrected "
-          f"({report['seconds']:.0f} s)")  # fmt: skip
-    for e in report["effects"]:
-        if e["confidence"] >= 0.5:
-            where = e.get("body") or ", ".join(e.get("bodies") or e["joints"])
-            print(f"claimed: {e['effect']} on {where} = {e['params']['value']:.4g} "
-                  f"{e['params']['unit']} (confidence {e['confidence']:.2f})")  # fmt: skip
-    for s in report["not_identifiable"]:
-        print(f"not identifiable from this log: {s['effect']} on {len(s['joints'])} joints")
-    if report["unexplained"]:
-        print("unexplained: " + ", ".join(report["unexplained_joints"]))
-    if report["residual_model"] is not None:
-        net = report["residual_model"]
+    r = run_diagnosis(cmd.log, cmd.out_dir, horizon=cmd.horizon, residual_net=cmd.residual_net)
+    print(f"{cmd.log.name}: held-out k-step error {r.before_rad * 1e3:.2f} mrad "
+          f"nominal -> {r.after_rad * 1e3:.2f} mrad corrected ({r.seconds:.0f} s)")  # fmt: skip
+    for e in r.claims:
+        print(f"claimed: {e.effect} on {', '.join(e.targets)} = {e.value:.4g} {e.unit} "
+              f"(confidence {e.confidence:.2f})")  # fmt: skip
+    for effect, joints in r.not_identifiable:
+        print(f"not identifiable from this log: {effect} on {joints} joints")
+    if r.unexplained:
+        print("unexplained: " + ", ".join(r.unexplained_joints))
+    net = r.report.get("residual_model")
+    if net is not None:
         print(f"residual actuator network: {net['error_after']['kstep_rmse_rad'] * 1e3:.2f} mrad "
               f"held out -> {net['path']}")  # fmt: skip
-    print(f"wrote {cmd.out_dir / 'report.md'}, report.json, model.xml")
+    print(f"wrote {cmd.out_dir / 'report.md'}, report.json, model.xml, physics.yaml "
+          "(the claims, for --physics)")  # fmt: skip

@@ -265,8 +265,7 @@ def loop(settings: LoopSettings) -> dict:
 
 def _stages(s: LoopSettings, run: Any, out: Path) -> dict:
     """The loop's five stages into ``out`` (made, empty); returns ``loop.json``'s content."""
-    from humimic.real2sim.diagnose import CLAIM
-    from humimic.real2sim.report import physics_from_sysid, run_diagnosis
+    from humimic.real2sim.report import run_diagnosis
     from humimic.sim.physics import write_physics
 
     t0 = time.perf_counter()
@@ -287,24 +286,20 @@ def _stages(s: LoopSettings, run: Any, out: Path) -> dict:
 
     print(f"[3/5] sysid diagnose on the {s.sysid_log} log")
     diag = run_diagnosis(sysid_log, out / "sysid")
-    corrected = physics_from_sysid(diag, name="corrected", robot=run.robot)
+    corrected = diag.physics(name="corrected", robot=run.robot)
     write_physics(corrected, out / "corrected.yaml")
     report["sysid"] = {
         "log": s.sysid_log,
         "claimed": corrected.as_dict().get("effects", []),
-        "kstep_rmse_mrad_before": 1e3 * diag["error_before"]["kstep_rmse_rad"],
-        "kstep_rmse_mrad_after": 1e3 * diag["error_after"]["kstep_rmse_rad"],
-        "unexplained": diag["unexplained"],
+        "kstep_rmse_mrad_before": 1e3 * diag.before_rad,
+        "kstep_rmse_mrad_after": 1e3 * diag.after_rad,
+        "unexplained": diag.unexplained,
         # Claims whose joints stay far above their noise floor (sysid/report.md): right but
         # incomplete, or stand-ins for an effect outside the vocabulary.
-        "partial": [
-            f"{e['effect']} on {e.get('body') or e.get('group') or ', '.join(e['joints'])}"
-            for e in diag["effects"]
-            if e["confidence"] >= CLAIM and e["partial"]
-        ],
+        "partial": [f"{e.effect} on {e.where}" for e in diag.claims if e.partial],
         "residual_model_used": False,  # The training model holds the effects alone.
-        "not_identifiable": len(diag["not_identifiable"]),
-        "seconds": diag["seconds"],
+        "not_identifiable": len(diag.not_identifiable),
+        "seconds": diag.seconds,
     }
 
     print(f"[4/5] fine-tuning {s.iterations} iterations in the corrected model")

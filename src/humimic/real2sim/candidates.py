@@ -10,8 +10,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from humimic.real2sim.correction import Correction, apply_effect
 from humimic.real2sim.robotlog import RobotLog
-from humimic.sim.effects import Correction, apply_effect, floor_colliders, soft_geoms
+from humimic.sim.contacts import floor_colliders, soft_geoms
 from humimic.sim.joints import JointMap
 
 

@@ -21,6 +21,7 @@ from humimic.real2sim.candidates import (
     peak_torque,
     scored_channels,
 )
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.fitting import (
     FIT_END,
     OFFSET_PROBE,
@@ -33,14 +34,12 @@ from humimic.real2sim.fitting import (
     refit_together,
 )
 from humimic.real2sim.floating import BaseEstimate
+from humimic.real2sim.result import CLAIM
 from humimic.real2sim.robotlog import RobotLog
-from humimic.sim.effects import EFFECTS, Correction
+from humimic.sim.effects import EFFECTS
 
 MIN_REDUCTION = 0.4
 """An effect must remove at least this share of its joints' error on unseen data (B)."""
-
-CLAIM = 0.5
-"""Confidence at or above which an effect is claimed."""
 
 SEARCHED = ("coulomb_friction", "viscous_damping", "armature", "gain_mismatch", "delay", "lag",
             "torque_limit", "encoder_offset", "payload_mass", "contact_softness",

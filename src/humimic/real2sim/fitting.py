@@ -13,11 +13,11 @@ import numpy as np
 
 from humimic.errors import InputError
 from humimic.real2sim.candidates import Candidate
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.floating import BaseEstimate
 from humimic.real2sim.residual import Predictor
 from humimic.real2sim.robotlog import RobotLog
 from humimic.robots.registry import RobotConfig
-from humimic.sim.effects import Correction
 from humimic.sim.joints import JointMap
 
 FIT_END = 0.7

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -19,6 +18,7 @@ import numpy as np
 
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, check_not_input, check_writable, json_ready
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.diagnose import (
     CLAIM,
     FIT_END,
@@ -33,12 +33,13 @@ from humimic.real2sim.fitting import backlash_models, fit_predictors, noise_floo
 from humimic.real2sim.floating import prediction_step
 from humimic.real2sim.report_plots import write_plots
 from humimic.real2sim.residual import KStepError, Predictor
+from humimic.real2sim.result import SYSID_SCHEMA, SysidResult
 from humimic.real2sim.robotlog import RobotLog, parse_base_pose, read_robot_log
 from humimic.robots.registry import RobotConfig
-from humimic.sim.effects import EFFECTS, Correction, Injection, apply_to_spec
+from humimic.sim.effects import EFFECTS, Injection, apply_to_spec
 from humimic.sim.joints import JointMap
 from humimic.sim.models import prediction_spec
-from humimic.sim.physics import Physics
+from humimic.sim.physics import write_physics
 
 UNEXPLAINED = 0.5
 """Share of the held-out error above the noise floor that, when left, makes a log unexplained."""
@@ -168,8 +169,9 @@ def run_diagnosis(
     *,
     horizon: float = 0.5,
     residual_net: Literal["auto", "always", "never"] = "auto",
-) -> dict:
-    """Diagnose ``log_path``; write model, report and plots into ``out_dir``.
+) -> SysidResult:
+    """Diagnose ``log_path``; write model, report and plots into ``out_dir``. Returns what
+    was found (``report.json``'s content, typed).
 
     Raises:
         InputError: A log the diagnosis cannot use, a bad ``horizon`` or an output that
@@ -217,6 +219,7 @@ def run_diagnosis(
     _export_model(robot, diagnosis, out / "model.xml")
     plots = write_plots(out, log, nominal, corrected, diagnosis, before, after, net_error, held)
     report = {
+        "schema": SYSID_SCHEMA,
         "robot": robot.name,
         "log": str(log_path),
         "error_before": before.as_report(names),
@@ -239,9 +242,23 @@ def run_diagnosis(
         "plots": [p.name for p in plots],
         "seconds": time.perf_counter() - t0,
     }
+    return _write_report(out, log_path, robot, report, diagnosis, plots)
+
+
+def _write_report(
+    out: Path, log_path: Path, robot: RobotConfig, report: dict, diagnosis: Diagnosis,
+    plots: list[Path],
+) -> SysidResult:  # fmt: skip
+    """report.json, report.md and physics.yaml (the claims, for ``--physics``)."""
     atomic_write_text(out / "report.json", json.dumps(json_ready(report), indent=2) + "\n")
     atomic_write_text(out / "report.md", _markdown(log_path, robot, report, diagnosis, plots))
-    return report
+    result = SysidResult.of(json_ready(report), str(out / "report.json"))
+    write_physics(result.physics(name="sysid", robot=robot.name), out / "physics.yaml")
+    return result
+
+
+OUTPUTS = ("model.xml", "report.json", "report.md", "physics.yaml", "residual_net.pt")
+"""What a diagnosis writes into its folder (with its plots)."""
 
 
 def _check_out_dir(out: Path, log_path: Path) -> None:
@@ -256,9 +273,9 @@ def _check_out_dir(out: Path, log_path: Path) -> None:
             f"--out-dir {out}: holds other files and no earlier diagnosis (no report.json); "
             "choose a new or empty folder"
         )
-    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+    for name in OUTPUTS:
         check_not_input(out / name, {"the log": log_path}, "--out-dir")
-    for name in ("model.xml", "report.json", "report.md", "residual_net.pt"):
+    for name in OUTPUTS:
         check_writable(out / name)
 
 
@@ -451,23 +468,3 @@ def _unexplained_lines(report: dict) -> list[str]:
             "",
         ]
     return lines
-
-
-def physics_from_sysid(report: Mapping[str, Any], *, name: str, robot: str | None) -> Physics:
-    """The correction ``humimic sysid diagnose`` claimed (its ``report.json``) as physics.
-
-    Only claimed effects (confidence >= 0.5) are kept; a residual network, if the report has
-    one, is not part of a model and is left out.
-    """
-    effects = []
-    for e in report.get("effects", []):
-        if e["confidence"] < CLAIM:
-            continue
-        targets = (e["body"],) if "body" in e else tuple(e.get("bodies") or e["joints"])
-        effects.append(Injection(effect=e["effect"], targets=targets, value=e["params"]["value"]))
-    return Physics(
-        name=name,
-        description=f"effects claimed by sysid diagnose on {report.get('log', 'a log')}",
-        robot=robot,
-        effects=tuple(effects),
-    )

@@ -12,10 +12,11 @@ import mujoco
 import numpy as np
 
 from humimic.io import atomic_write
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.diagnose import FIT_END, Diagnosis, Finding
 from humimic.real2sim.residual import KStepError, Predictor
 from humimic.real2sim.robotlog import RobotLog
-from humimic.sim.effects import EFFECTS, Correction
+from humimic.sim.effects import EFFECTS
 
 
 def write_plots(

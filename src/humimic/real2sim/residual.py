@@ -1,5 +1,5 @@
 """Where the simulator disagrees with a log: k-step open-loop prediction error
-(:class:`Predictor`, :func:`kstep_error`) of a :class:`~humimic.sim.effects.Correction`.
+(:class:`Predictor`, :func:`kstep_error`) of a :class:`~humimic.real2sim.correction.Correction`.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import mujoco
 import numpy as np
 
 from humimic.errors import InputError
+from humimic.real2sim.correction import Correction
 from humimic.real2sim.floating import BaseEstimate, estimate_base, free_joint
 from humimic.real2sim.robotlog import RobotLog
 from humimic.sim import rollout
-from humimic.sim.effects import Correction
 from humimic.sim.joints import JointMap
 from humimic.sim.models import MAX_STEP, PHYSICS_DT
 

@@ -1,5 +1,6 @@
-"""Build and step robot models: backends, model builders, physics parameters, domain
-randomization, the effect vocabulary and physics files.
+"""Build and step robot models: backends, model builders, robot deltas (how a robot differs
+from its nominal model), physics parameters, domain randomization, the effect vocabulary and
+physics files.
 
 It imports robots and core modules only; it knows no MDP, reward or diagnosis. The MuJoCo Warp
 backend is :mod:`humimic.sim.warp_backend` (it needs ``humimic[gpu]``). Names load on first use,
@@ -12,7 +13,8 @@ from humimic.lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from humimic.sim.backend import MujocoCpuBackend, PhysicsBackend, PhysicsReadout, TensorBackend
-    from humimic.sim.effects import EFFECTS, Correction, Effect, Injection, parse_injection
+    from humimic.sim.delta import Change, RobotDelta, Structural
+    from humimic.sim.effects import EFFECTS, Effect, Injection, parse_injection
     from humimic.sim.models import PHYSICS_DT, fixed_base_spec, prediction_spec, training_model
     from humimic.sim.params import ModelLayout, PhysicsParams, physics_copies
     from humimic.sim.physics import SHIPPED, Physics, load_physics, write_physics
@@ -36,7 +38,7 @@ if TYPE_CHECKING:
     )
 
 _WHERE = {
-    "Correction": "humimic.sim.effects",
+    "Change": "humimic.sim.delta",
     "DEFAULT_SIM_DT": "humimic.sim.setup",
     "DR_PROFILES": "humimic.sim.randomization",
     "DomainRandomization": "humimic.sim.randomization",
@@ -51,8 +53,10 @@ _WHERE = {
     "PhysicsBackend": "humimic.sim.backend",
     "PhysicsParams": "humimic.sim.params",
     "PhysicsReadout": "humimic.sim.backend",
+    "RobotDelta": "humimic.sim.delta",
     "SHIPPED": "humimic.sim.physics",
     "SimSetup": "humimic.sim.setup",
+    "Structural": "humimic.sim.delta",
     "TensorBackend": "humimic.sim.backend",
     "WarpOptions": "humimic.sim.setup",
     "build_backend": "humimic.sim.setup",
@@ -82,7 +86,7 @@ __all__ = [
     "EFFECTS",
     "PHYSICS_DT",
     "SHIPPED",
-    "Correction",
+    "Change",
     "DomainRandomization",
     "Effect",
     "Injection",
@@ -93,7 +97,9 @@ __all__ = [
     "PhysicsBackend",
     "PhysicsParams",
     "PhysicsReadout",
+    "RobotDelta",
     "SimSetup",
+    "Structural",
     "TensorBackend",
     "WarpOptions",
     "build_backend",

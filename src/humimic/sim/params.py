@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from humimic.errors import InputError, UnknownNameError
+from humimic.sim.delta import ALL, Change, Kind, RobotDelta
 
 if TYPE_CHECKING:  # MuJoCo loads on use: a DR profile is read without it.
     import mujoco
@@ -174,7 +175,7 @@ class ModelLayout:
 
     def fields(self, params: PhysicsParams) -> dict[str, np.ndarray]:
         """The :data:`DR_FIELDS` of the n models ``params`` describes (the nominal values where
-        domain randomization leaves them). Shape of each: (n, *the model field's shape)."""
+        domain randomization leaves them): the batched form of :meth:`delta`. Shape of each: (n, *the model field's shape)."""
         nom, cb = self.nominal, self.com_body
         rb, g, dof = self.robot_bodies, self.collider_geoms, self.dof
         n = len(params.friction)
@@ -193,6 +194,43 @@ class ModelLayout:
         out["actuator_biasprm"][:, :, 2] = nom["actuator_biasprm"][:, 2] * params.kd_scale
         out["dof_armature"][:, dof] = nom["dof_armature"][dof] * params.armature_scale
         return out
+
+    def delta(self, params: PhysicsParams, k: int, model: mujoco.MjModel) -> RobotDelta:
+        """Env ``k`` of ``params`` as a delta of the nominal model (what a physics file with
+        these values would apply through the spec; :meth:`fields` is the batched form).
+
+        Args:
+            params: Parameters of n envs.
+            k: The env.
+            model: The model this layout was read from (for names).
+
+        Raises:
+            ValueError: If the layout scales friction draws (:attr:`friction_ratio`): a delta
+                sets one floor friction.
+        """
+        if self.friction_ratio is not None:
+            raise ValueError("friction draws scaled per collider have no single floor friction")
+        names = [model.body(int(b)).name for b in self.robot_bodies]
+        items: list[Change] = [
+            Change(op="set", kind="floor", field="friction", names=(ALL,),
+                   value=(float(params.friction[k]),)),
+            *(Change(op="scale", kind="body", field="mass", names=(b,), value=(float(s),))
+              for b, s in zip(names, params.mass_scale[k], strict=True)),
+        ]  # fmt: skip
+        if self.com_body >= 0:
+            off = tuple(float(x) for x in params.com_offset[k])
+            items.append(Change(op="add", kind="body", field="com",
+                                names=(model.body(self.com_body).name,), value=off))  # fmt: skip
+        scaled: tuple[tuple[str, Kind, np.ndarray], ...] = (
+            ("kp", "actuator", params.kp_scale), ("kd", "actuator", params.kd_scale),
+            ("armature", "joint", params.armature_scale),
+        )  # fmt: skip
+        for field, kind, values in scaled:
+            items += [
+                Change(op="scale", kind=kind, field=field, names=(j,), value=(float(s),))
+                for j, s in zip(self.joint_names, values[k], strict=True)
+            ]
+        return RobotDelta(tuple(items))
 
     def nominal_params(self, n: int) -> PhysicsParams:
         """Parameters that leave the model nominal, for ``n`` envs."""

@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import mujoco
-import numpy as np
 import yaml
 
 from humimic.errors import InputError
 from humimic.io import atomic_write_text, read_yaml
-from humimic.sim.effects import Injection, apply_to_spec, parse_injection
+from humimic.sim.delta import ALL as _ALL
+from humimic.sim.delta import Change, Item, Kind, RobotDelta
+from humimic.sim.effects import Injection, as_delta, parse_injection
 
 _KEYS = (
     "description",
@@ -36,8 +37,6 @@ _KEYS = (
 
 SHIPPED = ("backpack", "worn_knees")
 """Physics files shipped with humimic (``src/humimic/configs/physics/NAME.yaml``)."""
-
-_ALL = "*"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -93,57 +92,61 @@ class Physics:
         """The physics, as messages name it (its file, when it has one)."""
         return self.source or f"physics {self.name!r}"
 
+    @property
+    def parameters(self) -> RobotDelta:
+        """The file's parameter fields (everything but :attr:`effects`) as delta items, in
+        the order they are applied: floor friction, masses, CoM offsets, kp, kd, armature.
+
+        Raises:
+            InputError: If a scale mapping names ``*`` together with other names.
+        """
+        items: list[Item] = []
+        if self.floor_friction is not None:
+            items.append(Change(op="set", kind="floor", field="friction", names=(_ALL,),
+                                value=(self.floor_friction,), source=self._at("floor_friction")))  # fmt: skip
+        items += self._scales("mass_scale", "body", "mass")
+        for name, off in self.com_offset.items():
+            items.append(Change(op="add", kind="body", field="com", names=(name,),
+                                value=tuple(off), source=self._at("com_offset")))  # fmt: skip
+        items += self._scales("kp_scale", "actuator", "kp")
+        items += self._scales("kd_scale", "actuator", "kd")
+        items += self._scales("armature_scale", "joint", "armature")
+        return RobotDelta(tuple(items))
+
+    @property
+    def delta(self) -> RobotDelta:
+        """Everything the physics changes, in the order it is applied: :attr:`parameters`,
+        then :attr:`effects`."""
+        return self.parameters + as_delta(self.effects)
+
+    def _at(self, key: str) -> str:
+        return f"{self.where}: {key}"
+
+    def _scales(self, key: str, kind: Kind, name: str) -> list[Item]:
+        m: dict[str, float] = getattr(self, key)
+        if _ALL in m and len(m) > 1:
+            raise InputError(
+                f"{self._at(key)}: give one number for every one, or name them, not both"
+            )
+        return [Change(op="scale", kind=kind, field=name, names=(k,), value=(v,),
+                       source=self._at(key)) for k, v in m.items()]  # fmt: skip
+
     def edit(self, spec: mujoco.MjSpec) -> None:
-        """Apply every change to a model spec of the robot (in place).
+        """Apply every change (:attr:`delta`) to a model spec of the robot (in place).
 
         Raises:
             InputError: If a body or joint is not in the model (naming the file and field:
                 an effect read from a file names its file).
         """
-        self.edit_parameters(spec)
-        apply_to_spec(spec, list(self.effects))
+        self.delta.on_spec(spec)
 
     def edit_parameters(self, spec: mujoco.MjSpec) -> None:
-        """Apply the parameter changes (everything but :attr:`effects`) to a spec.
+        """Apply the parameter changes (:attr:`parameters`) to a spec.
 
         Raises:
             InputError: If a body or joint is not in the model (naming the file and field).
         """
-        try:
-            self._edit_parameters(spec)
-        except InputError as e:
-            raise InputError(f"{self.where}: {e}") from None
-
-    def _edit_parameters(self, spec: mujoco.MjSpec) -> None:
-        if self.floor_friction is not None:
-            for g in spec.geoms:
-                if g.contype or g.conaffinity:
-                    fr = np.array(g.friction, dtype=np.float64)
-                    fr[0] = self.floor_friction
-                    g.friction = fr
-        bodies = [b for b in spec.bodies if b.name != "world" and b.mass > 0]
-        for b in _targets(self.mass_scale, {b.name: b for b in bodies}, "mass_scale", "body"):
-            s = _value(self.mass_scale, b.name)
-            b.mass = b.mass * s
-            b.inertia = np.asarray(b.inertia) * s
-            full = np.asarray(b.fullinertia)
-            if not np.isnan(full[0]):
-                b.fullinertia = full * s
-        for name, off in self.com_offset.items():
-            b = spec.body(name)
-            if b is None:
-                raise InputError(f"com_offset: no body {name!r} in the robot")
-            b.ipos = np.asarray(b.ipos) + np.asarray(off, dtype=np.float64)
-        acts = {a.target: a for a in spec.actuators}
-        for a in _targets(self.kp_scale, acts, "kp_scale", "actuated joint"):
-            s = _value(self.kp_scale, a.target)
-            a.gainprm = _scaled(a.gainprm, 0, s)
-            a.biasprm = _scaled(a.biasprm, 1, s)
-        for a in _targets(self.kd_scale, acts, "kd_scale", "actuated joint"):
-            a.biasprm = _scaled(a.biasprm, 2, _value(self.kd_scale, a.target))
-        joints = {j.name: j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_HINGE}
-        for j in _targets(self.armature_scale, joints, "armature_scale", "joint"):
-            j.armature = j.armature * _value(self.armature_scale, j.name)
+        self.parameters.on_spec(spec)
 
     def as_dict(self) -> dict[str, Any]:
         """The file's content (what :func:`write_physics` writes)."""
@@ -165,23 +168,6 @@ class Physics:
         return out
 
 
-def _value(m: Mapping[str, float], name: str) -> float:
-    return m.get(name, m.get(_ALL, 1.0))
-
-
-def _scaled(prm: Any, i: int, s: float) -> np.ndarray:
-    p = np.array(prm, dtype=np.float64)
-    p[i] *= s
-    return p
-
-
-def _targets(m: Mapping[str, Any], known: Mapping[str, Any], key: str, what: str) -> list[Any]:
-    missing = [k for k in m if k != _ALL and k not in known]
-    if missing:
-        raise InputError(f"{key}: no {what} {missing[0]!r} in the robot")
-    return [v for k, v in known.items() if k in m or _ALL in m]
-
-
 def _number(v: Any, where: str, positive: bool = False, nonnegative: bool = False) -> float:
     """A finite number from a file, refused (naming ``where``) if it has the wrong sign."""
     if isinstance(v, bool) or not isinstance(v, int | float):
@@ -197,6 +183,8 @@ def _number(v: Any, where: str, positive: bool = False, nonnegative: bool = Fals
 
 def _scale_map(v: Any, where: str) -> dict[str, float]:
     if isinstance(v, Mapping):
+        if _ALL in v and len(v) > 1:
+            raise InputError(f"{where}: give one number for every one, or name them, not both")
         return {str(k): _number(x, f"{where}.{k}", positive=True) for k, x in v.items()}
     return {_ALL: _number(v, where, positive=True)}
 
