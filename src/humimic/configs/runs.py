@@ -240,7 +240,8 @@ class TrainSettings:
     (``--resume`` continues it)."""
 
     motion: Path
-    """Reference motion file (``.npz`` from ``humimic retarget``)."""
+    """Reference motion file (``.npz`` from ``humimic retarget``), or a library of clips for
+    one policy: a folder of ``.npz`` files or a ``.yaml`` list of them (docs/tracking.md)."""
     out: Path
     """Run folder (config.yaml, progress.csv, checkpoints/, tensorboard/)."""
     robot: RobotName = "g1"

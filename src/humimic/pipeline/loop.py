@@ -110,9 +110,15 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     from humimic.real2sim.robotlog import join_logs, write_robot_log
     from humimic.tracking.evaluate import run_evaluation
     from humimic.tracking.runs import recorded_motion
+    from humimic.tracking.task import is_library
 
     motion = s.motion
-    clip = load_motion(motion or recorded_motion(run))
+    clip_path = motion or recorded_motion(run)
+    if is_library(clip_path):
+        raise InputError(
+            f"{clip_path}: a library of clips; the loop deploys one: pass --motion CLIP.npz"
+        )
+    clip = load_motion(clip_path)
     seconds = (clip.num_frames - 1) / clip.fps
     n = int(min(MAX_DEPLOY_EPISODES, max(1, np.ceil(s.sysid_duration / max(seconds, 0.1)))))
     # Another seed than the deploy stage's evaluation: other reset-noise draws.

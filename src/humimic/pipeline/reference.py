@@ -36,13 +36,16 @@ def prepare_reference(
     """
     from humimic.motion import load_motion, save_motion
     from humimic.tracking.actions import STORED_BASES, has_stored_controls
-    from humimic.tracking.task import load_reference, task_config
+    from humimic.tracking.task import is_library, load_reference, task_config
     from humimic.tracking.train import check_run_settings
 
     s = s.sized()
     check_run_settings(s)
     task = task_config(s.robot, s.dr, s.seed, s.physics, s.task)  # Checks DR and physics.
     if task.action_base not in STORED_BASES:
+        return s
+    if is_library(s.motion):
+        _check_refined_library(s, task.action_base)
         return s
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
@@ -78,6 +81,29 @@ def prepare_reference(
             shutil.rmtree(s.out, ignore_errors=True)
         raise
     return replace(s, motion=ref)
+
+
+def _check_refined_library(s: TrainSettings, base: str) -> None:
+    """A library trains on a stored base only with every clip refined already.
+
+    Raises:
+        InputError: Naming the library, the first unrefined clip and the command that
+            refines them all.
+    """
+    from humimic.motion import load_motion
+    from humimic.tracking.actions import has_stored_controls
+    from humimic.tracking.task import library_files
+
+    files = library_files(s.motion)
+    bare = [f for f in files if not has_stored_controls(load_motion(f))]
+    if bare:
+        more = f" and {len(bare) - 1} more" if len(bare) > 1 else ""
+        raise InputError(
+            f"--motion {s.motion}: the action base {base!r} needs refined clips, and "
+            f"{bare[0].name}{more} of its {len(files)} are not: refine the library first "
+            f"(humimic refine {s.motion} --out REFINED/, in parallel) and train on REFINED/, "
+            "or train around --task.action-base reference"
+        )
 
 
 def _refine(motion: Any, *, quiet: bool, name: str) -> Any:

@@ -1,5 +1,6 @@
 """The action base of a tracking env at every step: the table of :mod:`.actions` indexed by
 each env's frame, and, for the ``feedback`` base, its LQR correction from the simulated state.
+A library's tables hold its clips one after the other (as :class:`.command.MotionCommand`'s).
 """
 
 from __future__ import annotations
@@ -10,10 +11,10 @@ import mujoco
 import numpy as np
 import torch
 
-from humimic.motion import Motion
 from humimic.sim.backend import PhysicsBackend
 from humimic.sim.setup import build_model
 from humimic.tracking.actions import base_table, stored_states
+from humimic.tracking.command import MotionCommand
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.math import quat_conj_mul, quat_log
 
@@ -27,8 +28,7 @@ class BaseTargets:
 
     Args:
         cfg: The task.
-        motion: The reference.
-        joint_index: The env's joints as indices into the motion's joints.
+        command: The reference clips (their joints, and each frame's clip).
         model: A prebuilt nominal training model (the ``feedback`` base's design), or None.
         backend: The simulator (the ``feedback`` base reads its state).
         default_joint_pos: The default pose. Shape: (J,).
@@ -38,8 +38,7 @@ class BaseTargets:
     def __init__(
         self,
         cfg: TrackingConfig,
-        motion: Motion,
-        joint_index: list[int],
+        command: MotionCommand,
         model: mujoco.MjModel | None,
         backend: PhysicsBackend,
         default_joint_pos: torch.Tensor,
@@ -48,8 +47,8 @@ class BaseTargets:
         self.cfg, self.backend, self.device = cfg, backend, device
         self.num_envs = backend.num_envs
         self.default_joint_pos = default_joint_pos
-        self._source = (motion, joint_index, model)
-        table = base_table(cfg.action_base, motion, joint_index, cfg.sim_dt, cfg.decimation)
+        self.command, self._model = command, model
+        table = self._table(cfg.action_base)
         self.table = None if table is None else self._tensor(table)
         """What actions are added to, indexed by the step's frame (None: the default pose)."""
         self.feedback: Feedback | None = None
@@ -64,6 +63,19 @@ class BaseTargets:
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(x, dtype=torch.float32, device=self.device)
 
+    def _table(self, base: str) -> np.ndarray | None:
+        """The base of every frame of every clip (:func:`base_table`), or None (the default
+        pose)."""
+        cfg, c = self.cfg, self.command
+        tables = [base_table(base, m, c.joint_index, cfg.sim_dt, cfg.decimation) for m in c.clips]
+        if tables[0] is None:
+            return None
+        return tables[0] if len(tables) == 1 else np.concatenate(tables)  # type: ignore[arg-type]
+
+    def _ahead(self, frame: torch.Tensor, d: int) -> torch.Tensor:
+        """``d`` frames after ``frame``, held at its clip's last frame."""
+        return torch.minimum(frame + d, self.command.last[frame])
+
     def at(self, frame: torch.Tensor) -> torch.Tensor:
         """The env's own base at ``frame``. Shape: (num_envs, J)."""
         if self.table is None:
@@ -71,7 +83,7 @@ class BaseTargets:
         if self.feedback is None:
             return self.table[frame]
         d = self.cfg.feedback_delay
-        ff = self.table[(frame + d).clamp(max=self.table.shape[0] - 1)]
+        ff = self.table[self._ahead(frame, d)]
         # The commands in flight, oldest first (tvlqr_gains' delayed state).
         queue = self.queue.reshape(self.num_envs, -1) if d else None
         return ff + self.correction(frame, *self.feedback, queue)
@@ -88,9 +100,7 @@ class BaseTargets:
         if base == "default":
             return self.default_joint_pos.expand(self.num_envs, -1)
         if base not in self.others:
-            motion, jidx, _ = self._source
-            cfg = self.cfg
-            table = self._tensor(base_table(base, motion, jidx, cfg.sim_dt, cfg.decimation))  # type: ignore[arg-type]
+            table = self._tensor(self._table(base))  # type: ignore[arg-type]
             fb = self._feedback_setup(table, 0) if base == "feedback" else None
             self.others[base] = (table, fb)
         table, fb = self.others[base]
@@ -132,7 +142,7 @@ class BaseTargets:
         if self.feedback is None or not d:
             return
         assert self.table is not None
-        f = (frame + d).clamp(max=self.table.shape[0] - 1)
+        f = self._ahead(frame, d)
         self.queue[:, :-1] = self.queue[:, 1:].clone()
         self.queue[:, -1] = command - self.table[f]
 
@@ -149,33 +159,41 @@ class BaseTargets:
             assert self.table is not None
             self.queue[ids] = 0.0
             age = torch.arange(depth, device=self.device)
-            f = (frames.to(self.device)[:, None] + d - 1 - age).clamp(0, self.table.shape[0] - 1)
-            out = self.table[f]
+            frames = frames.to(self.device)
+            c = self.command
+            lo, hi = c.first[frames][:, None], c.last[frames][:, None]
+            out = self.table[torch.minimum(torch.maximum(frames[:, None] + d - 1 - age, lo), hi)]
         return out
 
     def _feedback_setup(self, table: torch.Tensor, delay: int) -> Feedback:
-        """The ``feedback`` base's time-varying LQR gains around the refined trajectory (with
-        ``table`` its stored targets, designed for ``delay`` steps of latency), on the robot's
-        nominal model (the one ``humimic refine`` plans on): neither DR nor a physics file
-        changes the controller, so a policy meets an unseen robot with the base it trained
-        with."""
+        """The ``feedback`` base's time-varying LQR gains around each clip's refined
+        trajectory (with ``table`` its stored targets, designed for ``delay`` steps of
+        latency), on the robot's nominal model (the one ``humimic refine`` plans on): neither
+        DR nor a physics file changes the controller, so a policy meets an unseen robot with
+        the base it trained with. A clip's last frame has no control step: no gain."""
         from humimic.sim.lqr import tvlqr_gains
 
-        motion, _, model = self._source
-        cfg = self.cfg
-        states = stored_states(motion, cfg.decimation)
-        assert states is not None  # base_table checked it.
-        qpos, qvel = states
+        cfg, c = self.cfg, self.command
         nominal = cfg.physics is None
         m = (
-            model
-            if model is not None and nominal
+            self._model
+            if self._model is not None and nominal
             else build_model(replace(cfg, physics=None).sim_setup())
         )
-        K = tvlqr_gains(m, qpos, qvel, table[:-1].double().cpu().numpy(),
-                        cfg.decimation, cfg.feedback, delay=delay)  # fmt: skip
-        K = np.concatenate([K, np.zeros_like(K[-1:])])  # The last frame: no control step.
-        return self._tensor(K), self._tensor(qpos), self._tensor(qvel)
+        gains, qpos, qvel = [], [], []
+        for motion, start, n in zip(c.clips, c.clip_start, c.clip_length, strict=True):
+            states = stored_states(motion, cfg.decimation)
+            assert states is not None  # base_table checked it.
+            q, v = states
+            ctrl = table[int(start) : int(start + n) - 1].double().cpu().numpy()
+            K = tvlqr_gains(m, q, v, ctrl, cfg.decimation, cfg.feedback, delay=delay)
+            gains.append(np.concatenate([K, np.zeros_like(K[-1:])]))
+            qpos.append(q)
+            qvel.append(v)
+        if len(gains) == 1:
+            return self._tensor(gains[0]), self._tensor(qpos[0]), self._tensor(qvel[0])
+        return (self._tensor(np.concatenate(gains)), self._tensor(np.concatenate(qpos)),
+                self._tensor(np.concatenate(qvel)))  # fmt: skip
 
 
 __all__ = ["BaseTargets", "Feedback"]

@@ -1,18 +1,21 @@
-"""The motion command of the tracking task: the reference clip as tensors, the states episodes
+"""The motion command of the tracking task: the reference clips as tensors, the states episodes
 start from, and BeyondMimic's adaptive sampling of start frames.
 
 :class:`MotionCommand` holds what every step reads of the reference (one packed table, one
-gather per step) and the failure statistics that choose where episodes start: the clip is cut
-into bins, each bin's failure rate is an exponential average of the episodes that failed
-there, smoothed forward by a kernel (a failure is often caused a little earlier), and start
-frames are drawn in proportion (Liao et al., "BeyondMimic", 2025).
+gather per step) and the failure statistics that choose where episodes start. A library of
+clips is one table, the clips one after the other; every frame knows its clip's first and
+last frame, so an episode ends at its own clip's end. Each clip is cut into bins, each bin's
+failure rate is an exponential average of the episodes that failed there, smoothed forward
+within its clip by a kernel (a failure is often caused a little earlier), and start bins are
+drawn in proportion over the whole library, so a clip that fails more is started more often
+(Liao et al., "BeyondMimic", 2025); every bin keeps a floor (``uniform_ratio``).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -24,12 +27,24 @@ from humimic.tracking.actions import STORED_BASES, stored_states
 from humimic.tracking.config import TrackingConfig
 
 
+def as_clips(motion: Motion | Sequence[Motion]) -> tuple[Motion, ...]:
+    """One clip or a library of clips, as a tuple.
+
+    Raises:
+        InputError: An empty library.
+    """
+    clips = (motion,) if isinstance(motion, Motion) else tuple(motion)
+    if not clips:
+        raise InputError("the motion library has no clip")
+    return clips
+
+
 class MotionCommand:
-    """The reference motion of a tracking task, in the env's joint and tracked-body order.
+    """The reference motions of a tracking task, in the env's joint and tracked-body order.
 
     Args:
         cfg: The task (its tracked bodies, action base, adaptive sampling, start frame).
-        motion: The reference clip, at the policy rate.
+        motion: The reference clip, or a library of clips, at the policy rate.
         joint_names: The env's joints (the backend's order).
         root_body: The robot's root body.
         device: Torch device of the tables.
@@ -41,23 +56,44 @@ class MotionCommand:
     def __init__(
         self,
         cfg: TrackingConfig,
-        motion: Motion,
+        motion: Motion | Sequence[Motion],
         joint_names: Sequence[str],
         root_body: str,
         device: torch.device,
     ) -> None:
+        self.clips = clips = as_clips(motion)
         try:
-            jidx = [motion.joint_names.index(j) for j in joint_names]
-            bidx = [motion.body_names.index(b) for b in cfg.body_names]
-            root_m = motion.body_names.index(root_body)
+            jidx = [clips[0].joint_names.index(j) for j in joint_names]
+            bidx = [clips[0].body_names.index(b) for b in cfg.body_names]
+            root_m = clips[0].body_names.index(root_body)
         except ValueError as e:
             raise InputError(f"the motion lacks a joint or body of the task: {e}") from None
+        for c in clips[1:]:
+            if c.joint_names != clips[0].joint_names or c.body_names != clips[0].body_names:
+                raise InputError(
+                    f"{c.source or 'a clip'}: its joints or bodies differ from the first "
+                    "clip's: a library's clips are of one robot, written alike"
+                )
         self.cfg, self.device, self.joint_index = cfg, device, jidx
-        self.num_frames = T = motion.num_frames
+        lengths = np.array([c.num_frames for c in clips])
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        self.num_frames = T = int(lengths.sum())
+        self.clip_start, self.clip_length = starts, lengths
+        """Each clip's first frame in the library's table, and its frames. Shape: (C,)."""
+        clip_of = np.repeat(np.arange(len(clips)), lengths)
+        self.clip_of = torch.as_tensor(clip_of, device=device)
+        """The clip of every frame. Shape: (T,), long."""
+        self.first = torch.as_tensor(starts[clip_of], device=device)
+        self.last = torch.as_tensor((starts + lengths - 1)[clip_of], device=device)
+        """The first and last frame of every frame's clip. Shape: (T,), long."""
+
+        def cat(f: Callable[[Motion], np.ndarray]) -> np.ndarray:
+            return np.concatenate([f(c) for c in clips])
+
         fields = [
-            motion.joint_pos[:, jidx], motion.joint_vel[:, jidx], motion.body_pos_w[:, bidx],
-            motion.body_quat_w[:, bidx], motion.body_lin_vel_w[:, bidx],
-            motion.body_ang_vel_w[:, bidx],
+            cat(lambda m: m.joint_pos[:, jidx]), cat(lambda m: m.joint_vel[:, jidx]),
+            cat(lambda m: m.body_pos_w[:, bidx]), cat(lambda m: m.body_quat_w[:, bidx]),
+            cat(lambda m: m.body_lin_vel_w[:, bidx]), cat(lambda m: m.body_ang_vel_w[:, bidx]),
         ]  # fmt: skip
         tables = [self._tensor(f) for f in fields]
         self.joint_pos = tables[0]
@@ -67,14 +103,44 @@ class MotionCommand:
         self.split = [x.reshape(T, -1).shape[1] for x in tables]
         """The widths of the fields in :attr:`packed`: joint positions and velocities, tracked
         bodies' positions, orientations, linear and angular velocities (world frame)."""
-        self._motion, self._root_m = motion, root_m
-        # Adaptive sampling: failure rates per bin of the clip.
-        ad = cfg.adaptive
-        self.bin_count = int(T // max(ad.bin_s / cfg.step_dt, 1.0)) + 1
-        self.bin_failed = torch.zeros(self.bin_count, device=device)
-        kernel = torch.tensor([ad.kernel_lambda**i for i in range(ad.kernel_size)], device=device)
+        self._root_m = root_m
+        self._make_bins()
+        # Start frames without adaptive sampling: any frame but a clip's last.
+        self._startable = torch.as_tensor(
+            np.flatnonzero(np.arange(T) != (starts + lengths - 1)[clip_of]), device=device
+        )
+
+    def _make_bins(self) -> None:
+        """Adaptive sampling's bins: each clip cut into bins of ``bin_s``; every frame's bin,
+        and where the kernel's forward smoothing reads (never past its clip's last bin)."""
+        cfg, dev, ad = self.cfg, self.device, self.cfg.adaptive
+        per_bin = max(ad.bin_s / cfg.step_dt, 1.0)
+        counts = np.array([int(n // per_bin) + 1 for n in self.clip_length])
+        first_bin = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self.bin_count = int(counts.sum())
+        self.bin_failed = torch.zeros(self.bin_count, device=dev)
+        self._clip_bins = torch.as_tensor(counts, device=dev)
+        self._bin_clip = torch.as_tensor(np.repeat(np.arange(len(counts)), counts), device=dev)
+        self._first_bin = torch.as_tensor(first_bin, device=dev)
+        frame_bin = [
+            b0 + np.clip((np.arange(n) * c) // n, 0, c - 1)
+            for b0, c, n in zip(first_bin, counts, self.clip_length, strict=True)
+        ]
+        self._frame_bin = torch.as_tensor(np.concatenate(frame_bin), device=dev)
+        # Each clip's bins followed by kernel_size - 1 copies of its last: one convolution
+        # smooths every clip within itself.
+        k = ad.kernel_size
+        pad = [np.concatenate([b0 + np.arange(c), np.full(k - 1, b0 + c - 1)])
+               for b0, c in zip(first_bin, counts, strict=True)]  # fmt: skip
+        self._padded = torch.as_tensor(np.concatenate(pad), device=dev)
+        self._smoothed = torch.as_tensor(
+            np.concatenate([i * (k - 1) + b0 + np.arange(c)
+                            for i, (b0, c) in enumerate(zip(first_bin, counts, strict=True))]),
+            device=dev,
+        )  # fmt: skip
+        kernel = torch.tensor([ad.kernel_lambda**i for i in range(k)], device=dev)
         self._kernel = (kernel / kernel.sum()).view(1, 1, -1)
-        self.weights = torch.zeros(self.bin_count, device=device)
+        self.weights = torch.zeros(self.bin_count, device=dev)
         """Start-bin sampling probabilities. Shape: (bins,)."""
 
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
@@ -86,13 +152,19 @@ class MotionCommand:
 
     @functools.cached_property
     def start(self) -> dict[str, np.ndarray]:
-        """The reference states episodes start from (float64): the motion's frames and their
-        finite-difference velocities, or, with a stored base (``feedforward``, ``feedback``),
-        the simulated states the stored controls continue from
-        (:func:`~humimic.tracking.actions.stored_states`). Read after the action base is
-        built (:class:`~humimic.tracking.bases.BaseTargets`), which checks the motion's
-        dynamic section."""
-        motion, jidx, root_m = self._motion, self.joint_index, self._root_m
+        """The reference states episodes start from (float64), every clip's frames one after
+        the other: the motion's frames and their finite-difference velocities, or, with a
+        stored base (``feedforward``, ``feedback``), the simulated states the stored controls
+        continue from (:func:`~humimic.tracking.actions.stored_states`). Read after the action
+        base is built (:class:`~humimic.tracking.bases.BaseTargets`), which checks the
+        motions' dynamic sections."""
+        per_clip = [self._start_of(c) for c in self.clips]
+        if len(per_clip) == 1:
+            return per_clip[0]
+        return {k: np.concatenate([p[k] for p in per_clip]) for k in per_clip[0]}
+
+    def _start_of(self, motion: Motion) -> dict[str, np.ndarray]:
+        jidx, root_m = self.joint_index, self._root_m
         if self.cfg.action_base in STORED_BASES:
             states = stored_states(motion, self.cfg.decimation)
             assert states is not None  # BaseTargets' base_table has checked the section.
@@ -123,27 +195,35 @@ class MotionCommand:
     # ------------------------------------------------------------------ adaptive sampling
 
     def sample_frames(self, n: int, gen: torch.Generator) -> torch.Tensor:
-        """``n`` start frames: the task's fixed start frame, or drawn by the sampling
-        weights (uniformly without adaptive sampling)."""
-        T, dev = self.num_frames, self.device
+        """``n`` start frames: the task's fixed start frame (of a clip drawn uniformly, in a
+        library), or drawn by the sampling weights (uniformly over the frames that are not
+        a clip's last without adaptive sampling)."""
+        dev = self.device
         if self.cfg.start_frame is not None:
-            return torch.full((n,), min(self.cfg.start_frame, T - 2), device=dev)
+            f = torch.full((n,), self.cfg.start_frame, device=dev)
+            if len(self.clips) == 1:
+                return f.clamp(max=self.num_frames - 2)
+            c = torch.randint(0, len(self.clips), (n,), generator=gen, device=dev)
+            start = torch.as_tensor(self.clip_start, device=dev)[c]
+            length = torch.as_tensor(self.clip_length, device=dev)[c]
+            return start + torch.minimum(f, length - 2)
         if self.cfg.adaptive.enabled:
             bins = torch.multinomial(self.weights, n, replacement=True, generator=gen)
             u = torch.rand(n, generator=gen, device=dev)
-            frames = ((bins.float() + u) / self.bin_count * (T - 1)).long()
-        else:
-            frames = torch.randint(0, T - 1, (n,), generator=gen, device=dev)
-        return frames.clamp(0, T - 2)
+            clip = self._bin_clip[bins]
+            local = bins - self._first_bin[clip]
+            length = torch.as_tensor(self.clip_length, device=dev)[clip]
+            frames = ((local.float() + u) / self._clip_bins[clip] * (length - 1)).long()
+            frames = torch.minimum(frames.clamp(min=0), length - 2)
+            return frames + torch.as_tensor(self.clip_start, device=dev)[clip]
+        i = torch.randint(0, len(self._startable), (n,), generator=gen, device=dev)
+        return self._startable[i]
 
     def fold_failures(self, frame: torch.Tensor, failed: torch.Tensor) -> None:
         """Fold one step's failures (``failed``: 1.0 per env whose episode failed at its
         ``frame``) into the failure rate of each bin and recompute the sampling weights (no
         host sync: a scatter, not a test for failures)."""
-        bins = torch.div(frame * self.bin_count, self.num_frames, rounding_mode="floor")
-        now = torch.zeros_like(self.bin_failed).scatter_add_(
-            0, bins.clamp(0, self.bin_count - 1), failed
-        )
+        now = torch.zeros_like(self.bin_failed).scatter_add_(0, self._frame_bin[frame], failed)
         a = self.cfg.adaptive.alpha
         self.bin_failed.mul_(1.0 - a).add_(a * now)
         self.weights.copy_(self._compute_weights())
@@ -154,8 +234,9 @@ class MotionCommand:
         if not ad.enabled:
             return torch.full((n,), 1.0 / n, device=self.device)
         p = self.bin_failed + ad.uniform_ratio / n
-        padded = torch.cat([p, p[-1:].expand(ad.kernel_size - 1)])
-        out = torch.nn.functional.conv1d(padded.view(1, 1, -1), self._kernel).view(n)
+        padded = p[self._padded]
+        out = torch.nn.functional.conv1d(padded.view(1, 1, -1), self._kernel).view(-1)
+        out = out[self._smoothed]
         return out / out.sum()
 
     def sampling_entropy(self) -> torch.Tensor:
@@ -165,4 +246,4 @@ class MotionCommand:
         return h / math.log(self.bin_count) if self.bin_count > 1 else h * 0 + 1
 
 
-__all__ = ["MotionCommand"]
+__all__ = ["MotionCommand", "as_clips"]

@@ -269,7 +269,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     (trained on) and ``loss_behavior`` (the actions' MSE, not trained on).
     """
     from humimic.tracking.runs import run_folder_lock
-    from humimic.tracking.task import load_reference
+    from humimic.tracking.task import load_references
     from humimic.tracking.train import check_run_settings, fit, run_env
 
     s = settings.sized()
@@ -279,7 +279,7 @@ def distill(settings: DistillSettings, d: DistillConfig | None = None) -> dict:
     teacher, teacher_cfg, ckpt, teacher_blob = _teacher_run(s)
     task, teacher, teacher_base = _student_task(s, teacher)
     moved = task.action_base != teacher_base
-    motion = load_reference(teacher.motion, teacher.robot, 1.0 / task.step_dt)
+    motion = load_references(teacher.motion, teacher.robot, 1.0 / task.step_dt)
     cfg = distill_cfg(teacher_cfg, s.student, d or DistillConfig())
     if moved:
         cfg["teacher"]["class_name"] = f"{__name__}:ExpertTeacher"

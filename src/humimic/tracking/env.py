@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -21,7 +22,7 @@ from humimic.sim.setup import build_backend as sim_build_backend
 from humimic.sim.setup import build_model
 from humimic.tracking import observations as obs
 from humimic.tracking.bases import BaseTargets
-from humimic.tracking.command import MotionCommand
+from humimic.tracking.command import MotionCommand, as_clips
 from humimic.tracking.config import TrackingConfig
 from humimic.tracking.events import Events
 from humimic.tracking.rsl import VecEnv
@@ -60,8 +61,13 @@ def tracking_model(
     return build_model(cfg.sim_setup(), menagerie_root=menagerie_root)
 
 
+def _check_motions(cfg: TrackingConfig, motion: Motion | Sequence[Motion]) -> None:
+    """Raise :class:`InputError` naming a clip's file if it does not fit the task."""
+    for clip in as_clips(motion):
+        _check_motion(cfg, clip)
+
+
 def _check_motion(cfg: TrackingConfig, motion: Motion) -> None:
-    """Raise :class:`InputError` naming the motion's file if it does not fit the task."""
     where = f"{motion.source or 'the motion'}: "
     if motion.robot != cfg.robot:
         raise InputError(
@@ -110,7 +116,9 @@ class TrackingEnv(VecEnv):
 
     Args:
         cfg: The task.
-        motion: The reference clip, at the policy rate (``1 / cfg.step_dt`` frames per second).
+        motion: The reference clip, or a library of clips (one policy for all: each episode
+            follows one clip, started where clips fail most), at the policy rate
+            (``1 / cfg.step_dt`` frames per second).
         num_envs: Number of parallel envs.
         device: Torch device of the observations, rewards and buffers.
         backend: The simulator; default: :func:`tracking_backend`.
@@ -125,7 +133,7 @@ class TrackingEnv(VecEnv):
     def __init__(
         self,
         cfg: TrackingConfig,
-        motion: Motion,
+        motion: Motion | Sequence[Motion],
         num_envs: int,
         *,
         device: str | torch.device = "cpu",
@@ -133,7 +141,7 @@ class TrackingEnv(VecEnv):
         model: mujoco.MjModel | None = None,
     ) -> None:
         cfg.validate()
-        _check_motion(cfg, motion)
+        _check_motions(cfg, motion)
         self.cfg = cfg  # pyright: ignore[reportIncompatibleVariableOverride]
         self.num_envs = num_envs
         self.device = torch.device(device)
@@ -151,9 +159,7 @@ class TrackingEnv(VecEnv):
         # Robot constants.
         self.default_joint_pos = self._tensor(be.default_joint_pos)
         self.action_scale = self._tensor(cfg.action_scale * be.effort_limit / be.kp)
-        self.bases = BaseTargets(
-            cfg, motion, self.command.joint_index, model, be, self.default_joint_pos, dev
-        )
+        self.bases = BaseTargets(cfg, self.command, model, be, self.default_joint_pos, dev)
         rng_ = be.joint_range
         mid, half = rng_.mean(axis=1), 0.5 * (rng_[:, 1] - rng_[:, 0]) * cfg.soft_limit_factor
         self._bind_state(robot.root_body, self._tensor(np.stack([mid - half, mid + half], 1)))
@@ -333,7 +339,7 @@ class TrackingEnv(VecEnv):
 
         ep = self.episode_length_buf  # rsl_rl may have replaced it: read it fresh.
         ep += 1
-        s.frame.add_(1).clamp_(max=self.num_frames - 1)
+        torch.minimum(s.frame + 1, s.last_frame, out=s.frame)  # A clip's last frame holds.
         self._gather_backend()
         # Terminations, rewards and failure statistics, before any reset.
         with torch.inference_mode():  # The env's math never needs autograd (see _compile_math).
@@ -511,6 +517,7 @@ class TrackingEnv(VecEnv):
         s, n, dev = self.state, int(ids.numel()), self.device
         frames = self.command.sample_frames(n, self._gen)
         s.frame[ids] = frames
+        s.last_frame[ids] = self.command.last[frames]
         ids_np = ids.cpu().numpy()
         smp, e = self.events.draw_physics(ids_np, failed)
         self._joint_offset[ids] = torch.as_tensor(smp.joint_offset, dtype=torch.float32, device=dev)

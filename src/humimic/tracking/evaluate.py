@@ -248,7 +248,7 @@ def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[A
     from the clip's first frame, with the training's reset noise only for ``--start-noise``,
     no adaptive sampling, long enough for the whole clip), the reference and its file."""
     from humimic.tracking.runs import recorded_motion
-    from humimic.tracking.task import load_reference, task_config
+    from humimic.tracking.task import single_reference, task_config
 
     run = recorded[1]
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
@@ -258,7 +258,7 @@ def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[A
         raise InputError(f"--motion {s.motion}: no such file")
     else:
         motion_path = s.motion
-    motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
+    motion = single_reference(motion_path, run.robot, 1.0 / base.step_dt, "humimic eval")
     task = replace(
         base,
         start_frame=0,

@@ -32,15 +32,17 @@ def load_policy_runner(run: Path, checkpoint: Path | None, device: str = "cpu"):
         run_config,
         run_rsl_cfg,
     )
-    from humimic.tracking.task import load_reference, task_config
+    from humimic.tracking.task import library_files, load_reference, task_config
 
     recorded = run_config(run)
     settings = recorded[1]
     path, blob = resolve_checkpoint(run, checkpoint)
-    if not settings.motion.is_file():  # The env needs it for the observation sizes.
+    if not settings.motion.exists():  # The env needs it for the observation sizes.
         raise InputError(f"{run}: the run's motion {settings.motion} is missing (moved?)")
     task = task_config(settings.robot, "none", settings.seed, settings=settings.task)
-    motion = load_reference(settings.motion, settings.robot, 1.0 / task.step_dt)
+    # A library's first clip: the observation sizes are every clip's.
+    first = library_files(settings.motion)[0]
+    motion = load_reference(first, settings.robot, 1.0 / task.step_dt)
     env = TrackingEnv(task, motion, 1, device=device)
     try:
         runner = make_runner(env, run_rsl_cfg(run, recorded), log_dir=None, device=device)

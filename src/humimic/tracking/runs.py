@@ -365,8 +365,8 @@ def write_run_config(run: Path, settings: TrainSettings, task: TrackingConfig, p
     if s.motion.is_relative_to(run.resolve()):
         data["motion"] = s.motion.relative_to(run.resolve()).as_posix()
         blob["motion_in_run"] = True
-    if s.motion.is_file():
-        blob["motion_sha256"] = file_sha256(s.motion)
+    if s.motion.exists():
+        blob["motion_sha256"] = motion_sha256(s.motion)
     blob |= {"tracking": yaml_ready(task), "ppo": yaml_ready(ppo)}
     atomic_write_text(run / "config.yaml", yaml.safe_dump(blob, sort_keys=False))
 
@@ -377,6 +377,19 @@ def file_sha256(path: Path) -> str:
     with path.open("rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
+    return h.hexdigest()
+
+
+def motion_sha256(path: Path) -> str:
+    """The SHA-256 of a motion file's bytes; for a library (a folder or a ``.yaml`` list,
+    :func:`~humimic.tracking.task.library_files`), of its clips' names and SHA-256s in order."""
+    from humimic.tracking.task import is_library, library_files
+
+    if not is_library(path):
+        return file_sha256(path)
+    h = hashlib.sha256()
+    for f in library_files(path):
+        h.update(f"{f.name}\n{file_sha256(f)}\n".encode())
     return h.hexdigest()
 
 
@@ -398,11 +411,11 @@ def recorded_motion(
     """
     config, settings = recorded or run_config(run)
     p = settings.motion
-    if not p.is_file():
+    if not p.exists():
         raise InputError(f"{run}: the run's motion {p} is missing (moved? pass --motion)")
     want = config.get("motion_sha256")
     try:
-        changed = want is not None and file_sha256(p) != want
+        changed = want is not None and motion_sha256(p) != want
     except OSError as e:
         raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
     if changed:

@@ -48,7 +48,9 @@ class TrackingState:
         contact_found: Floor contacts of the undesired-contact bodies. Shape: (N, C).
         foot_force: Floor contact force magnitude on each foot [N]. Shape: (N, F).
         frame: Reference frame index of every env. Shape: (N,), long.
-        num_frames: Frames in the reference clip.
+        last_frame: The last frame of every env's clip (a library holds several clips in one
+            table). Shape: (N,), long.
+        num_frames: Frames in the reference (every clip of a library).
     """
 
     body_names: tuple[str, ...]
@@ -75,6 +77,7 @@ class TrackingState:
     contact_found: torch.Tensor
     foot_force: torch.Tensor
     frame: torch.Tensor
+    last_frame: torch.Tensor
     num_frames: int
     _ids: dict[tuple[str, ...], torch.Tensor] = field(default_factory=dict, repr=False)
 
@@ -133,6 +136,7 @@ class TrackingState:
             contact_found=z(n, num_contact_bodies),
             foot_force=z(n, num_feet),
             frame=torch.zeros(n, dtype=torch.long, device=device),
+            last_frame=torch.full((n,), num_frames - 1, dtype=torch.long, device=device),
             num_frames=num_frames,
         )
 

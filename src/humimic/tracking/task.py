@@ -1,6 +1,6 @@
 """The task a tracking command runs: the robot's task under a DR profile, physics file and
-``--task.*`` settings (:func:`task_config`), and the reference motion at the policy rate
-(:func:`load_reference`)."""
+``--task.*`` settings (:func:`task_config`), and the reference motions at the policy rate
+(:func:`load_reference` for a clip, :func:`load_references` for a clip or a library)."""
 
 from __future__ import annotations
 
@@ -133,4 +133,69 @@ def load_reference(path: Path, robot: str, fps: float) -> Motion:
     return motion_from_qpos(model, qpos, fps, robot, info=info)
 
 
-__all__ = ["apply_task_settings", "load_reference", "resolve_dr", "task_config"]
+def is_library(path: Path) -> bool:
+    """Whether ``--motion`` names a library of clips (a folder, or a ``.yaml`` list)."""
+    return path.is_dir() or path.suffix.lower() in (".yaml", ".yml")
+
+
+def library_files(path: Path) -> list[Path]:
+    """The clip files ``--motion`` names: the file itself; a folder's ``.npz`` files (sorted
+    by name, not its subfolders); or the files a ``.yaml`` list names (a list of paths,
+    relative to the list's folder).
+
+    Raises:
+        InputError: A missing path, an empty folder, a list that is not a list of paths or
+            names a missing file (naming it).
+    """
+    if not path.exists():
+        raise InputError(f"--motion {path}: no such file or folder")
+    if path.is_dir():
+        files = sorted(p for p in path.glob("*.npz") if p.is_file())
+        if not files:
+            raise InputError(f"--motion {path}: the folder holds no .npz motion")
+        return files
+    if not is_library(path):
+        return [path]
+    from humimic.io import read_yaml
+
+    data = read_yaml(path)
+    if not isinstance(data, list) or not data or not all(isinstance(x, str) for x in data):
+        raise InputError(f"{path}: expected a list of motion files (.npz), one per line")
+    files = [(path.parent / x) for x in data]
+    missing = [f for f in files if not f.is_file()]
+    if missing:
+        raise InputError(f"{path}: lists {missing[0]}, which does not exist")
+    if len(set(f.resolve() for f in files)) != len(files):
+        raise InputError(f"{path}: lists a file twice")
+    return files
+
+
+def load_references(path: Path, robot: str, fps: float) -> list[Motion]:
+    """Every clip ``--motion`` names (:func:`library_files`), each at the policy rate
+    (:func:`load_reference`)."""
+    return [load_reference(f, robot, fps) for f in library_files(path)]
+
+
+def single_reference(path: Path, robot: str, fps: float, what: str) -> Motion:
+    """The one clip a command that takes one needs (``what``: the command, for the message).
+
+    Raises:
+        InputError: ``path`` names a library.
+    """
+    if is_library(path):
+        raise InputError(
+            f"{path}: a library of clips; {what} takes one clip so far: pass --motion CLIP.npz"
+        )
+    return load_reference(path, robot, fps)
+
+
+__all__ = [
+    "apply_task_settings",
+    "is_library",
+    "library_files",
+    "load_reference",
+    "load_references",
+    "resolve_dr",
+    "single_reference",
+    "task_config",
+]

@@ -51,6 +51,6 @@ def ee_height_error(env: HasState, threshold: float, body_names: tuple[str, ...]
 
 
 def time_out(env: HasEpisode) -> torch.Tensor:
-    """The episode reached its length, or the reference clip its last frame."""
+    """The episode reached its length, or its reference clip its last frame."""
     s = env.state
-    return (env.episode_length_buf >= env.max_episode_length) | (s.frame >= s.num_frames - 1)
+    return (env.episode_length_buf >= env.max_episode_length) | (s.frame >= s.last_frame)

@@ -47,7 +47,7 @@ from humimic.tracking.runs import (
     trim_progress,
     write_run_config,
 )
-from humimic.tracking.task import load_reference, task_config
+from humimic.tracking.task import load_reference, load_references, task_config
 
 if TYPE_CHECKING:
     from humimic.tracking.env import TrackingEnv
@@ -223,8 +223,8 @@ def train(
     has_run = check_run_settings(s)
     if s.resume:
         _check_resume(s)
-    if not s.motion.is_file():
-        raise InputError(f"--motion {s.motion}: no such file")
+    if not s.motion.exists():
+        raise InputError(f"--motion {s.motion}: no such file or folder")
     ppo = ppo or ppo_for(s)
     cfg = train_cfg(ppo)
     check_batch(cfg, s.num_envs)
@@ -235,7 +235,7 @@ def train(
         torch_compile=s.compile,
         backend=s.backend,
     )
-    motion = load_reference(s.motion, s.robot, 1.0 / task.step_dt)
+    motion = load_references(s.motion, s.robot, 1.0 / task.step_dt)
     init = None if has_run else _init_checkpoint(s, task.action_base)
     device = s.device
     if ranks.distributed:
@@ -359,7 +359,11 @@ def _start_from(runner: Any, init: tuple[Path, dict], s: TrainSettings, ppo: Ppo
 
 
 def run_env(
-    task: TrackingConfig, motion: Motion, s: Any, created: bool, device: str | None = None
+    task: TrackingConfig,
+    motion: Motion | list[Motion],
+    s: Any,
+    created: bool,
+    device: str | None = None,
 ) -> TrackingEnv:
     """The env of a run command (``s``: its settings; on ``device``, default ``s.device``); if
     it cannot be built (a bad task, a failing ``--compile``), the run folder this command

@@ -1,0 +1,185 @@
+"""One tracking env over a library of clips: one table, episodes that end at their own clip's
+end, start frames drawn by each clip's failures (issue 59). Tiny env counts."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from rsl_rl.runners import OnPolicyRunner
+
+from humimic.errors import InputError
+from humimic.motion import Motion, motion_from_qpos
+from humimic.tracking.command import MotionCommand
+from humimic.tracking.config import AdaptiveSampling, g1_tracking
+from humimic.tracking.env import TrackingEnv, tracking_model
+from humimic.tracking.rsl import PpoConfig, train_cfg
+
+
+@pytest.fixture(scope="module")
+def model() -> mujoco.MjModel:
+    return tracking_model(g1_tracking("none"))
+
+
+def _clip(model: mujoco.MjModel, frames: int, joint: str, amplitude: float) -> Motion:
+    """The G1 in its home pose swinging one joint: ``frames`` frames at 50 fps."""
+    q = np.tile(model.key_qpos[0], (frames, 1))
+    adr = model.jnt_qposadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)]
+    q[:, adr] += amplitude * np.sin(2 * np.pi * np.arange(frames) / 50.0)
+    return motion_from_qpos(model, q, 50.0, "g1")
+
+
+@pytest.fixture(scope="module")
+def clips(model: mujoco.MjModel) -> tuple[Motion, Motion]:
+    return (_clip(model, 120, "left_shoulder_pitch_joint", 0.3),
+            _clip(model, 45, "right_elbow_joint", 0.4))  # fmt: skip
+
+
+def _command(clips: tuple[Motion, ...], **adaptive) -> MotionCommand:
+    cfg = replace(g1_tracking("none"), action_base="default",
+                  adaptive=AdaptiveSampling(**adaptive))  # fmt: skip
+    names = list(clips[0].joint_names) if clips else []  # The env's joints: the motion's.
+    return MotionCommand(cfg, clips, names, "pelvis", torch.device("cpu"))
+
+
+def test_a_library_is_one_table_where_every_frame_knows_its_clip(clips) -> None:
+    c = _command(clips)
+    a, b = clips
+    assert c.num_frames == a.num_frames + b.num_frames == 165
+    assert c.clip_start.tolist() == [0, 120] and c.clip_length.tolist() == [120, 45]
+    assert c.first[[0, 119, 120, 164]].tolist() == [0, 0, 120, 120]
+    assert c.last[[0, 119, 120, 164]].tolist() == [119, 119, 164, 164]
+    # The packed table is each clip's own, one after the other.
+    alone = _command((b,))
+    np.testing.assert_array_equal(c.packed[120:].numpy(), alone.packed.numpy())
+    np.testing.assert_array_equal(c.start["joint_pos"][120:], alone.start["joint_pos"])
+    # Bins: 1 s each, per clip (2.4 s -> 3 bins, 0.9 s -> 1 bin).
+    assert c.bin_count == 3 + 1
+    # Without adaptive sampling, any frame but a clip's last, uniformly.
+    plain = _command(clips, enabled=False)
+    frames = plain.sample_frames(20000, torch.Generator().manual_seed(0))
+    assert not np.isin(frames.numpy(), [119, 164]).any()
+    share_b = float((frames >= 120).float().mean())
+    assert share_b == pytest.approx(44 / 163, abs=0.02)
+
+
+def test_a_clip_that_always_fails_is_started_more_within_bounds(clips) -> None:
+    """Episodes fail only in clip B: its bins' weight grows, and clip A keeps the floor every
+    bin has (``uniform_ratio`` over the number of bins), so its episodes still start."""
+    c = _command(clips, alpha=0.2)
+    c.weights.copy_(c._compute_weights())
+    frames_b = torch.arange(120, 164)
+    for _ in range(50):
+        c.fold_failures(frames_b, torch.ones(len(frames_b)))
+    w = c.weights
+    on_b = float(w[3:].sum())
+    assert on_b > 0.9
+    floor = c.cfg.adaptive.uniform_ratio / c.bin_count
+    np.testing.assert_allclose(w[:3].numpy() * float((c.bin_failed + floor).sum()), floor,
+                               rtol=1e-5)  # fmt: skip
+    drawn = c.sample_frames(20000, torch.Generator().manual_seed(1))
+    in_b = float((drawn >= 120).float().mean())
+    assert in_b == pytest.approx(on_b, abs=0.02)
+    assert float((drawn < 120).float().mean()) > 0 and int(drawn.max()) <= 163
+    assert not np.isin(drawn.numpy(), [119, 164]).any()
+
+
+def test_failures_are_smoothed_within_their_clip(clips) -> None:
+    """The kernel moves a failure's weight to the bins before it (a fall is caused earlier),
+    never into the previous clip."""
+    c = _command(clips, alpha=1.0)
+    c.fold_failures(torch.tensor([120]), torch.ones(1))  # Clip B's first (and only) bin.
+    floor = c.cfg.adaptive.uniform_ratio / c.bin_count
+    assert float(c.weights[2]) == pytest.approx(float(c.weights[0]), rel=1e-6)
+    assert float(c.weights[3]) > 10 * float(c.weights[2])
+    total = float((c.bin_failed + floor).sum())
+    assert float(c.weights[2]) == pytest.approx(floor / total, rel=1e-5)
+
+
+def test_an_episode_ends_at_its_own_clips_end(model: mujoco.MjModel, clips) -> None:
+    """Started one frame before their clip's last, every env times out after one step at its
+    own clip's last frame, never in the next clip."""
+    cfg = replace(g1_tracking("none"), action_base="default", start_frame=118)
+    env = TrackingEnv(cfg, list(clips), 16, model=model)
+    try:
+        starts = env.state.frame.clone()
+        assert set(starts.tolist()) == {118, 120 + 43}  # Clip B's 45 frames: its 43rd.
+        assert (env.state.last_frame == torch.where(starts < 120, 119, 164)).all()
+        _, _, dones, extras = env.step(torch.zeros(16, env.num_actions))
+        assert dones.all() and extras["time_outs"].all()
+    finally:
+        env.close()
+
+
+def test_a_library_of_clips_of_two_layouts_is_refused(model: mujoco.MjModel, clips) -> None:
+    a, b = clips
+    other = replace(b, joint_names=tuple(reversed(b.joint_names)), source="b.npz")
+    with pytest.raises(InputError, match=r"b\.npz: its joints or bodies differ"):
+        _command((a, other))
+    with pytest.raises(InputError, match="no clip"):
+        _command(())
+
+
+def test_ppo_trains_two_iterations_on_a_library(
+    model: mujoco.MjModel, clips, tmp_path: Path
+) -> None:
+    cfg = replace(g1_tracking("default"), action_base="default")
+    env = TrackingEnv(cfg, list(clips), 4, model=model)
+    ppo = PpoConfig(actor_hidden_dims=(32, 32), critic_hidden_dims=(32, 32),
+                    num_steps_per_env=4, num_mini_batches=2, num_learning_epochs=1)  # fmt: skip
+    try:
+        runner = OnPolicyRunner(env, train_cfg(ppo), log_dir=str(tmp_path), device="cpu")
+        runner.learn(num_learning_iterations=2, init_at_random_ep_len=True)
+        assert sorted(p.name for p in tmp_path.glob("model_*.pt")) == ["model_0.pt", "model_1.pt"]
+        assert (env.state.frame <= env.state.last_frame).all()
+    finally:
+        env.close()
+
+
+def _train(motion: Path, out: Path, iterations: int, *extra: str) -> list[str]:
+    return ["train", "--motion", str(motion), "--out", str(out), "--num-envs", "8",
+            "--max-iterations", str(iterations), "--num-steps-per-env", "8", "--dr", "none",
+            "--checkpoint-every", "2", "--task.action-base", "default", "--quiet",
+            *extra]  # fmt: skip
+
+
+def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
+    model: mujoco.MjModel, clips, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from humimic.cli.main import main
+    from humimic.motion import save_motion
+
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    save_motion(clips[0], lib / "a.npz")
+    save_motion(clips[1], lib / "b.npz")
+    run = tmp_path / "run"
+    assert main(_train(lib, run, 2)) == 0
+    assert "motion_sha256" in (run / "config.yaml").read_text()
+    assert main(_train(lib, run, 3, "--resume")) == 0
+    # One policy, evaluated on one clip of its library; the whole library is not yet.
+    assert main(["eval", str(run), "--motion", str(lib / "a.npz"), "--episodes", "2"]) == 0
+    assert main(["eval", str(run), "--episodes", "2"]) == 2
+    assert "takes one clip so far" in capsys.readouterr().err
+    # A clip changed since: the run's library is not the one it began on.
+    save_motion(_clip(model, 30, "left_knee_joint", 0.2), lib / "b.npz")
+    assert main(_train(lib, run, 4, "--resume")) == 2
+    assert "has changed" in capsys.readouterr().err
+    # Bad libraries exit 2 naming what is wrong, and leave no run behind.
+    (tmp_path / "empty").mkdir()
+    listed = tmp_path / "clips.yaml"
+    listed.write_text("- lib/a.npz\n- lib/missing.npz\n")
+    for motion, message in ((tmp_path / "empty", "holds no .npz"),
+                            (listed, "lists " + str(tmp_path / "lib" / "missing.npz"))):  # fmt: skip
+        assert main(_train(motion, tmp_path / "bad", 1)) == 2
+        assert message in capsys.readouterr().err
+        assert not (tmp_path / "bad").exists()
+    # The default (feedback) base needs every clip refined first.
+    args = _train(lib, tmp_path / "bad", 1)
+    del args[args.index("--task.action-base") : args.index("--task.action-base") + 2]
+    assert main(args) == 2
+    assert "needs refined clips" in capsys.readouterr().err
