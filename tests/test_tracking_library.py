@@ -3,6 +3,7 @@ end, start frames drawn by each clip's failures (issue 59). Tiny env counts."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -161,10 +162,24 @@ def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
     assert main(_train(lib, run, 2)) == 0
     assert "motion_sha256" in (run / "config.yaml").read_text()
     assert main(_train(lib, run, 3, "--resume")) == 0
-    # One policy, evaluated on one clip of its library; the whole library is not yet.
-    assert main(["eval", str(run), "--motion", str(lib / "a.npz"), "--episodes", "2"]) == 0
-    assert main(["eval", str(run), "--episodes", "2"]) == 2
-    assert "takes one clip so far" in capsys.readouterr().err
+    # One policy evaluated on each clip of its library: the per-clip figures are those of an
+    # evaluation on that clip alone, the library's the mean over its clips.
+    one, every = tmp_path / "one.json", tmp_path / "every.json"
+    assert main(["eval", str(run), "--motion", str(lib / "b.npz"), "--episodes", "2",
+                 "--out", str(one)]) == 0  # fmt: skip
+    assert main(["eval", str(run), "--episodes", "2", "--out", str(every)]) == 0
+    printed = capsys.readouterr().out
+    assert "a.npz (120 frames)" in printed and "mean over the 2 clips" in printed
+    alone, lib_eval = json.loads(one.read_text()), json.loads(every.read_text())
+    assert list(lib_eval["clips"]) == ["a.npz", "b.npz"]
+    assert lib_eval["clips"]["b.npz"]["policy"] == alone["policy"]
+    clip_rows = [c["policy"] for c in lib_eval["clips"].values()]
+    mean = np.mean([c["mpjpe_global_mm"] for c in clip_rows])
+    assert lib_eval["policy"]["mpjpe_global_mm"] == pytest.approx(mean)
+    assert lib_eval["policy"]["episodes"] == 4
+    pelvis = np.mean([c["per_body_mm"]["pelvis"] for c in clip_rows])
+    assert lib_eval["policy"]["per_body_mm"]["pelvis"] == pytest.approx(pelvis)
+    assert (tmp_path / "every_a.mcap").is_file() and (tmp_path / "every_b.mcap").is_file()
     # A clip changed since: the run's library is not the one it began on.
     save_motion(_clip(model, 30, "left_knee_joint", 0.2), lib / "b.npz")
     assert main(_train(lib, run, 4, "--resume")) == 2
@@ -173,8 +188,13 @@ def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
     (tmp_path / "empty").mkdir()
     listed = tmp_path / "clips.yaml"
     listed.write_text("- lib/a.npz\n- lib/missing.npz\n")
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    save_motion(clips[0], mixed / "a.npz")
+    save_motion(replace(clips[1], robot="t1"), mixed / "b.npz")
     for motion, message in ((tmp_path / "empty", "holds no .npz"),
-                            (listed, "lists " + str(tmp_path / "lib" / "missing.npz"))):  # fmt: skip
+                            (listed, "lists " + str(tmp_path / "lib" / "missing.npz")),
+                            (mixed, "b.npz: the motion is for robot 't1', not 'g1'")):  # fmt: skip
         assert main(_train(motion, tmp_path / "bad", 1)) == 2
         assert message in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()

@@ -49,6 +49,14 @@ def run_eval(cmd: EvalSettings) -> None:
     result = evaluate(cmd)
     if "physics" in result:
         print(f"physics {result['physics']['name']}: {result['physics']['description']}")
+    for clip, r in result.get("clips", {}).items():
+        m = r["policy"]
+        print(f"{clip} ({r['frames']} frames): policy success {100 * m['success_rate']:.0f}%, "
+              f"global MPJPE {m['mpjpe_global_mm']:.1f} mm, root-relative "
+              f"{m['mpjpe_root_mm']:.1f} mm; open loop success "
+              f"{100 * r['open_loop']['success_rate']:.0f}%")  # fmt: skip
+    if "clips" in result:
+        print(f"mean over the {len(result['clips'])} clips:")
     for name in ("policy", "open_loop"):
         m = result[name]
         print(f"{name:9s}: success {100 * m['success_rate']:.0f}%, global MPJPE "

@@ -34,7 +34,8 @@ class EvalSettings:
     episodes: int = 16
     """Episodes to run (each plays the whole clip from its first frame)."""
     motion: Path | None = None
-    """Evaluate on this clip (a motion file of the run's robot) instead of the run's."""
+    """Evaluate on this clip (a motion file of the run's robot) instead of the run's, or on
+    every clip of a library (a folder or a .yaml list; a library run's own by default)."""
     dr: DrChoice = "none"
     """Physics of the evaluation: a DR profile (``none``, ``default``) or a YAML file."""
     physics: PhysicsChoice | None = None

@@ -179,6 +179,12 @@ def evaluate(settings: EvalSettings) -> dict:
         check_writable(s.out)
     if mcap is not None:
         check_writable(mcap)
+    clips = library_clips(s)
+    if clips is not None:
+        results = _evaluate_library(s, clips, mcap)
+        if s.out is not None:
+            atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
+        return results
     ev = run_evaluation(s)
     results = ev.results
     if mcap is not None:
@@ -243,12 +249,65 @@ def run_evaluation(
                       record, layout, policy_traces)  # fmt: skip
 
 
+def library_clips(s: EvalSettings) -> list[Path] | None:
+    """The clips of a library evaluation, one after the other: ``--motion`` when it names a
+    library, else the run's motion when it is one (checked unchanged since the run began);
+    ``None`` for one clip."""
+    from humimic.tracking.runs import recorded_motion
+    from humimic.tracking.task import is_library, library_files
+
+    path = s.motion if s.motion is not None else recorded_motion(s.run)
+    return library_files(path) if is_library(path) else None
+
+
+def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> dict[str, Any]:
+    """Every clip of a library evaluated as one clip is (``--episodes`` each, the same seed),
+    with each clip's MCAP beside ``mcap`` (``<stem>_<clip>.mcap``). Returns the run's fields,
+    ``clips`` (name -> its frames and metrics) and ``policy`` and ``open_loop`` as the mean
+    over the clips of each metric."""
+    per_clip: dict[str, dict[str, Any]] = {}
+    first: dict[str, Any] = {}
+    for f in clips:
+        ev = run_evaluation(replace(s, motion=f))
+        r = ev.results
+        first = first or r
+        entry = {k: r[k] for k in ("frames", "policy", "open_loop", "open_loop_targets") if k in r}
+        if mcap is not None:
+            path = mcap.with_name(f"{mcap.stem}_{f.stem}.mcap")
+            check_not_input(path, eval_inputs(s), "--mcap")
+            write_eval_mcap(path, ev.motion, ev.joint_names, ev.step_dt, ev.policy,
+                            ev.open_loop, r)  # fmt: skip
+            entry["mcap"] = str(path)
+        per_clip[f.name] = entry
+    motion = s.motion if s.motion is not None else first["motion"]
+    out = {k: first[k] for k in ("run", "checkpoint", "iterations", "dr", "start_noise",
+                                 "physics") if k in first}  # fmt: skip
+    out |= {"motion": str(motion), "clips": per_clip}
+    for group in ("policy", "open_loop"):
+        out[group] = _mean_over_clips([c[group] for c in per_clip.values()])
+    return out
+
+
+def _mean_over_clips(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each metric's mean over the clips (a table of them, e.g. per body, entry by entry);
+    ``episodes`` summed."""
+    out: dict[str, Any] = {}
+    for k, v in rows[0].items():
+        if k == "episodes":
+            out[k] = int(sum(r[k] for r in rows))
+        elif isinstance(v, dict):
+            out[k] = _mean_over_clips([r[k] for r in rows])
+        elif isinstance(v, int | float) and not isinstance(v, bool):
+            out[k] = float(np.mean([r[k] for r in rows]))
+    return out
+
+
 def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[Any, Motion, Path]:
     """The task an evaluation runs (the run's, under the chosen DR and physics, every episode
     from the clip's first frame, with the training's reset noise only for ``--start-noise``,
     no adaptive sampling, long enough for the whole clip), the reference and its file."""
     from humimic.tracking.runs import recorded_motion
-    from humimic.tracking.task import single_reference, task_config
+    from humimic.tracking.task import load_reference, task_config
 
     run = recorded[1]
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
@@ -258,7 +317,7 @@ def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[A
         raise InputError(f"--motion {s.motion}: no such file")
     else:
         motion_path = s.motion
-    motion = single_reference(motion_path, run.robot, 1.0 / base.step_dt, "humimic eval")
+    motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
     task = replace(
         base,
         start_frame=0,

@@ -176,19 +176,6 @@ def load_references(path: Path, robot: str, fps: float) -> list[Motion]:
     return [load_reference(f, robot, fps) for f in library_files(path)]
 
 
-def single_reference(path: Path, robot: str, fps: float, what: str) -> Motion:
-    """The one clip a command that takes one needs (``what``: the command, for the message).
-
-    Raises:
-        InputError: ``path`` names a library.
-    """
-    if is_library(path):
-        raise InputError(
-            f"{path}: a library of clips; {what} takes one clip so far: pass --motion CLIP.npz"
-        )
-    return load_reference(path, robot, fps)
-
-
 __all__ = [
     "apply_task_settings",
     "is_library",
@@ -196,6 +183,5 @@ __all__ = [
     "load_reference",
     "load_references",
     "resolve_dr",
-    "single_reference",
     "task_config",
 ]
