@@ -180,6 +180,16 @@ def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
     pelvis = np.mean([c["per_body_mm"]["pelvis"] for c in clip_rows])
     assert lib_eval["policy"]["per_body_mm"]["pelvis"] == pytest.approx(pelvis)
     assert (tmp_path / "every_a.mcap").is_file() and (tmp_path / "every_b.mcap").is_file()
+    # A library with a clip the run cannot take: exit 2, and no clip's file is written.
+    mixed_eval = tmp_path / "mixed_eval"
+    mixed_eval.mkdir()
+    save_motion(clips[0], mixed_eval / "a.npz")
+    save_motion(replace(clips[1], robot="t1"), mixed_eval / "b.npz")
+    bad_out = tmp_path / "bad_eval.json"
+    assert main(["eval", str(run), "--motion", str(mixed_eval), "--episodes", "2",
+                 "--out", str(bad_out)]) == 2  # fmt: skip
+    assert "b.npz: the motion is for robot 't1'" in capsys.readouterr().err
+    assert not list(tmp_path.glob("bad_eval*"))
     # A clip changed since: the run's library is not the one it began on.
     save_motion(_clip(model, 30, "left_knee_joint", 0.2), lib / "b.npz")
     assert main(_train(lib, run, 4, "--resume")) == 2

@@ -11,7 +11,7 @@ tables below: masses in kg, lengths in m, times (delays, time constants) in s, a
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -321,10 +321,6 @@ class RobotDelta:
 
     def __add__(self, other: RobotDelta) -> RobotDelta:
         return RobotDelta(self.items + other.items)
-
-    @classmethod
-    def of(cls, items: Iterable[Item]) -> RobotDelta:
-        return cls(tuple(items))
 
     @property
     def structural(self) -> tuple[Structural, ...]:

@@ -97,8 +97,6 @@ class Physics:
         """The file's parameter fields (everything but :attr:`effects`) as delta items, in
         the order they are applied: floor friction, masses, CoM offsets, kp, kd, armature.
 
-        Raises:
-            InputError: If a scale mapping names ``*`` together with other names.
         """
         items: list[Item] = []
         if self.floor_friction is not None:
@@ -124,10 +122,6 @@ class Physics:
 
     def _scales(self, key: str, kind: Kind, name: str) -> list[Item]:
         m: dict[str, float] = getattr(self, key)
-        if _ALL in m and len(m) > 1:
-            raise InputError(
-                f"{self._at(key)}: give one number for every one, or name them, not both"
-            )
         return [Change(op="scale", kind=kind, field=name, names=(k,), value=(v,),
                        source=self._at(key)) for k, v in m.items()]  # fmt: skip
 

@@ -80,6 +80,8 @@ class MotionCommand:
         self.num_frames = T = int(lengths.sum())
         self.clip_start, self.clip_length = starts, lengths
         """Each clip's first frame in the library's table, and its frames. Shape: (C,)."""
+        self._start_t = torch.as_tensor(starts, device=device)
+        self._length_t = torch.as_tensor(lengths, device=device)
         clip_of = np.repeat(np.arange(len(clips)), lengths)
         self.clip_of = torch.as_tensor(clip_of, device=device)
         """The clip of every frame. Shape: (T,), long."""
@@ -204,18 +206,16 @@ class MotionCommand:
             if len(self.clips) == 1:
                 return f.clamp(max=self.num_frames - 2)
             c = torch.randint(0, len(self.clips), (n,), generator=gen, device=dev)
-            start = torch.as_tensor(self.clip_start, device=dev)[c]
-            length = torch.as_tensor(self.clip_length, device=dev)[c]
-            return start + torch.minimum(f, length - 2)
+            return self._start_t[c] + torch.minimum(f, self._length_t[c] - 2)
         if self.cfg.adaptive.enabled:
             bins = torch.multinomial(self.weights, n, replacement=True, generator=gen)
             u = torch.rand(n, generator=gen, device=dev)
             clip = self._bin_clip[bins]
             local = bins - self._first_bin[clip]
-            length = torch.as_tensor(self.clip_length, device=dev)[clip]
+            length = self._length_t[clip]
             frames = ((local.float() + u) / self._clip_bins[clip] * (length - 1)).long()
             frames = torch.minimum(frames.clamp(min=0), length - 2)
-            return frames + torch.as_tensor(self.clip_start, device=dev)[clip]
+            return frames + self._start_t[clip]
         i = torch.randint(0, len(self._startable), (n,), generator=gen, device=dev)
         return self._startable[i]
 

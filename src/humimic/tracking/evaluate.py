@@ -253,11 +253,13 @@ def library_clips(s: EvalSettings) -> list[Path] | None:
     """The clips of a library evaluation, one after the other: ``--motion`` when it names a
     library, else the run's motion when it is one (checked unchanged since the run began);
     ``None`` for one clip."""
-    from humimic.tracking.runs import recorded_motion
+    from humimic.tracking.runs import read_run_settings, recorded_motion
     from humimic.tracking.task import is_library, library_files
 
-    path = s.motion if s.motion is not None else recorded_motion(s.run)
-    return library_files(path) if is_library(path) else None
+    path = s.motion if s.motion is not None else read_run_settings(s.run).motion
+    if not is_library(path):
+        return None  # One clip: checked where it is read (_eval_task).
+    return library_files(recorded_motion(s.run) if s.motion is None else path)
 
 
 def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> dict[str, Any]:
@@ -265,20 +267,25 @@ def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> 
     with each clip's MCAP beside ``mcap`` (``<stem>_<clip>.mcap``). Returns the run's fields,
     ``clips`` (name -> its frames and metrics) and ``policy`` and ``open_loop`` as the mean
     over the clips of each metric."""
+    mcaps = [None if mcap is None else mcap.with_name(f"{mcap.stem}_{f.stem}.mcap")
+             for f in clips]  # fmt: skip
+    inputs = eval_inputs(s)
+    for path in mcaps:
+        if path is not None:
+            check_not_input(path, inputs, "--mcap")
+            check_writable(path)
+    # Every clip evaluated before anything is written: a clip that fails leaves no file.
+    evs = [run_evaluation(replace(s, motion=f)) for f in clips]
     per_clip: dict[str, dict[str, Any]] = {}
-    first: dict[str, Any] = {}
-    for f in clips:
-        ev = run_evaluation(replace(s, motion=f))
+    for f, ev, path in zip(clips, evs, mcaps, strict=True):
         r = ev.results
-        first = first or r
         entry = {k: r[k] for k in ("frames", "policy", "open_loop", "open_loop_targets") if k in r}
-        if mcap is not None:
-            path = mcap.with_name(f"{mcap.stem}_{f.stem}.mcap")
-            check_not_input(path, eval_inputs(s), "--mcap")
+        if path is not None:
             write_eval_mcap(path, ev.motion, ev.joint_names, ev.step_dt, ev.policy,
                             ev.open_loop, r)  # fmt: skip
             entry["mcap"] = str(path)
         per_clip[f.name] = entry
+    first = evs[0].results
     motion = s.motion if s.motion is not None else first["motion"]
     out = {k: first[k] for k in ("run", "checkpoint", "iterations", "dr", "start_noise",
                                  "physics") if k in first}  # fmt: skip
