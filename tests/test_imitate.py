@@ -40,6 +40,10 @@ def test_imitate_end_to_end_on_a_tiny_budget(shared_data: Path, tmp_path: Path) 
     md = (out / "report.md").read_text()
     assert "| dr_default | policy |" in md and "learning_curve.png" in md
     assert "Screenshot: not asked for" in md
+    # The field's protocols once, on the nominal robot, in the report.
+    proto = report["eval"]["nominal"]["protocols"]
+    assert proto["beyondmimic"]["clips"] == 1 and "protocols" not in report["eval"]["dr_default"]
+    assert "BeyondMimic's protocol (" in md and "PHC's protocol (" in md
     # Resuming with the kinematic motion reuses the run's refinement instead of refining again.
     ref = out / "run" / "reference.npz"
     stamp = ref.stat().st_mtime_ns

@@ -179,6 +179,13 @@ def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
     assert lib_eval["policy"]["episodes"] == 4
     pelvis = np.mean([c["per_body_mm"]["pelvis"] for c in clip_rows])
     assert lib_eval["policy"]["per_body_mm"]["pelvis"] == pytest.approx(pelvis)
+    # The field's protocols: a row per clip (the clip's alone), the totals over the library.
+    for name in ("beyondmimic", "phc"):
+        proto = lib_eval["protocols"][name]
+        assert list(proto["per_clip"]) == ["a.npz", "b.npz"] and proto["clips"] == 2
+        assert proto["per_clip"]["b.npz"] == alone["protocols"][name]["per_clip"]["b.npz"]
+    bm = lib_eval["protocols"]["beyondmimic"]
+    assert bm["failed_clips"] == sum(r["failed"] for r in bm["per_clip"].values())
     assert (tmp_path / "every_a.mcap").is_file() and (tmp_path / "every_b.mcap").is_file()
     # A library with a clip the run cannot take: exit 2, and no clip's file is written.
     mixed_eval = tmp_path / "mixed_eval"

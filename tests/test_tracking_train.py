@@ -477,6 +477,43 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
         assert (np.ptp(firsts, axis=0).max() > 1e-3) == noise
         assert ev.results["start_noise"] == noise
 
+    # The protocols' play (nominal, no noise, no failure terminations) is the policy's first
+    # episode, step by step until that one ends: checked by MuJoCo's forward kinematics of
+    # the recorded qpos, not the env's state. The env's body read-outs are sensors, which
+    # mj_step evaluates before its last integration: they lag the qpos by one physics step
+    # (5 ms of 20), so the check interpolates that far back between control steps.
+    import mujoco
+
+    from humimic.tracking.config import g1_tracking
+    from humimic.tracking.env import tracking_model
+    from humimic.tracking.protocols import judge
+
+    ev = run_evaluation(EvalSettings(run=out, episodes=1), open_loop=False)
+    play, qpos = ev.protocol_play, np.stack(ev.policy.qpos)
+    # Frames 1 to the one before the last (the last ends the episode, as in the metrics).
+    assert play is not None and play.steps == r["frames"] - 2 >= len(qpos) - 1
+    cfg = g1_tracking("none")
+    model = tracking_model(cfg)
+    data = mujoco.MjData(model)
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in cfg.body_names]
+    anchor = ids[cfg.body_names.index(cfg.anchor_body)]
+    fk, quat = [], []
+    for k in range(len(qpos)):
+        data.qpos[:] = qpos[k]
+        mujoco.mj_kinematics(model, data)
+        fk.append(data.xpos[ids].copy())
+        quat.append(data.xquat[anchor].copy())
+    fk, quat = np.array(fk), np.array(quat)
+    lagged = fk[1:] - (fk[1:] - fk[:-1]) / cfg.decimation
+    n = len(qpos) - 1
+    np.testing.assert_allclose(play.body_pos[:n], lagged, atol=5e-4)
+    assert np.abs(play.body_pos[:n] - fk[1:]).max() > 1e-3  # The lag is real.
+    tilt = np.abs(np.einsum("ki,ki->k", play.anchor_quat[:n], quat[1:]))
+    assert tilt.min() > 1 - 1e-4  # The same anchor orientation to within a small angle.
+    clip = Path(r["motion"]).name
+    assert r["protocols"]["phc"]["per_clip"] == {clip: judge(play)["phc"]}
+    assert r["protocols"]["beyondmimic"]["clips"] == 1
+
     # The first episode, beside the JSON, with the reference: what `humimic view` plays.
     from humimic.formats.mcap import qpos_from_log, read_mcap
     from humimic.pipeline.files import load_rollout, read_any_motion

@@ -62,10 +62,36 @@ def run_eval(cmd: EvalSettings) -> None:
         print(f"{name:9s}: success {100 * m['success_rate']:.0f}%, global MPJPE "
               f"{m['mpjpe_global_mm']:.1f} mm, root-relative {m['mpjpe_root_mm']:.1f} mm, "
               f"joint error {m['joint_error_rad']:.3f} rad")  # fmt: skip
+    if "protocols" in result:
+        print_protocols(result["protocols"])
     if cmd.out is not None:
         print(f"wrote {cmd.out}")
     if "mcap" in result:
         print(f"wrote {result['mcap']} (humimic view {result['mcap']})")
+
+
+def print_protocols(p: dict) -> None:
+    """The field's protocols (:mod:`humimic.tracking.protocols`): a line per clip, then each
+    protocol's totals."""
+
+    def fate(r: dict) -> str:
+        return "ok" if not r["failed"] else f"fails at step {r['fail_step']}"
+
+    def mm(x: float | None) -> str:
+        return "n/a" if x is None else f"{x:.1f}"
+
+    bm, phc = p["beyondmimic"], p["phc"]
+    for clip, r in bm["per_clip"].items():
+        q = phc["per_clip"][clip]
+        ret = r["normalized_return"]
+        print(f"  {clip}: BeyondMimic {fate(r)} (normalized return "
+              f"{'n/a' if ret is None else f'{ret:.2f}'}); PHC {fate(q)} (global MPJPE "
+              f"{mm(q['mpjpe_global_mm'])} mm)")  # fmt: skip
+    from humimic.pipeline.imitate import protocol_lines
+
+    for line in protocol_lines(p):
+        if line:
+            print(line)
 
 
 def run_export(cmd: ExportSettings) -> None:

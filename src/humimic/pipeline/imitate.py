@@ -171,14 +171,16 @@ def _evaluate(s: ImitateSettings, run: Path) -> tuple[dict[str, Any], Any]:
 
     results, trace = {}, None
     for label, kw in PHYSICS.items():
-        ev = run_evaluation(EvalSettings(run=run, episodes=s.episodes, device=s.device, **kw))
+        # The field's protocols are deterministic plays without DR: once, on the nominal robot.
+        ev = run_evaluation(EvalSettings(run=run, episodes=s.episodes, device=s.device, **kw),
+                            protocols=label == "nominal")  # fmt: skip
         r = ev.results
         atomic_write_text(s.out / f"eval_{label}.json", json.dumps(json_ready(r), indent=2) + "\n")
         if label == "dr_default":
             write_eval_mcap(s.out / "eval_dr_default.mcap", ev.motion, ev.joint_names,
                             ev.step_dt, ev.policy, ev.open_loop, r)  # fmt: skip
             trace = ev
-        results[label] = {k: r[k] for k in ("policy", "open_loop")}
+        results[label] = {k: r[k] for k in ("policy", "open_loop", "protocols") if k in r}
     return results, trace
 
 
@@ -276,6 +278,9 @@ def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
             lines.append(f"| {label} | {ctl.replace('_', ' ')} | {100 * m['success_rate']:.0f}% | "
                          f"{m['mean_steps']:.0f} | {m['mpjpe_global_mm']:.0f} | "
                          f"{m['mpjpe_root_mm']:.0f} | {m['joint_error_rad']:.3f} |")  # fmt: skip
+    proto = r["eval"].get("nominal", {}).get("protocols")
+    if proto is not None:
+        lines += ["", *protocol_lines(proto)]
     first = next((c for c in r["curve"] if c["success_rate"] > 0.0), None)
     lines += ["", "Learning curve (training episodes, and checkpoints evaluated under DR "
               "default): ![learning curve](learning_curve.png)", "",
@@ -297,4 +302,24 @@ def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PHYSICS", "imitate", "per_body_errors", "render_report"]
+def protocol_lines(p: dict[str, Any]) -> list[str]:
+    """The field's protocols (:mod:`humimic.tracking.protocols`) as report lines: each rule,
+    then its result."""
+
+    def num(x: float | None, fmt: str) -> str:
+        return "n/a" if x is None else format(x, fmt)
+
+    bm, phc = p["beyondmimic"], p["phc"]
+    a = phc["all"]
+    return [
+        f"BeyondMimic's protocol ({bm['rule']}): {bm['failed_clips']} of {bm['clips']} clips "
+        f"failed, mean normalized return {num(bm['mean_normalized_return'], '.2f')}.", "",
+        f"PHC's protocol ({phc['rule']}): success {num(phc['success_rate'], '.0%')}; global "
+        f"MPJPE {num(a['mpjpe_global_mm'], '.1f')} mm, root-relative "
+        f"{num(a['mpjpe_root_mm'], '.1f')} mm, velocity error "
+        f"{num(a['vel_error_mm_per_frame'], '.1f')} mm/frame, acceleration error "
+        f"{num(a['acc_error_mm_per_frame2'], '.2f')} mm/frame^2 (at the policy rate).",
+    ]  # fmt: skip
+
+
+__all__ = ["PHYSICS", "imitate", "per_body_errors", "protocol_lines", "render_report"]

@@ -124,7 +124,7 @@ def deployment_session(s: LoopSettings, run: Path, path: Path) -> dict:
     # Another seed than the deploy stage's evaluation: other reset-noise draws.
     settings = EvalSettings(run=run, episodes=n, motion=motion, physics=s.real,
                             device=s.device, seed=s.seed + 1, start_noise=True)  # fmt: skip
-    ev = run_evaluation(settings, open_loop=False, traces=n)
+    ev = run_evaluation(settings, open_loop=False, traces=n, protocols=False)
     lived = [tr for tr in ev.policy_traces if len(tr.qpos) >= 2]
     logs = _robot_logs(run, ev.joint_names, ev.step_dt, lived)
     if not logs:

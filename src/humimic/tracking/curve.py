@@ -55,7 +55,7 @@ def evaluation_curve(
     for path in chosen:
         s = EvalSettings(run=run, episodes=episodes, dr=dr, checkpoint=path, device=device,
                          seed=seed)  # fmt: skip
-        policy = run_evaluation(s, open_loop=False).results["policy"]
+        policy = run_evaluation(s, open_loop=False, protocols=False).results["policy"]
         it = int(path.stem.split("_")[1])
         out.append({"iteration": float(it), "seconds": seconds.get(it, math.nan),
                     **{k: float(policy[k]) for k in ("success_rate", "mean_steps",

@@ -22,6 +22,7 @@ from humimic.motion import Motion
 from humimic.sim.randomization import param_layout
 from humimic.tracking.actions import stored_targets
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
+from humimic.tracking.protocols import ClipTrace, judge, play_clip, summarize
 
 
 @dataclass
@@ -137,6 +138,8 @@ class Evaluation:
     policy_traces: list[_Trace] = field(default_factory=list)
     """The first ``traces`` policy episodes (:func:`run_evaluation`); ``policy`` is the
     first."""
+    protocol_play: ClipTrace | None = None
+    """The deterministic play the protocols judged (:mod:`.protocols`), if they ran."""
 
 
 def eval_inputs(s: EvalSettings) -> dict[str, Any]:
@@ -197,9 +200,10 @@ def evaluate(settings: EvalSettings) -> dict:
 
 
 def run_evaluation(
-    settings: EvalSettings, *, open_loop: bool = True, traces: int = 1
+    settings: EvalSettings, *, open_loop: bool = True, traces: int = 1, protocols: bool = True
 ) -> Evaluation:
-    """Run the policy and, if ``open_loop``, the open loop (writes nothing).
+    """Run the policy and, if ``open_loop``, the open loop, and if ``protocols``, the field's
+    protocols (:mod:`.protocols`; ``results["protocols"]``); writes nothing.
 
     ``traces``: how many of the policy's episodes to record step by step (at most
     ``episodes``).
@@ -245,8 +249,28 @@ def run_evaluation(
     if open_loop:
         env = TrackingEnv(task, motion, n, device=s.device)
         results |= _open_loop(env, motion, s.episodes, open_trace)
+    played = _play_protocols(s, recorded, policy) if protocols else None
+    if played is not None:
+        results["protocols"] = summarize({motion_path.name: judge(played)})
     return Evaluation(results, policy_traces[0], open_trace, joint_names, motion, task.step_dt,
-                      record, layout, policy_traces)  # fmt: skip
+                      record, layout, policy_traces, played)  # fmt: skip
+
+
+def _play_protocols(
+    s: EvalSettings, recorded: tuple[dict[str, Any], Any], policy: Any
+) -> ClipTrace:
+    """One deterministic play of the clip on the nominal robot (or the physics file), no DR,
+    no start noise, no failure terminations: what the protocols of :mod:`.protocols`
+    judge."""
+    from humimic.tracking.env import TrackingEnv
+
+    task, motion, _ = _eval_task(replace(s, dr="none", start_noise=False), recorded)
+    task = replace(task, terminations={k: v for k, v in task.terminations.items() if v.time_out})
+    env = TrackingEnv(task, motion, 1, device=s.device)
+    try:
+        return play_clip(env, policy)
+    finally:
+        env.close()
 
 
 def library_clips(s: EvalSettings) -> list[Path] | None:
@@ -292,6 +316,11 @@ def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> 
     out |= {"motion": str(motion), "clips": per_clip}
     for group in ("policy", "open_loop"):
         out[group] = _mean_over_clips([c[group] for c in per_clip.values()])
+    if all("protocols" in ev.results for ev in evs):
+        out["protocols"] = summarize({
+            f.name: {p: ev.results["protocols"][p]["per_clip"][f.name] for p in ("beyondmimic", "phc")}
+            for f, ev in zip(clips, evs, strict=True)
+        })  # fmt: skip
     return out
 
 
