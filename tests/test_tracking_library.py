@@ -215,8 +215,52 @@ def test_train_on_a_library_folder_resumes_and_refuses_bad_libraries(
         assert main(_train(motion, tmp_path / "bad", 1)) == 2
         assert message in capsys.readouterr().err
         assert not (tmp_path / "bad").exists()
-    # The default (feedback) base needs every clip refined first.
-    args = _train(lib, tmp_path / "bad", 1)
-    del args[args.index("--task.action-base") : args.index("--task.action-base") + 2]
-    assert main(args) == 2
-    assert "needs refined clips" in capsys.readouterr().err
+
+
+def test_a_library_is_refined_once_in_workers_and_a_clip_that_cannot_be_is_left_out(
+    model: mujoco.MjModel, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The default (feedback) base needs refined clips: train refines the library's clips on
+    worker processes into the run, reports and leaves out a clip that cannot be refined (two
+    frames: refining needs three), and a resume refines nothing again."""
+    from humimic.cli.main import main
+    from humimic.motion import load_motion, save_motion
+    from humimic.tracking.actions import has_stored_controls
+
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    save_motion(_clip(model, 16, "left_shoulder_pitch_joint", 0.3), lib / "a.npz")
+    save_motion(_clip(model, 10, "right_elbow_joint", 0.4), lib / "b.npz")
+    save_motion(_clip(model, 2, "left_knee_joint", 0.1), lib / "c.npz")
+    run = tmp_path / "run"
+
+    def train(motion: Path, iterations: int, *extra: str) -> list[str]:
+        args = _train(motion, run, iterations, *extra)
+        del args[args.index("--task.action-base") : args.index("--task.action-base") + 2]
+        return args
+
+    assert main(train(lib, 1)) == 0
+    out = capsys.readouterr().out
+    assert "left out of the run: c (refining failed:" in out and "at least 3" in out
+    listing = run / "reference" / "library.yaml"
+    assert listing.read_text() == "- a.npz\n- b.npz\n"
+    refined = load_motion(run / "reference" / "a.npz")
+    assert has_stored_controls(refined) and refined.fps == 50.0
+    assert "motion: reference/library.yaml" in (run / "config.yaml").read_text()
+    stamp = (run / "reference" / "a.npz").stat().st_mtime_ns
+    assert main(train(lib, 2, "--resume")) == 0  # Refines nothing again.
+    assert (run / "reference" / "a.npz").stat().st_mtime_ns == stamp
+    assert main(["eval", str(run), "--episodes", "1"]) == 0
+    assert "mean over the 2 clips" in capsys.readouterr().out
+    # A clip changed since: refused before any refining.
+    save_motion(_clip(model, 12, "right_elbow_joint", 0.2), lib / "b.npz")
+    assert main(train(lib, 3, "--resume")) == 2
+    assert "not trained on a refinement of" in capsys.readouterr().err
+    # No clip that can be refined: exit 2, no run left behind.
+    only = tmp_path / "only"
+    only.mkdir()
+    save_motion(_clip(model, 2, "left_knee_joint", 0.1), only / "c.npz")
+    run = tmp_path / "bad"
+    assert main(train(only, 1)) == 2
+    assert "no clip of the library could be refined" in capsys.readouterr().err
+    assert not run.exists()

@@ -79,7 +79,7 @@ def test_phc_fails_on_the_mean_body_error_and_measures_errors_up_to_it() -> None
 def test_phc_root_relative_velocity_and_acceleration_errors() -> None:
     ref = _trace().ref_body_pos
     # The whole robot 0.1 m to the side: global error 100 mm, root-relative 0.
-    shifted = ref + [0.0, 0.1, 0.0]
+    shifted = ref + np.array([0.0, 0.1, 0.0])
     r = phc(_trace(body_pos=shifted))
     assert r["mpjpe_global_mm"] == pytest.approx(100.0)
     assert r["mpjpe_root_mm"] == pytest.approx(0.0, abs=1e-9)
@@ -104,7 +104,7 @@ def test_phc_root_relative_velocity_and_acceleration_errors() -> None:
 def test_totals_over_clips_and_null_over_none() -> None:
     low = _trace().anchor_pos.copy()
     low[:, 2] -= 0.3
-    gone = _trace().body_pos + [0.0, 0.6, 0.0]
+    gone = _trace().body_pos + np.array([0.0, 0.6, 0.0])
     clips = {"a.npz": judge(_trace()), "b.npz": judge(_trace(anchor_pos=low, body_pos=gone))}
     s = summarize(clips)
     bm, ph = s["beyondmimic"], s["phc"]

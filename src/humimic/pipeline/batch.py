@@ -253,10 +253,13 @@ def output_paths(
     out: Path,
     report: Path | None,
     others: dict[str, Path],
+    *,
+    folder: bool = False,
 ) -> list[tuple[Path, Path | None]]:
     """Each clip's motion and report paths, checked: none is an input (``others``: the inputs
-    besides the clips, by flag), every one can be written."""
-    several = len(files) > 1 or any(p.is_dir() for p in inputs)
+    besides the clips, by flag), every one can be written. ``out`` is a folder when ``folder``
+    is true, there are several clips, or an input is a folder."""
+    several = folder or len(files) > 1 or any(p.is_dir() for p in inputs)
     if several:
         if out.suffix:
             raise InputError(f"{out}: with several inputs --out must be a folder")

@@ -179,17 +179,26 @@ def retarget_task(task: DatasetTask, opts: ClipOptions, dyn: DynamicsConfig, csv
 
 
 def refine_task(
-    task: DatasetTask, dyn: DynamicsConfig, robustness: int, backend: str, device: str
+    task: DatasetTask,
+    dyn: DynamicsConfig,
+    robustness: int,
+    backend: str,
+    device: str,
+    fps: float | None = None,
 ) -> dict:
-    """Refine one robot motion (in a worker process) and write it with its report; its
-    outcome as a record (``humimic refine`` of a folder)."""
+    """Refine one robot motion (in a worker process; first resampled to ``fps`` if given and
+    other than its own) and write it with its report; its outcome as a record (``humimic
+    refine`` of a folder, a training library's clips)."""
     from humimic.io import json_ready
     from humimic.motion import load_motion
     from humimic.pipeline.batch import save_with_report
     from humimic.retarget.dynamics import refine
+    from humimic.tracking.task import load_reference
 
     def work() -> dict[str, Any]:
         motion = load_motion(task.source)
+        if fps is not None:
+            motion = load_reference(task.source, motion.robot, fps)
         refined, report = refine(motion, dyn, robustness=robustness, backend=backend,  # type: ignore[arg-type]
                                  device=device)  # fmt: skip
         report = json_ready(report)
@@ -220,12 +229,36 @@ def run_refine_dataset(
     if out.suffix:
         raise InputError(f"{out}: with a folder --out must be a folder")
     files = motion_files(folder, out)
-    outs = output_paths((folder,), files, out, None, {})
+    return refine_motions(files, out, dyn, robustness=robustness, backend=backend,
+                          device=device, workers=workers, ray=ray, quiet=quiet, t0=t0)  # fmt: skip
+
+
+def refine_motions(
+    files: list[tuple[Path, Path]],
+    out: Path,
+    dyn: DynamicsConfig,
+    *,
+    robustness: int,
+    backend: str = "cpu",
+    device: str = "cpu",
+    workers: int | None = None,
+    ray: str | None = None,
+    quiet: bool = False,
+    fps: float | None = None,
+    t0: float | None = None,
+) -> DatasetSummary:
+    """Refine robot motions (each with its output name under ``out``) with the manifest,
+    resume and failure isolation of :func:`run_dataset`: a motion refined before from the same
+    bytes with the same settings (``fps`` included: each motion resampled to it first) is not
+    refined again."""
+    t0 = time.perf_counter() if t0 is None else t0
+    outs = output_paths(tuple(f for f, _ in files), files, out, None, {}, folder=True)
     digest = settings_digest({"dyn": dyn, "robustness": robustness, "backend": backend,
-                              "device": device, "kind": "refine"})  # fmt: skip
+                              "device": device, "kind": "refine",
+                              **({} if fps is None else {"fps": fps})})  # fmt: skip
     tasks, skipped, manifest = plan_tasks(files, outs, out, digest)
     return run_tasks(tasks, skipped, manifest, digest, refine_task,
-                     (dyn, robustness, backend, device), workers=workers, ray=ray,
+                     (dyn, robustness, backend, device, fps), workers=workers, ray=ray,
                      quiet=quiet, t0=t0)  # fmt: skip
 
 

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
+from humimic.configs import DynamicsConfig
 from humimic.configs.runs import TrainSettings
 from humimic.errors import InputError
 from humimic.io import check_writable
-from humimic.tracking.runs import REFERENCE_FILE
+from humimic.tracking.runs import LIBRARY_LIST, REFERENCE_FILE, REFERENCE_LIBRARY
 
 
 def prepare_reference(
@@ -45,8 +47,8 @@ def prepare_reference(
     if task.action_base not in STORED_BASES:
         return s
     if is_library(s.motion):
-        _check_refined_library(s, task.action_base)
-        return s
+        return _refine_library(s, task.action_base, 1.0 / task.step_dt, quiet=quiet,
+                               may_refine=may_refine)  # fmt: skip
     if not s.motion.is_file():
         raise InputError(f"--motion {s.motion}: no such file")
     source = str(s.motion.resolve())
@@ -83,27 +85,85 @@ def prepare_reference(
     return replace(s, motion=ref)
 
 
-def _check_refined_library(s: TrainSettings, base: str) -> None:
-    """A library trains on a stored base only with every clip refined already.
+def _refine_library(
+    s: TrainSettings, base: str, fps: float, *, quiet: bool, may_refine: bool
+) -> TrainSettings:
+    """A library on a stored base: its clips without stored controls refined (at the policy
+    rate ``fps``) into ``RUN/reference/`` on worker processes, one per core, each only once
+    for the same bytes (the folder's manifest, :func:`~humimic.pipeline.dataset.refine_motions`);
+    ``s`` with the library ``RUN/reference/library.yaml`` that lists the refined clips and
+    the clips refined already. A clip that fails to refine is reported and left out.
 
     Raises:
-        InputError: Naming the library, the first unrefined clip and the command that
-            refines them all.
+        InputError: A clip of another robot or an unreadable one (before any refining), two
+            clips of one name, every clip failing, refining where ``may_refine`` is false, or
+            a resumed run whose library changed since it was refined.
     """
+    from humimic.io import atomic_write_text
     from humimic.motion import load_motion
+    from humimic.pipeline.dataset import MANIFEST_NAME, Manifest, file_sha256, refine_motions
     from humimic.tracking.actions import has_stored_controls
     from humimic.tracking.task import library_files
 
+    folder = s.out / REFERENCE_LIBRARY
+    listing = folder / LIBRARY_LIST
+    if s.motion.resolve() == listing.resolve():
+        return s  # The run's own refined library (a resume that passes it).
     files = library_files(s.motion)
-    bare = [f for f in files if not has_stored_controls(load_motion(f))]
-    if bare:
-        more = f" and {len(bare) - 1} more" if len(bare) > 1 else ""
+    bare = []
+    for f in files:
+        clip = load_motion(f)
+        if clip.robot != s.robot:
+            raise InputError(f"{f}: the motion is for robot {clip.robot!r}, not {s.robot!r}")
+        if not has_stored_controls(clip):
+            bare.append(f)
+    if not bare:
+        return s
+    if not may_refine:
         raise InputError(
             f"--motion {s.motion}: the action base {base!r} needs refined clips, and "
-            f"{bare[0].name}{more} of its {len(files)} are not: refine the library first "
-            f"(humimic refine {s.motion} --out REFINED/, in parallel) and train on REFINED/, "
-            "or train around --task.action-base reference"
+            f"{bare[0].name} of its {len(files)} is not: refine the library first "
+            f"(humimic refine DIR --out REFINED/) for a data-parallel run"
         )
+    names = [f.stem for f in bare]
+    twice = next((n for n in names if names.count(n) > 1), None)
+    if twice is not None:
+        raise InputError(f"--motion {s.motion}: two clips are named {twice!r}; rename one")
+    if (s.out / "config.yaml").exists():
+        # A resume: its clips as refined before, or refused before refining anything.
+        done = Manifest(folder / MANIFEST_NAME).last
+        changed = [f for f in bare
+                   if (r := done.get(f.stem)) is None or r.get("sha256") != file_sha256(f)]  # fmt: skip
+        if changed:
+            raise InputError(
+                f"--out {s.out}: its run was not trained on a refinement of {changed[0]} (new "
+                "or changed since); pass the run's own motion or start a new run"
+            )
+    created = not s.out.exists()
+    try:
+        summary = refine_motions([(f, Path(f.stem)) for f in bare], folder, DynamicsConfig(),
+                                 robustness=0, fps=fps, quiet=quiet)  # fmt: skip
+    except BaseException:
+        if created:
+            shutil.rmtree(s.out, ignore_errors=True)
+        raise
+    failed = {r["key"]: r["error"] for r in summary.failed}
+    failed |= {r["key"]: r["error"] for r in summary.skipped if r.get("status") == "failed"}
+    kept = [f for f in files if f.stem not in failed or f not in bare]
+    if not kept:
+        if created:
+            shutil.rmtree(s.out, ignore_errors=True)
+        raise InputError(f"--motion {s.motion}: no clip of the library could be refined: "
+                         f"{next(iter(failed.values()))}")  # fmt: skip
+    if not quiet:
+        print(f"refined {len(summary.done)} clips of {s.motion} in {summary.seconds:.0f} s "
+              f"({len([r for r in summary.skipped if r.get('status') == 'done'])} refined "
+              f"before); outcomes in {summary.manifest}")  # fmt: skip
+    for name, error in failed.items():
+        print(f"left out of the run: {name} (refining failed: {error})")
+    entries = [f"{f.stem}.npz" if f in bare else str(f.resolve()) for f in kept]
+    atomic_write_text(listing, "".join(f"- {e}\n" for e in entries))
+    return replace(s, motion=listing)
 
 
 def _refine(motion: Any, *, quiet: bool, name: str) -> Any:

@@ -40,6 +40,11 @@ since, which :func:`upgrade_run_config` fills as those runs trained."""
 REFERENCE_FILE = "reference.npz"
 """The refined reference a run writes into its folder when it refined its motion itself
 (:mod:`humimic.pipeline.reference`)."""
+REFERENCE_LIBRARY = "reference"
+"""The folder of a library run's refined clips, when it refined them itself."""
+LIBRARY_LIST = "library.yaml"
+"""The library such a run trains on, in :data:`REFERENCE_LIBRARY`: its refined clips and
+the clips that were refined already."""
 
 
 def yaml_ready(value: Any) -> Any:
@@ -230,6 +235,10 @@ def run_files(run: Path) -> dict[str, Path]:
              "the run's progress.csv": run / "progress.csv"}  # fmt: skip
     if (run / REFERENCE_FILE).exists():
         files[f"the run's {REFERENCE_FILE}"] = run / REFERENCE_FILE
+    lib = run / REFERENCE_LIBRARY
+    if lib.is_dir():
+        for path in [*sorted(lib.glob("*.npz")), lib / LIBRARY_LIST]:
+            files[f"the run's {REFERENCE_LIBRARY}/{path.name}"] = path
     for path in checkpoint_files(run):
         files[f"the run's checkpoint {path.name}"] = path
     return files

@@ -30,6 +30,7 @@ from humimic.tracking.distributed import Ranks, agree, parameter_spread
 from humimic.tracking.rsl import make_runner, scale_actor_output, train_cfg
 from humimic.tracking.runs import (
     REFERENCE_FILE,
+    REFERENCE_LIBRARY,
     checkpoint_files,
     latest_checkpoint,
     load_weights,
@@ -432,7 +433,7 @@ def check_run_settings(s: Any) -> bool:
         not has_run
         and not inside
         and s.out.is_dir()
-        and any(p.name != REFERENCE_FILE for p in s.out.iterdir())
+        and any(p.name not in (REFERENCE_FILE, REFERENCE_LIBRARY) for p in s.out.iterdir())
     ):
         # A run folder is a run's alone: its files beside others' would be mixed up, and
         # files of the names it writes overwritten.
