@@ -29,7 +29,7 @@ BASE: dict[str, list[str]] = {
     "RetargetCommand": ["retarget", "clip.bvh", "--out", "o.npz"],
     "RefineCommand": ["refine", "m.npz", "--out", "o.npz"],
     "ReplayCommand": ["replay", "m.npz"],
-    "DemoCommand": ["demo"],
+    "DemoSettings": ["demo"],
     "ConvertCommand": ["convert", "m.npz", "m.mcap"],
     "ViewCommand": ["view", "m.npz"],
     "RobotsList": ["robots", "list"],
@@ -107,7 +107,6 @@ VALID: dict[str, dict[str, set[str]]] = {
     },
     "RefineCommand": {**_DYN, "--robustness": _OFF},
     "ReplayCommand": {"--tol": {"0"}},  # Bit-for-bit replay.
-    "DemoCommand": {"--clip": {"0"}},  # The first sequence.
     "ViewCommand": {
         "--port": {"0"},  # Any free port.
         "--frame": {"0"},  # The first frame.

@@ -39,7 +39,7 @@ def test_imitate_end_to_end_on_a_tiny_budget(shared_data: Path, tmp_path: Path) 
     assert worn["physics"]["name"] == "worn_knees" and worn["policy"]["episodes"] == 2
     md = (out / "report.md").read_text()
     assert "| dr_default | policy |" in md and "learning_curve.png" in md
-    assert "Screenshot: not asked for" in md
+    assert "Rollout pictures: not asked for" in md
     # The field's protocols once, on the nominal robot, in the report.
     proto = report["eval"]["nominal"]["protocols"]
     assert proto["beyondmimic"]["clips"] == 1 and "protocols" not in report["eval"]["dr_default"]
@@ -92,3 +92,40 @@ def test_imitate_refuses_bad_clips_and_used_folders(
     assert main(["imitate", str(clip), "--out", str(out)]) == 2
     assert "must be a new or empty folder" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+
+
+def test_imitate_a_folder_trains_one_policy_for_its_clips(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A folder of two short CMU clips and a truncated one: the two are retargeted, refined
+    and tracked by one policy, evaluated clip by clip; the bad one is reported and left
+    out."""
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    _short_bvh(shared_data / "cmu" / "35_01.bvh", clips / "walk.bvh", 62)
+    _short_bvh(shared_data / "cmu" / "09_01.bvh", clips / "run.bvh", 50)
+    (clips / "cut.bvh").write_text("HIERARCHY\nROOT Hips\n{\n")
+    out = tmp_path / "job"
+    argv = ["imitate", str(clips), "--out", str(out), "--minutes", "0.1", "--episodes", "2",
+            "--num-envs", "8", "--no-screenshot", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert "left out of the job: cut (retargeting failed:" in capsys.readouterr().out
+    assert sorted(p.name for p in (out / "motions").glob("*.npz")) == ["run.npz", "walk.npz"]
+    assert (out / "run" / "reference" / "library.yaml").read_text() == "- run.npz\n- walk.npz\n"
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["retarget"]["clips"]) == {"run", "walk"}
+    assert set(report["retarget"]["failed"]) == {"cut"} and report["train"]["left_out"] == []
+    for label in ("nominal", "dr_default", "backpack", "worn_knees"):
+        assert list(report["eval"][label]["clips"]) == ["run.npz", "walk.npz"]
+    proto = report["eval"]["nominal"]["protocols"]
+    assert proto["phc"]["clips"] == 2 and "protocols" not in report["eval"]["backpack"]
+    md = (out / "report.md").read_text()
+    assert "| walk.npz |" in md and "| run.npz |" in md and "failures_dr_default.png" in md
+    for name in ("policy.onnx", "learning_curve.png", "body_error.png", "failures_dr_default.png"):
+        assert (out / name).is_file(), name
+    # Folders it cannot take: clips in a subfolder, robot motions beside human clips.
+    (clips / "sub").mkdir()
+    _short_bvh(shared_data / "cmu" / "35_01.bvh", clips / "sub" / "w.bvh", 20)
+    assert main([*argv[:3], str(tmp_path / "job2"), *argv[4:]]) == 2
+    assert "sub/w.bvh is in a subfolder" in capsys.readouterr().err
+    assert not (tmp_path / "job2").exists()

@@ -264,3 +264,36 @@ def test_a_library_is_refined_once_in_workers_and_a_clip_that_cannot_be_is_left_
     assert main(train(only, 1)) == 2
     assert "no clip of the library could be refined" in capsys.readouterr().err
     assert not run.exists()
+
+
+def test_clip_weights_of_a_yaml_library(clips, tmp_path: Path) -> None:
+    """``- {file: b.npz, weight: 3}``: every frame of b three times as likely to start an
+    episode (uniform and adaptive sampling); a library without weights hashes as before."""
+    from humimic.motion import save_motion
+    from humimic.tracking.runs import motion_sha256
+    from humimic.tracking.task import library_entries, load_references
+
+    folder = tmp_path / "lib"
+    folder.mkdir()
+    save_motion(clips[0], folder / "a.npz")
+    save_motion(clips[1], folder / "b.npz")
+    weighted, plain = tmp_path / "w.yaml", tmp_path / "p.yaml"
+    weighted.write_text("- lib/a.npz\n- {file: lib/b.npz, weight: 3}\n")
+    plain.write_text("- lib/a.npz\n- lib/b.npz\n")
+    assert library_entries(weighted) == [(folder / "a.npz", 1.0), (folder / "b.npz", 3.0)]
+    assert motion_sha256(plain) == motion_sha256(folder) != motion_sha256(weighted)
+    refs = tuple(load_references(weighted, "g1", 50.0))
+    uniform = _command(refs, enabled=False)
+    frames = uniform.sample_frames(40000, torch.Generator().manual_seed(2))
+    # 119 startable frames of a at weight 1, 44 of b at weight 3.
+    assert float((frames >= 120).float().mean()) == pytest.approx(3 * 44 / (119 + 3 * 44),
+                                                                   abs=0.01)  # fmt: skip
+    adaptive = _command(refs)
+    adaptive.weights.copy_(adaptive._compute_weights())
+    # No failure yet: a's three bins and b's one weigh alike but for the weight.
+    assert float(adaptive.weights[3]) == pytest.approx(3 / (3 + 3), rel=1e-5)
+    for bad in ("- {file: lib/a.npz, weight: -1}\n", "- {file: lib/a.npz, weight: x}\n",
+                "- {name: lib/a.npz}\n", "- {file: lib/a.npz, weight: .nan}\n"):  # fmt: skip
+        weighted.write_text(bad)
+        with pytest.raises(InputError, match=str(weighted.name)):
+            library_entries(weighted)

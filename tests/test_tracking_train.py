@@ -453,6 +453,12 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
         assert 0 < m["mpjpe_global_mm"] < 2000 and 0 < m["mpjpe_root_mm"] < 2000
         assert m["joint_error_rad"] >= 0 and m["mean_steps"] >= 1
         assert set(m["per_body_mm"]) >= {"pelvis", "torso_link"}
+    png = tmp_path / "eval_failures.png"
+    assert r["failures_png"] == str(png) and png.read_bytes()[:4] == b"\x89PNG"
+    for name in ("policy", "open_loop"):
+        m = r[name]
+        assert len(m["fail_steps"]) == round((1 - m["success_rate"]) * m["episodes"])
+        assert all(0 <= k < r["frames"] for k in m["fail_steps"])
     # The open loop replays the reference exactly in its first step: the first joint error
     # is small, so the clip's reference and the env agree on joint order.
     assert r["open_loop"]["joint_error_rad"] < 0.5
@@ -461,8 +467,12 @@ def test_eval_reports_policy_and_open_loop(motion_file: Path, tmp_path: Path) ->
     from humimic.configs.jobs import EvalSettings
     from humimic.tracking.evaluate import run_evaluation
 
-    ev = run_evaluation(EvalSettings(run=out, episodes=6, dr="default"), open_loop=False)
+    ev = run_evaluation(EvalSettings(run=out, episodes=6, dr="default"), open_loop=False,
+                        traces=6)  # fmt: skip
     e, failed = ev.episodes["physics_e"], ev.episodes["failed"]
+    # Where each failed episode fell: the steps it lived, as its own trace counts them.
+    lived = sorted(len(tr.qpos) - 1 for tr, f in zip(ev.policy_traces, failed, strict=True) if f)
+    assert ev.results["policy"]["fail_steps"] == lived
     assert e.shape[0] == 6 and failed.shape == (6,) and failed.dtype == bool
     assert e.shape[1] == ev.param_layout["action_delay"].stop
     assert 1.0 - failed.mean() == pytest.approx(ev.results["policy"]["success_rate"])

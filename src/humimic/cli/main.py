@@ -12,7 +12,13 @@ import tyro
 
 from humimic.cli import fetch, retarget, robots, sysid, track, view
 from humimic.cli.flags import validate_command
-from humimic.configs.jobs import EvalSettings, ExportSettings, ImitateSettings, LoopSettings
+from humimic.configs.jobs import (
+    DemoSettings,
+    EvalSettings,
+    ExportSettings,
+    ImitateSettings,
+    LoopSettings,
+)
 from humimic.configs.runs import (
     DistillSettings,
     TrainSettings,
@@ -23,7 +29,7 @@ RUNNERS: dict[type, Callable[[Any], int | None]] = {
     retarget.RetargetCommand: retarget.run_retarget,
     retarget.RefineCommand: retarget.run_refine,
     retarget.ReplayCommand: retarget.run_replay,
-    retarget.DemoCommand: retarget.run_demo,
+    DemoSettings: track.run_demo,
     retarget.ConvertCommand: retarget.run_convert,
     view.ViewCommand: view.run_view,
     robots.RobotsList: robots.run_list,
@@ -52,7 +58,7 @@ def commands(argv: list[str]) -> Any:
                   tyro.conf.subcommand("retarget", default=retarget.retarget_defaults(argv))]
         | Annotated[retarget.RefineCommand, tyro.conf.subcommand("refine")]
         | Annotated[retarget.ReplayCommand, tyro.conf.subcommand("replay")]
-        | Annotated[retarget.DemoCommand, tyro.conf.subcommand("demo")]
+        | Annotated[DemoSettings, tyro.conf.subcommand("demo")]
         | Annotated[view.ViewCommand, tyro.conf.subcommand("view")]
         | Annotated[retarget.ConvertCommand, tyro.conf.subcommand("convert")]
         | Annotated[robots.RobotsCommand, tyro.conf.subcommand("robots")]

@@ -3,7 +3,6 @@ motions, dynamics, and motion files."""
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -182,25 +181,6 @@ class ReplayCommand:
         """Check ``--tol``; :class:`InputError` names it."""
         if not self.tol >= 0:  # NaN fails too: it would call every replay different.
             raise InputError(f"--tol {self.tol}: must be a number >= 0")
-
-
-@dataclass(frozen=True, kw_only=True)
-class DemoCommand:
-    """Fetch a real climbing clip (PyPI package holosoma-retargeting) and retarget it."""
-
-    robot: RobotName = "g1"
-    """Robot name from the registry (`humimic robots list`)."""
-    out: Path = Path("out/demo")
-    """Output folder."""
-    clip: int = 0
-    """Which climbing sequence (0-2)."""
-    quiet: bool = False
-    """No progress bars; print only the report."""
-
-    def validate(self) -> None:
-        """Check ``--clip`` before anything is fetched (its upper end: the fetched clips)."""
-        if self.clip < 0:
-            raise InputError(f"--clip {self.clip}: must be a sequence number >= 0")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -404,23 +384,6 @@ def _finish_dataset(lines: list[str], summary: DatasetSummary, noun: str) -> Non
 def run_retarget(cmd: RetargetCommand) -> None:
     """Run ``humimic retarget``."""
     retarget_clips(cmd)
-
-
-def run_demo(cmd: DemoCommand) -> None:
-    """Run ``humimic demo``: fetch a climbing clip, retarget it, print the full report."""
-    from humimic.datasets import climb_clip_paths, find_climb_data
-
-    root = find_climb_data(quiet=cmd.quiet)
-    clips = climb_clip_paths(root)
-    if not 0 <= cmd.clip < len(clips):
-        raise InputError(f"--clip {cmd.clip}: choose 0 to {len(clips) - 1}")
-    clip = clips[cmd.clip]
-    out = cmd.out / f"{clip.stem}_{cmd.robot}.npz"
-    report = out.with_suffix(".json")
-    (r,) = retarget_clips(
-        RetargetCommand(inputs=(clip,), robot=cmd.robot, out=out, report=report, quiet=cmd.quiet)
-    )
-    print(json.dumps(r, indent=2, allow_nan=False))
 
 
 def run_refine(cmd: RefineCommand) -> None:

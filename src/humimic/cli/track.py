@@ -3,9 +3,13 @@ settings are :mod:`humimic.configs.runs`)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from humimic.configs.jobs import EvalSettings, ExportSettings, ImitateSettings, LoopSettings
+from humimic.configs.jobs import (
+    DemoSettings,
+    EvalSettings,
+    ExportSettings,
+    ImitateSettings,
+    LoopSettings,
+)
 from humimic.configs.runs import (
     DistillSettings,
     TrainSettings,
@@ -65,7 +69,7 @@ def run_eval(cmd: EvalSettings) -> None:
     if "protocols" in result:
         print_protocols(result["protocols"])
     if cmd.out is not None:
-        print(f"wrote {cmd.out}")
+        print(f"wrote {cmd.out} and {result['failures_png']} (where episodes fail)")
     if "mcap" in result:
         print(f"wrote {result['mcap']} (humimic view {result['mcap']})")
 
@@ -102,18 +106,33 @@ def run_export(cmd: ExportSettings) -> None:
 
 
 def run_imitate(cmd: ImitateSettings) -> None:
-    """Run ``humimic imitate``; the rollout's screenshot comes from ``humimic view``."""
+    """Run ``humimic imitate``; the rollout's pictures come from MuJoCo's renderer
+    (:mod:`humimic.viewer.film`)."""
     from humimic.pipeline.imitate import imitate
+    from humimic.viewer.film import render_eval_film
 
-    def screenshot(motion: Path, rollout: Path, png: Path) -> None:
-        from humimic.cli.view import ViewCommand, run_view
-
-        run_view(ViewCommand(motion=motion, rollout=rollout, screenshot=png, port=0))
-
-    r = imitate(cmd, screenshot=screenshot if cmd.screenshot else None)
+    r = imitate(cmd, screenshot=render_eval_film if cmd.screenshot else None)
     dr = r["eval"]["dr_default"]["policy"]
     print(f"DR default: success {100 * dr['success_rate']:.0f}%, global MPJPE "
           f"{dr['mpjpe_global_mm']:.0f} mm, root-relative {dr['mpjpe_root_mm']:.0f} mm")  # fmt: skip
+
+
+def run_demo(cmd: DemoSettings) -> None:
+    """Run ``humimic demo``: ``humimic imitate`` on the CMU walk (fetched once) or
+    ``--clip``, then the report's path and a one-line verdict."""
+    import time
+    from pathlib import Path
+
+    from humimic.datasets import fetch_cmu_clip
+    from humimic.pipeline.imitate import imitate, verdict
+    from humimic.viewer.film import render_eval_film
+
+    cmd.validate()
+    out = cmd.out or Path("out") / "demo" / time.strftime("%Y%m%d-%H%M%S")
+    clip = cmd.clip or fetch_cmu_clip(quiet=cmd.quiet)
+    r = imitate(cmd.imitate_settings(clip, out), screenshot=render_eval_film)
+    print(f"report: {out / 'report.md'}")
+    print(verdict(r))
 
 
 def run_loop(cmd: LoopSettings) -> None:

@@ -129,13 +129,16 @@ class LoopSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class ImitateSettings:
-    """The whole job on one clip: retarget it, train a tracking policy (refining the motion
-    first where the recipe needs it), evaluate it on nominal, randomized and unseen physics,
-    export it to ONNX, and write ``OUT/report.md``."""
+    """The whole job on one clip or a folder of them: retarget, train one tracking policy
+    (refining the motions first where the recipe needs it), evaluate it on nominal,
+    randomized and unseen physics (clip by clip, and by the field's protocols), export it to
+    ONNX, and write ``OUT/report.md``."""
 
     clip: Annotated[Path, tyro.conf.Positional]
     """The human clip (``.bvh``, ``.npy``, ``.npz`` joint positions), or a robot motion
-    (``.npz`` from ``humimic retarget``) to skip retargeting."""
+    (``.npz`` from ``humimic retarget``) to skip retargeting; or a folder of either (one
+    policy for all its clips; clips that fail to retarget or refine are reported and left
+    out)."""
     robot: RobotName = "g1"
     """Registry name."""
     out: Path
@@ -152,8 +155,9 @@ class ImitateSettings:
     seed: int = 0
     """Seed of training (evaluations use seed 1, as ``humimic eval``)."""
     screenshot: bool = True
-    """Take a screenshot of the rollout in the viewer (needs Chromium; the report says so
-    when it is missing)."""
+    """Render the first randomized episode beside its reference with MuJoCo's renderer
+    (``rollout.png``, a filmstrip; ``rollout.gif``, the whole episode; EGL or OSMesa, no
+    display or GPU needed; the report says why when it cannot)."""
     quiet: bool = False
     """No progress bars."""
 
@@ -165,6 +169,36 @@ class ImitateSettings:
         at_most(self, {"episodes": MAX_NUM_ENVS, "num_envs": MAX_NUM_ENVS})
         check_seed(self.seed)
         check_device(self.device)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DemoSettings:
+    """The product's whole job on a short real clip, in about 10 minutes on a laptop's CPU:
+    fetch a CMU walk (35_01, 3 s; about 270 kB, once), retarget it to the robot, refine it,
+    train a tracking policy, evaluate it (nominal, randomized and unseen robots, and the
+    field's protocols), export it to ONNX and write ``report.md`` with its pictures; ends with
+    the report's path and a one-line verdict (``humimic imitate`` with these settings)."""
+
+    robot: RobotName = "g1"
+    """Registry name."""
+    out: Path | None = None
+    """The job's folder (new or empty; default: ``out/demo/<date>-<time>``)."""
+    minutes: float = 6.0
+    """Wall-time budget of training, refining included (the evaluations, the export and the
+    pictures take about 3 more)."""
+    clip: Path | None = None
+    """A clip of your own instead of the CMU walk (anything ``humimic imitate`` takes)."""
+    quiet: bool = False
+    """No progress bars."""
+
+    def imitate_settings(self, clip: Path, out: Path) -> ImitateSettings:
+        """The ``humimic imitate`` job this demo runs."""
+        return ImitateSettings(clip=clip, robot=self.robot, out=out, minutes=self.minutes,
+                               quiet=self.quiet)  # fmt: skip
+
+    def validate(self) -> None:
+        """Check the numbers; :class:`InputError` names the flag."""
+        self.imitate_settings(Path("clip.bvh"), Path("out")).validate()
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -188,4 +222,4 @@ class ExportSettings:
             raise InputError(f"--out {out}: an ONNX file must end in .onnx")
 
 
-__all__ = ["EvalSettings", "ExportSettings", "ImitateSettings", "LoopSettings"]
+__all__ = ["DemoSettings", "EvalSettings", "ExportSettings", "ImitateSettings", "LoopSettings"]

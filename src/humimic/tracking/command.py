@@ -8,7 +8,8 @@ last frame, so an episode ends at its own clip's end. Each clip is cut into bins
 failure rate is an exponential average of the episodes that failed there, smoothed forward
 within its clip by a kernel (a failure is often caused a little earlier), and start bins are
 drawn in proportion over the whole library, so a clip that fails more is started more often
-(Liao et al., "BeyondMimic", 2025); every bin keeps a floor (``uniform_ratio``).
+(Liao et al., "BeyondMimic", 2025); every bin keeps a floor (``uniform_ratio``). A library's
+clip weights (``{file: a.npz, weight: 2}``) multiply its bins' and frames' probabilities.
 """
 
 from __future__ import annotations
@@ -106,11 +107,17 @@ class MotionCommand:
         """The widths of the fields in :attr:`packed`: joint positions and velocities, tracked
         bodies' positions, orientations, linear and angular velocities (world frame)."""
         self._root_m = root_m
+        weights = np.array([float((c.info or {}).get("library_weight", 1.0)) for c in clips])
+        self.clip_weight = weights
+        """Each clip's sampling weight (a library's, :func:`~humimic.tracking.task.
+        library_entries`): its frames are that much more likely to start an episode."""
+        self._weighted = bool(np.any(weights != 1.0))
         self._make_bins()
         # Start frames without adaptive sampling: any frame but a clip's last.
-        self._startable = torch.as_tensor(
-            np.flatnonzero(np.arange(T) != (starts + lengths - 1)[clip_of]), device=device
-        )
+        startable = np.flatnonzero(np.arange(T) != (starts + lengths - 1)[clip_of])
+        self._startable = torch.as_tensor(startable, device=device)
+        self._startable_w = torch.as_tensor(weights[clip_of[startable]], device=device)
+        self._clip_w = torch.as_tensor(weights, device=device)
 
     def _make_bins(self) -> None:
         """Adaptive sampling's bins: each clip cut into bins of ``bin_s``; every frame's bin,
@@ -129,6 +136,9 @@ class MotionCommand:
             for b0, c, n in zip(first_bin, counts, self.clip_length, strict=True)
         ]
         self._frame_bin = torch.as_tensor(np.concatenate(frame_bin), device=dev)
+        self._bin_weight = torch.as_tensor(
+            np.repeat(self.clip_weight, counts), dtype=torch.float32, device=dev
+        )
         # Each clip's bins followed by kernel_size - 1 copies of its last: one convolution
         # smooths every clip within itself.
         k = ad.kernel_size
@@ -197,15 +207,18 @@ class MotionCommand:
     # ------------------------------------------------------------------ adaptive sampling
 
     def sample_frames(self, n: int, gen: torch.Generator) -> torch.Tensor:
-        """``n`` start frames: the task's fixed start frame (of a clip drawn uniformly, in a
-        library), or drawn by the sampling weights (uniformly over the frames that are not
-        a clip's last without adaptive sampling)."""
+        """``n`` start frames: the task's fixed start frame (of a clip drawn by the clips'
+        weights, in a library), or drawn by the sampling weights (without adaptive sampling,
+        over the frames that are not a clip's last, each by its clip's weight)."""
         dev = self.device
         if self.cfg.start_frame is not None:
             f = torch.full((n,), self.cfg.start_frame, device=dev)
             if len(self.clips) == 1:
                 return f.clamp(max=self.num_frames - 2)
-            c = torch.randint(0, len(self.clips), (n,), generator=gen, device=dev)
+            if self._weighted:
+                c = torch.multinomial(self._clip_w, n, replacement=True, generator=gen)
+            else:
+                c = torch.randint(0, len(self.clips), (n,), generator=gen, device=dev)
             return self._start_t[c] + torch.minimum(f, self._length_t[c] - 2)
         if self.cfg.adaptive.enabled:
             bins = torch.multinomial(self.weights, n, replacement=True, generator=gen)
@@ -216,7 +229,10 @@ class MotionCommand:
             frames = ((local.float() + u) / self._clip_bins[clip] * (length - 1)).long()
             frames = torch.minimum(frames.clamp(min=0), length - 2)
             return frames + self._start_t[clip]
-        i = torch.randint(0, len(self._startable), (n,), generator=gen, device=dev)
+        if self._weighted:
+            i = torch.multinomial(self._startable_w, n, replacement=True, generator=gen)
+        else:
+            i = torch.randint(0, len(self._startable), (n,), generator=gen, device=dev)
         return self._startable[i]
 
     def fold_failures(self, frame: torch.Tensor, failed: torch.Tensor) -> None:
@@ -237,6 +253,8 @@ class MotionCommand:
         padded = p[self._padded]
         out = torch.nn.functional.conv1d(padded.view(1, 1, -1), self._kernel).view(-1)
         out = out[self._smoothed]
+        if self._weighted:
+            out = out * self._bin_weight
         return out / out.sum()
 
     def sampling_entropy(self) -> torch.Tensor:

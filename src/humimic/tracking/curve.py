@@ -101,6 +101,41 @@ def plot_learning_curve(
     plt.close(fig)
 
 
+def plot_failures(
+    clips: dict[str, tuple[int, list[int], int]], step_dt: float, path: Path, title: str
+) -> None:
+    """A PNG of where in each clip the policy's episodes fail: per clip (name -> its frames,
+    the steps each failed episode lived, its episodes), the share of episodes still tracking
+    against the time into the clip [s], a tick at each failure, the clip's end marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    for name, (frames, fails, episodes) in clips.items():
+        end = (frames - 1) * step_dt
+        times = [0.0] + [s * step_dt for s in fails] + [end]
+        alive = [100.0] + [100.0 * (1 - (i + 1) / episodes) for i in range(len(fails))]
+        alive.append(alive[-1])
+        (line,) = ax.step(times, alive, where="post",
+                          label=f"{name}: {len(fails)} of {episodes} fail")  # fmt: skip
+        ax.plot([s * step_dt for s in fails], [-3.0] * len(fails), "|",
+                color=line.get_color(), markersize=8)  # fmt: skip
+        ax.plot([end], [alive[-1]], "o", color=line.get_color())
+    ax.set_xlabel("time into the clip [s] (dot: the clip's end)")
+    ax.set_ylabel("episodes still tracking [%]")
+    ax.set_ylim(-6, 103)
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title(title)
+    fig.tight_layout()
+    from humimic.io import atomic_write
+
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", dpi=90)
+    plt.close(fig)
+
+
 def curve_summary(
     evals: list[dict[str, float]], progress: list[dict[str, float]]
 ) -> dict[str, Any]:
@@ -120,4 +155,10 @@ def curve_summary(
     }
 
 
-__all__ = ["curve_summary", "evaluation_curve", "plot_learning_curve", "progress_rows"]
+__all__ = [
+    "curve_summary",
+    "evaluation_curve",
+    "plot_failures",
+    "plot_learning_curve",
+    "progress_rows",
+]

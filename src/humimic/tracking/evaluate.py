@@ -22,6 +22,7 @@ from humimic.motion import Motion
 from humimic.sim.randomization import param_layout
 from humimic.tracking.actions import stored_targets
 from humimic.tracking.config import AdaptiveSampling, ResetNoise
+from humimic.tracking.curve import plot_failures
 from humimic.tracking.protocols import ClipTrace, judge, play_clip, summarize
 
 
@@ -60,7 +61,9 @@ def _episodes(
     * global MPJPE: tracked bodies' world positions against the reference [mm];
     * root-relative MPJPE: the same after subtracting each side's root position [mm];
     * joint error: mean absolute joint position error [rad];
-    * per-body global errors [mm].
+    * per-body global errors [mm];
+    * ``fail_steps``: the steps each failed episode lived, sorted (where in the clip they
+      fell).
     """
     s, dev = env.state, env.device
     n = env.num_envs
@@ -107,9 +110,11 @@ def _episodes(
     if record is not None:
         record["physics_e"] = e0[k].cpu().numpy()
         record["failed"] = failed[k].cpu().numpy()
+    fail_steps = steps[k][failed[k]].long().sort().values.tolist()
     return {
         "episodes": int(k.sum()),
         "success_rate": float((~failed[k]).float().mean()),
+        "fail_steps": fail_steps,
         "mean_steps": float(steps[k].mean()),
         "mpjpe_global_mm": float((glob[k] / st).mean() * 1e3),
         "mpjpe_root_mm": float((root[k] / st).mean() * 1e3),
@@ -158,7 +163,9 @@ def eval_inputs(s: EvalSettings) -> dict[str, Any]:
 
 
 def evaluate(settings: EvalSettings) -> dict:
-    """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked.
+    """Evaluate a run's policy and the open-loop baseline; write JSON and MCAP if asked, and
+    beside the JSON a picture of where in each clip the policy's episodes fail
+    (``<out>_failures.png``, :func:`~humimic.tracking.curve.plot_failures`).
 
     ``--physics FILE`` evaluates on a fixed robot (a physics file, :mod:`humimic.sim.physics`):
     a "real" robot that training never saw. The first episode of both is written as MCAP with
@@ -178,25 +185,38 @@ def evaluate(settings: EvalSettings) -> dict:
         check_not_input(s.out, inputs, "--out")
         flag = "--mcap" if s.mcap is not None else "--mcap (from --out)"
         check_not_input(mcap, {**inputs, "--out": s.out}, flag)
-    if s.out is not None:
+    png = None if s.out is None else s.out.with_name(f"{s.out.stem}_failures.png")
+    if s.out is not None and png is not None:
         check_writable(s.out)
+        others = {"--out": s.out} if mcap is None else {"--out": s.out, "--mcap": mcap}
+        check_not_input(png, {**eval_inputs(s), **others}, "--out's picture")
+        check_writable(png)
     if mcap is not None:
         check_writable(mcap)
     clips = library_clips(s)
     if clips is not None:
-        results = _evaluate_library(s, clips, mcap)
-        if s.out is not None:
-            atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
-        return results
-    ev = run_evaluation(s)
-    results = ev.results
-    if mcap is not None:
-        write_eval_mcap(mcap, ev.motion, ev.joint_names, ev.step_dt, ev.policy, ev.open_loop,
-                        results)  # fmt: skip
-        results["mcap"] = str(mcap)
-    if s.out is not None:
+        results, _ = evaluate_library(s, clips, mcap)
+    else:
+        ev = run_evaluation(s)
+        results = ev.results
+        if mcap is not None:
+            write_eval_mcap(mcap, ev.motion, ev.joint_names, ev.step_dt, ev.policy,
+                            ev.open_loop, results)  # fmt: skip
+            results["mcap"] = str(mcap)
+    if s.out is not None and png is not None:
+        plot_failures(failure_table(results), results["step_dt"], png,
+                      f"{Path(results['run']).name}: DR {results['dr']}")  # fmt: skip
+        results["failures_png"] = str(png)
         atomic_write_text(s.out, json.dumps(json_ready(results), indent=2) + "\n")
     return results
+
+
+def failure_table(results: dict[str, Any]) -> dict[str, tuple[int, list[int], int]]:
+    """Clip -> (its frames, the steps its failed policy episodes lived, its episodes) of an
+    evaluation's results (one clip or a library)."""
+    clips = results.get("clips") or {Path(results["motion"]).name: results}
+    return {name: (c["frames"], c["policy"]["fail_steps"], c["policy"]["episodes"])
+            for name, c in clips.items()}  # fmt: skip
 
 
 def run_evaluation(
@@ -228,7 +248,7 @@ def run_evaluation(
     results: dict[str, Any] = {"run": str(s.run), "checkpoint": str(path),
                                "iterations": int(blob["iter"]), "dr": s.dr,
                                "motion": str(motion_path), "frames": motion.num_frames,
-                               "start_noise": s.start_noise}  # fmt: skip
+                               "step_dt": task.step_dt, "start_noise": s.start_noise}  # fmt: skip
     if task.physics is not None:
         results["physics"] = {"name": task.physics.name, **task.physics.as_dict()}
 
@@ -286,11 +306,14 @@ def library_clips(s: EvalSettings) -> list[Path] | None:
     return library_files(recorded_motion(s.run) if s.motion is None else path)
 
 
-def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> dict[str, Any]:
-    """Every clip of a library evaluated as one clip is (``--episodes`` each, the same seed),
-    with each clip's MCAP beside ``mcap`` (``<stem>_<clip>.mcap``). Returns the run's fields,
-    ``clips`` (name -> its frames and metrics) and ``policy`` and ``open_loop`` as the mean
-    over the clips of each metric."""
+def evaluate_library(
+    s: EvalSettings, clips: list[Path], mcap: Path | None = None, *, protocols: bool = True
+) -> tuple[dict[str, Any], list[Evaluation]]:
+    """Every clip of a library evaluated as one clip is (``--episodes`` each, the same seed;
+    the field's protocols if ``protocols``), with each clip's MCAP beside ``mcap``
+    (``<stem>_<clip>.mcap``). Returns the results (the run's fields, ``clips``: name -> its
+    frames and metrics, ``policy`` and ``open_loop``: the mean over the clips of each metric,
+    ``protocols``: per clip and in total) and each clip's :class:`Evaluation`."""
     mcaps = [None if mcap is None else mcap.with_name(f"{mcap.stem}_{f.stem}.mcap")
              for f in clips]  # fmt: skip
     inputs = eval_inputs(s)
@@ -299,7 +322,7 @@ def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> 
             check_not_input(path, inputs, "--mcap")
             check_writable(path)
     # Every clip evaluated before anything is written: a clip that fails leaves no file.
-    evs = [run_evaluation(replace(s, motion=f)) for f in clips]
+    evs = [run_evaluation(replace(s, motion=f), protocols=protocols) for f in clips]
     per_clip: dict[str, dict[str, Any]] = {}
     for f, ev, path in zip(clips, evs, mcaps, strict=True):
         r = ev.results
@@ -311,8 +334,8 @@ def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> 
         per_clip[f.name] = entry
     first = evs[0].results
     motion = s.motion if s.motion is not None else first["motion"]
-    out = {k: first[k] for k in ("run", "checkpoint", "iterations", "dr", "start_noise",
-                                 "physics") if k in first}  # fmt: skip
+    out = {k: first[k] for k in ("run", "checkpoint", "iterations", "dr", "step_dt",
+                                 "start_noise", "physics") if k in first}  # fmt: skip
     out |= {"motion": str(motion), "clips": per_clip}
     for group in ("policy", "open_loop"):
         out[group] = _mean_over_clips([c[group] for c in per_clip.values()])
@@ -321,7 +344,7 @@ def _evaluate_library(s: EvalSettings, clips: list[Path], mcap: Path | None) -> 
             f.name: {p: ev.results["protocols"][p]["per_clip"][f.name] for p in ("beyondmimic", "phc")}
             for f, ev in zip(clips, evs, strict=True)
         })  # fmt: skip
-    return out
+    return out, evs
 
 
 def _mean_over_clips(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -433,4 +456,12 @@ def write_eval_mcap(
                     schema="humimic.Qpos")  # fmt: skip
 
 
-__all__ = ["Evaluation", "evaluate", "run_evaluation", "write_eval_mcap"]
+__all__ = [
+    "Evaluation",
+    "evaluate",
+    "evaluate_library",
+    "failure_table",
+    "library_clips",
+    "run_evaluation",
+    "write_eval_mcap",
+]

@@ -391,14 +391,17 @@ def file_sha256(path: Path) -> str:
 
 def motion_sha256(path: Path) -> str:
     """The SHA-256 of a motion file's bytes; for a library (a folder or a ``.yaml`` list,
-    :func:`~humimic.tracking.task.library_files`), of its clips' names and SHA-256s in order."""
-    from humimic.tracking.task import is_library, library_files
+    :func:`~humimic.tracking.task.library_entries`), of its clips' names, SHA-256s and weights
+    other than 1, in order."""
+    from humimic.tracking.task import is_library, library_entries
 
     if not is_library(path):
         return file_sha256(path)
     h = hashlib.sha256()
-    for f in library_files(path):
+    for f, w in library_entries(path):
         h.update(f"{f.name}\n{file_sha256(f)}\n".encode())
+        if w != 1.0:  # A library without weights hashes as before weights existed.
+            h.update(f"weight {w!r}\n".encode())
     return h.hexdigest()
 
 

@@ -140,12 +140,24 @@ def is_library(path: Path) -> bool:
 
 def library_files(path: Path) -> list[Path]:
     """The clip files ``--motion`` names: the file itself; a folder's ``.npz`` files (sorted
-    by name, not its subfolders); or the files a ``.yaml`` list names (a list of paths,
-    relative to the list's folder).
+    by name, not its subfolders); or the files a ``.yaml`` list names (:func:`library_entries`).
 
     Raises:
-        InputError: A missing path, an empty folder, a list that is not a list of paths or
-            names a missing file (naming it).
+        InputError: A missing path, an empty folder, a bad list (naming what is wrong).
+    """
+    return [f for f, _ in library_entries(path)]
+
+
+def library_entries(path: Path) -> list[tuple[Path, float]]:
+    """The clip files ``--motion`` names, each with its sampling weight: 1 for a file or a
+    folder's clips; a ``.yaml`` list names files (paths relative to the list's folder), each
+    an entry ``- a.npz`` (weight 1) or ``- {file: a.npz, weight: 2}``: every frame of a clip
+    of weight 2 is twice as likely to start an episode as it would be.
+
+    Raises:
+        InputError: A missing path, an empty folder, a list that is not a list of entries,
+            a weight that is not a positive number, a listed file that does not exist or is
+            listed twice (naming it).
     """
     if not path.exists():
         raise InputError(f"--motion {path}: no such file or folder")
@@ -153,32 +165,57 @@ def library_files(path: Path) -> list[Path]:
         files = sorted(p for p in path.glob("*.npz") if p.is_file())
         if not files:
             raise InputError(f"--motion {path}: the folder holds no .npz motion")
-        return files
+        return [(f, 1.0) for f in files]
     if not is_library(path):
-        return [path]
+        return [(path, 1.0)]
     from humimic.io import read_yaml
 
     data = read_yaml(path)
-    if not isinstance(data, list) or not data or not all(isinstance(x, str) for x in data):
+    if not isinstance(data, list) or not data:
         raise InputError(f"{path}: expected a list of motion files (.npz), one per line")
-    files = [(path.parent / x) for x in data]
-    missing = [f for f in files if not f.is_file()]
+    entries = []
+    for item in data:
+        if isinstance(item, str):
+            name, weight = item, 1.0
+        elif (
+            isinstance(item, dict)
+            and isinstance(item.get("file"), str)
+            and set(item) <= {"file", "weight"}
+        ):
+            name, weight = item["file"], item.get("weight", 1.0)
+        else:
+            raise InputError(f"{path}: {item!r}: an entry is a file name or "
+                             "{file: NAME, weight: W}")  # fmt: skip
+        if (
+            isinstance(weight, bool)
+            or not isinstance(weight, int | float)
+            or not (math.isfinite(weight) and weight > 0)
+        ):
+            raise InputError(f"{path}: {name}: weight {weight!r} must be a positive number")
+        entries.append((path.parent / name, float(weight)))
+    missing = [f for f, _ in entries if not f.is_file()]
     if missing:
         raise InputError(f"{path}: lists {missing[0]}, which does not exist")
-    if len(set(f.resolve() for f in files)) != len(files):
+    if len({f.resolve() for f, _ in entries}) != len(entries):
         raise InputError(f"{path}: lists a file twice")
-    return files
+    return entries
 
 
 def load_references(path: Path, robot: str, fps: float) -> list[Motion]:
-    """Every clip ``--motion`` names (:func:`library_files`), each at the policy rate
-    (:func:`load_reference`)."""
-    return [load_reference(f, robot, fps) for f in library_files(path)]
+    """Every clip ``--motion`` names (:func:`library_entries`), each at the policy rate
+    (:func:`load_reference`); a clip of weight other than 1 carries it in
+    ``info["library_weight"]`` (:class:`~humimic.tracking.command.MotionCommand` reads it)."""
+    out = []
+    for f, w in library_entries(path):
+        m = load_reference(f, robot, fps)
+        out.append(m if w == 1.0 else replace(m, info={**(m.info or {}), "library_weight": w}))
+    return out
 
 
 __all__ = [
     "apply_task_settings",
     "is_library",
+    "library_entries",
     "library_files",
     "load_reference",
     "load_references",
