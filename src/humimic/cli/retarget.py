@@ -394,7 +394,8 @@ def run_refine(cmd: RefineCommand) -> None:
 
     cmd.validate()
     if cmd.motion.is_dir():
-        from humimic.pipeline.dataset import REFINE_HEADLINE, run_refine_dataset, summary_lines
+        from humimic.pipeline.dataset import summary_lines
+        from humimic.pipeline.refining import REFINE_HEADLINE, run_refine_dataset
 
         if cmd.report is not None:
             raise InputError("--report names one file: with a folder the reports go in --out")

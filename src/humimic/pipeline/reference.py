@@ -90,7 +90,7 @@ def _refine_library(
 ) -> TrainSettings:
     """A library on a stored base: its clips without stored controls refined (at the policy
     rate ``fps``) into ``RUN/reference/`` on worker processes, one per core, each only once
-    for the same bytes (the folder's manifest, :func:`~humimic.pipeline.dataset.refine_motions`);
+    for the same bytes (the folder's manifest, :func:`~humimic.pipeline.refining.refine_motions`);
     ``s`` with the library ``RUN/reference/library.yaml`` that lists the refined clips and
     the clips refined already. A clip that fails to refine is reported and left out.
 
@@ -99,11 +99,10 @@ def _refine_library(
             clips of one name, every clip failing, refining where ``may_refine`` is false, or
             a resumed run whose library changed since it was refined.
     """
-    from humimic.io import atomic_write_text
     from humimic.motion import load_motion
-    from humimic.pipeline.dataset import MANIFEST_NAME, Manifest, file_sha256, refine_motions
+    from humimic.pipeline.refining import refine_motions
     from humimic.tracking.actions import has_stored_controls
-    from humimic.tracking.task import library_entries, library_files
+    from humimic.tracking.task import library_files
 
     folder = s.out / REFERENCE_LIBRARY
     listing = folder / LIBRARY_LIST
@@ -130,15 +129,7 @@ def _refine_library(
     if twice is not None:
         raise InputError(f"--motion {s.motion}: two clips are named {twice!r}; rename one")
     if (s.out / "config.yaml").exists():
-        # A resume: its clips as refined before, or refused before refining anything.
-        done = Manifest(folder / MANIFEST_NAME).last
-        changed = [f for f in bare
-                   if (r := done.get(f.stem)) is None or r.get("sha256") != file_sha256(f)]  # fmt: skip
-        if changed:
-            raise InputError(
-                f"--out {s.out}: its run was not trained on a refinement of {changed[0]} (new "
-                "or changed since); pass the run's own motion or start a new run"
-            )
+        _check_resumed_library(s, folder, bare)
     created = not s.out.exists()
     try:
         summary = refine_motions([(f, Path(f.stem)) for f in bare], folder, DynamicsConfig(),
@@ -161,7 +152,35 @@ def _refine_library(
               f"before); outcomes in {summary.manifest}")  # fmt: skip
     for name, error in failed.items():
         print(f"left out of the run: {name} (refining failed: {error})")
+    _write_listing(s, listing, bare, kept)
+    return replace(s, motion=listing)
+
+
+def _check_resumed_library(s: TrainSettings, folder: Path, bare: list[Path]) -> None:
+    """A resumed library run: its clips as refined before, or refused before refining.
+
+    Raises:
+        InputError: A clip to refine that the run's manifest does not hold as it is now.
+    """
+    from humimic.pipeline.dataset import MANIFEST_NAME, Manifest, file_sha256
+
+    done = Manifest(folder / MANIFEST_NAME).last
+    changed = [f for f in bare
+               if (r := done.get(f.stem)) is None or r.get("sha256") != file_sha256(f)]  # fmt: skip
+    if changed:
+        raise InputError(
+            f"--out {s.out}: its run was not trained on a refinement of {changed[0]} (new "
+            "or changed since); pass the run's own motion or start a new run"
+        )
+
+
+def _write_listing(s: TrainSettings, listing: Path, bare: list[Path], kept: list[Path]) -> None:
+    """The library a run trains on: its refined clips (beside the listing) and the clips that
+    had stored controls (by absolute path), each with its weight in ``s.motion``."""
     import yaml
+
+    from humimic.io import atomic_write_text
+    from humimic.tracking.task import library_entries
 
     weight = dict(library_entries(s.motion))
     entries: list[Any] = []
@@ -169,7 +188,6 @@ def _refine_library(
         name = f"{f.stem}.npz" if f in bare else str(f.resolve())
         entries.append(name if weight[f] == 1.0 else {"file": name, "weight": weight[f]})
     atomic_write_text(listing, yaml.safe_dump(entries, sort_keys=False))
-    return replace(s, motion=listing)
 
 
 def _refine(motion: Any, *, quiet: bool, name: str) -> Any:

@@ -287,6 +287,9 @@ def _play_protocols(
     task, motion, _ = _eval_task(replace(s, dr="none", start_noise=False), recorded)
     task = replace(task, terminations={k: v for k, v in task.terminations.items() if v.time_out})
     env = TrackingEnv(task, motion, 1, device=s.device)
+    reset = getattr(policy, "reset", None)
+    if callable(reset):
+        reset()  # A recurrent policy's state, sized for the evaluation's envs, starts anew.
     try:
         return play_clip(env, policy)
     finally:
