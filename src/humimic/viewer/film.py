@@ -64,8 +64,9 @@ def film(
     """Render ``rollout`` (Shape: (K, nq)) beside ``reference`` (Shape: (T, nq), K <= T, at
     ``fps``) on the robot's nominal model: a filmstrip of ``key_frames`` frames spread over
     the rollout (``png``) and, if ``gif``, a video at ``gif_fps``. Each view follows the
-    robot's root; the error written on a frame is the mean distance between the rollout's
-    and the reference's bodies [mm] (red above 100 mm)."""
+    robot's root, so a drift of the whole robot shows only in the error written on the frame:
+    the mean distance between the rollout's and the reference's bodies in the world [mm] (red
+    above 100 mm)."""
     import mujoco
     from PIL import Image, ImageDraw
 
@@ -100,7 +101,7 @@ def film(
         img.paste(a, (0, 22))
         img.paste(b, (WIDTH, 22))
         d = ImageDraw.Draw(img)
-        d.text((6, 5), f"rollout, t = {i / fps:.2f} s, error {body_err[i]:.0f} mm",
+        d.text((6, 5), f"rollout, t = {i / fps:.2f} s, global error {body_err[i]:.0f} mm",
                fill=(160, 0, 0) if body_err[i] > 100.0 else "black")  # fmt: skip
         d.text((WIDTH + 6, 5), f"reference, t = {i / fps:.2f} s", fill="black")
         return img
