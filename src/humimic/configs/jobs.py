@@ -173,7 +173,7 @@ class ImitateSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class DemoSettings:
-    """The product's whole job on a short real clip, in about 10 minutes on a laptop's CPU:
+    """The product's whole job on a short real clip, in about 7 minutes on a 2-core CPU:
     fetch a CMU walk (35_01, 3 s; about 270 kB, once), retarget it to the robot, refine it,
     train a tracking policy, evaluate it (nominal, randomized and unseen robots, and the
     field's protocols), export it to ONNX and write ``report.md`` with its pictures; ends with
