@@ -394,14 +394,17 @@ def run_refine(cmd: RefineCommand) -> None:
 
     cmd.validate()
     if cmd.motion.is_dir():
-        from humimic.pipeline.dataset import summary_lines
-        from humimic.pipeline.refining import REFINE_HEADLINE, run_refine_dataset
+        from humimic.pipeline.dataset import motion_files, summary_lines
+        from humimic.pipeline.refining import REFINE_HEADLINE, refine_motions
 
         if cmd.report is not None:
             raise InputError("--report names one file: with a folder the reports go in --out")
-        summary = run_refine_dataset(cmd.motion, cmd.out, cmd.dyn, robustness=cmd.robustness,
-                                     backend=cmd.backend, device=cmd.device,
-                                     workers=cmd.workers, ray=cmd.ray, quiet=cmd.quiet)  # fmt: skip
+        if cmd.out.suffix:
+            raise InputError(f"{cmd.out}: with a folder --out must be a folder")
+        summary = refine_motions(motion_files(cmd.motion, cmd.out), cmd.out, cmd.dyn,
+                                 robustness=cmd.robustness, backend=cmd.backend,
+                                 device=cmd.device, workers=cmd.workers, ray=cmd.ray,
+                                 quiet=cmd.quiet)  # fmt: skip
         lines = summary_lines(summary, REFINE_HEADLINE, ("dynamics_mpjpe_mm",),
                               done="motions refined")  # fmt: skip
         _finish_dataset(lines, summary, "motions")

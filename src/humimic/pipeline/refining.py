@@ -9,12 +9,10 @@ from pathlib import Path
 from typing import Any
 
 from humimic.configs import DynamicsConfig
-from humimic.errors import InputError
 from humimic.pipeline.batch import output_paths
 from humimic.pipeline.dataset import (
     DatasetSummary,
     DatasetTask,
-    motion_files,
     plan_tasks,
     run_tasks,
     settings_digest,
@@ -58,29 +56,6 @@ def refine_task(
     return task_outcome(work)
 
 
-def run_refine_dataset(
-    folder: Path,
-    out: Path,
-    dyn: DynamicsConfig,
-    *,
-    robustness: int,
-    backend: str = "cpu",
-    device: str = "cpu",
-    workers: int | None = None,
-    ray: str | None = None,
-    quiet: bool = False,
-) -> DatasetSummary:
-    """``humimic refine FOLDER --out OUT``: every robot motion under the folder refined, with
-    the manifest, resume and failure isolation of :func:`run_dataset`."""
-    t0 = time.perf_counter()
-    dyn.validate()
-    if out.suffix:
-        raise InputError(f"{out}: with a folder --out must be a folder")
-    files = motion_files(folder, out)
-    return refine_motions(files, out, dyn, robustness=robustness, backend=backend,
-                          device=device, workers=workers, ray=ray, quiet=quiet, t0=t0)  # fmt: skip
-
-
 def refine_motions(
     files: list[tuple[Path, Path]],
     out: Path,
@@ -95,10 +70,11 @@ def refine_motions(
     fps: float | None = None,
     t0: float | None = None,
 ) -> DatasetSummary:
-    """Refine robot motions (each with its output name under ``out``) with the manifest,
-    resume and failure isolation of :func:`run_dataset`: a motion refined before from the same
-    bytes with the same settings (``fps`` included: each motion resampled to it first) is not
-    refined again."""
+    """Refine robot motions (each with its output name under ``out``; ``humimic refine
+    FOLDER --out OUT`` passes :func:`~humimic.pipeline.dataset.motion_files`) with the
+    manifest, resume and failure isolation of :func:`~humimic.pipeline.dataset.run_dataset`:
+    a motion refined before from the same bytes with the same settings (``fps`` included: each
+    motion resampled to it first) is not refined again."""
     t0 = time.perf_counter() if t0 is None else t0
     outs = output_paths(tuple(f for f, _ in files), files, out, None, {}, folder=True)
     digest = settings_digest({"dyn": dyn, "robustness": robustness, "backend": backend,
@@ -110,4 +86,4 @@ def refine_motions(
                      quiet=quiet, t0=t0)  # fmt: skip
 
 
-__all__ = ["REFINE_HEADLINE", "refine_motions", "refine_task", "run_refine_dataset"]
+__all__ = ["REFINE_HEADLINE", "refine_motions", "refine_task"]
