@@ -180,8 +180,8 @@ def evaluate(settings: EvalSettings) -> dict:
     mcap = s.mcap if s.mcap is not None else (s.out.with_suffix(".mcap") if s.out else None)
     if mcap is not None and mcap.suffix != ".mcap":
         raise InputError(f"--mcap {mcap}: the file must end in .mcap")
-    if s.out is not None or mcap is not None:
-        inputs = eval_inputs(s)
+    inputs = eval_inputs(s) if s.out is not None or mcap is not None else {}
+    if inputs:
         check_not_input(s.out, inputs, "--out")
         flag = "--mcap" if s.mcap is not None else "--mcap (from --out)"
         check_not_input(mcap, {**inputs, "--out": s.out}, flag)
@@ -189,7 +189,7 @@ def evaluate(settings: EvalSettings) -> dict:
     if s.out is not None and png is not None:
         check_writable(s.out)
         others = {"--out": s.out} if mcap is None else {"--out": s.out, "--mcap": mcap}
-        check_not_input(png, {**eval_inputs(s), **others}, "--out's picture")
+        check_not_input(png, {**inputs, **others}, "--out's picture")
         check_writable(png)
     if mcap is not None:
         check_writable(mcap)
@@ -269,7 +269,7 @@ def run_evaluation(
     if open_loop:
         env = TrackingEnv(task, motion, n, device=s.device)
         results |= _open_loop(env, motion, s.episodes, open_trace)
-    played = _play_protocols(s, recorded, policy) if protocols else None
+    played = _play_protocols(s, recorded, policy, (motion, motion_path)) if protocols else None
     if played is not None:
         results["protocols"] = summarize({motion_path.name: judge(played)})
     return Evaluation(results, policy_traces[0], open_trace, joint_names, motion, task.step_dt,
@@ -277,14 +277,15 @@ def run_evaluation(
 
 
 def _play_protocols(
-    s: EvalSettings, recorded: tuple[dict[str, Any], Any], policy: Any
-) -> ClipTrace:
-    """One deterministic play of the clip on the nominal robot (or the physics file), no DR,
-    no start noise, no failure terminations: what the protocols of :mod:`.protocols`
-    judge."""
+    s: EvalSettings, recorded: tuple[dict[str, Any], Any], policy: Any,
+    loaded: tuple[Motion, Path],
+) -> ClipTrace:  # fmt: skip
+    """One deterministic play of the clip (``loaded``: the evaluation's reference and its file)
+    on the nominal robot (or the physics file), no DR, no start noise, no failure terminations:
+    what the protocols of :mod:`.protocols` judge."""
     from humimic.tracking.env import TrackingEnv
 
-    task, motion, _ = _eval_task(replace(s, dr="none", start_noise=False), recorded)
+    task, motion, _ = _eval_task(replace(s, dr="none", start_noise=False), recorded, loaded)
     task = replace(task, terminations={k: v for k, v in task.terminations.items() if v.time_out})
     env = TrackingEnv(task, motion, 1, device=s.device)
     reset = getattr(policy, "reset", None)
@@ -364,22 +365,29 @@ def _mean_over_clips(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _eval_task(s: EvalSettings, recorded: tuple[dict[str, Any], Any]) -> tuple[Any, Motion, Path]:
+def _eval_task(
+    s: EvalSettings, recorded: tuple[dict[str, Any], Any],
+    loaded: tuple[Motion, Path] | None = None,
+) -> tuple[Any, Motion, Path]:  # fmt: skip
     """The task an evaluation runs (the run's, under the chosen DR and physics, every episode
     from the clip's first frame, with the training's reset noise only for ``--start-noise``,
-    no adaptive sampling, long enough for the whole clip), the reference and its file."""
+    no adaptive sampling, long enough for the whole clip), the reference and its file
+    (``loaded`` when the caller has read them already, else read and checked here)."""
     from humimic.tracking.runs import recorded_motion
     from humimic.tracking.task import load_reference, task_config
 
     run = recorded[1]
     base = task_config(run.robot, s.dr, s.seed, s.physics, run.task)
-    if s.motion is None:
-        motion_path = recorded_motion(s.run, recorded)  # There, unchanged since the run began.
-    elif not s.motion.is_file():
-        raise InputError(f"--motion {s.motion}: no such file")
+    if loaded is not None:
+        motion, motion_path = loaded
     else:
-        motion_path = s.motion
-    motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
+        if s.motion is None:
+            motion_path = recorded_motion(s.run, recorded)  # There, unchanged since then.
+        elif not s.motion.is_file():
+            raise InputError(f"--motion {s.motion}: no such file")
+        else:
+            motion_path = s.motion
+        motion = load_reference(motion_path, run.robot, 1.0 / base.step_dt)
     task = replace(
         base,
         start_frame=0,
